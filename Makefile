@@ -1,0 +1,32 @@
+# Two commands do everything on a fresh machine:
+#   make run    set up .venv (pinned) and run the main job
+#   make test   set up .venv (pinned) and run the tests
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+
+.PHONY: run test bench lint setup clean
+
+$(STAMP): pyproject.toml constraints.txt
+	test -x $(BIN)/python || $(PY) -m venv $(VENV)
+	$(BIN)/pip install -q -c constraints.txt torch==2.13.0
+	$(BIN)/pip install -q -c constraints.txt -e ".[dev]"
+	touch $(STAMP)
+
+setup: $(STAMP)
+
+test: $(STAMP)
+	$(BIN)/python -m pytest tests
+
+run: $(STAMP)
+	$(BIN)/python -m cotrain.main_job
+
+bench: $(STAMP)
+	$(BIN)/python -m cotrain.bench_all
+
+lint: $(STAMP)
+	$(BIN)/ruff check . && $(BIN)/ruff format --check .
+
+clean:
+	rm -rf $(VENV) runs/tiny

@@ -1,0 +1,458 @@
+"""Online, physically grounded renderer of fisheye calibration images with exact labels.
+
+Per sample: a random fisheye camera (kb4 / ucm / eucm / ds, FoV ~150-250 deg, image circle
+inside or cropped by the frame, principal-point offset, random shape parameters) and a random
+board pose covering the whole field of view (rays beyond 90 degrees, strong tilt, near and far,
+partial views). The image is rendered by inverse mapping: every output pixel is unprojected to a
+ray, intersected with the board plane and the board's appearance is area-filtered over the
+pixel's footprint (so edges are anti-aliased and corners sit exactly on their saddle points),
+then composited over a procedural background with lighting, vignetting, blur, noise, JPEG and
+occluders. Outside the image circle the frame is black.
+
+Sample ``i`` depends only on ``(seed, i)``: parameters are drawn per sample from a generator
+seeded by both, and the pixel work is batched tensor code (no per-pixel Python loops).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import cv2
+import kornia
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from cotrain.geometry import cameras, poses
+from cotrain.targets import Checkerboard, TargetConfig
+
+
+@dataclass
+class RenderConfig:
+    height: int = 216  # output image height, pixels
+    width: int = 384  # output image width, pixels
+    models: list[str] = field(default_factory=lambda: ["kb4", "ucm", "eucm", "ds"])  # camera families drawn
+    model_weights: list[float] = field(default_factory=lambda: [0.4, 0.2, 0.2, 0.2])  # their probabilities
+    fov_range: tuple[float, float] = (150.0, 250.0)  # FoV (deg) drawn uniformly
+    radius_range: tuple[float, float] = (0.8, 1.9)  # image-circle radius / (min(h, w) / 2); >1 is cropped
+    principal_jitter: float = 0.04  # principal-point offset, fraction of min(h, w)
+    aspect_jitter: float = 0.02  # fy / fx - 1 drawn in +-this
+    distance_range: tuple[float, float] = (0.12, 0.9)  # board-centre distance, metres
+    max_tilt_deg: float = 70.0  # board tilt away from facing the camera
+    offaxis_margin_deg: float = 12.0  # board centres drawn up to FoV/2 + this (partial views)
+    supersample: int = 1  # extra supersampling on top of the analytic area filter
+    p_blur: float = 0.5  # probability of defocus blur
+    max_blur_sigma: float = 1.2  # defocus sigma (pixels) upper bound
+    p_motion: float = 0.15  # probability of motion blur
+    noise_range: tuple[float, float] = (0.0, 0.04)  # Gaussian read-noise sigma (intensity units)
+    p_jpeg: float = 0.3  # probability of JPEG compression
+    p_occluder: float = 0.3  # probability of 1-3 occluders in front of the board
+    p_distractor: float = 0.5  # probability of checker-like distractors in the background
+    n_shapes: int = 8  # rectangles and lines in the background
+    min_square_px: float = 3.0  # learnability is 0 below this projected square size (pixels)
+    good_square_px: float = 7.0  # learnability is 1 (size term) above this
+    border_px: float = 2.0  # corners closer than this to the frame or circle edge are not visible
+    target: TargetConfig = field(default_factory=TargetConfig)  # the calibration target
+
+
+@dataclass
+class Scene:
+    """Per-sample parameters of a batch (B samples)."""
+
+    model: list[str]  # camera family per sample
+    params: list[Tensor]  # camera parameters per sample, (P,) float64
+    fov: Tensor  # (B,) degrees
+    radius: Tensor  # (B,) image-circle radius, pixels
+    T_cam_board: Tensor  # (B, 4, 4)
+
+
+def sample_generator(seed: int, index: int) -> torch.Generator:
+    """The generator of sample ``index`` under ``seed`` (independent of batch composition)."""
+    g = torch.Generator()
+    g.manual_seed((seed * 1_000_003 + index * 7_919 + 12_345) % (2**63 - 1))
+    return g
+
+
+def _u(g: torch.Generator, lo: float = 0.0, hi: float = 1.0) -> float:
+    return lo + (hi - lo) * float(torch.rand((), generator=g, dtype=torch.float64))
+
+
+def _sample_camera(cfg: RenderConfig, g: torch.Generator) -> tuple[str, Tensor, float, float]:
+    w = torch.tensor(cfg.model_weights, dtype=torch.float64)
+    model = cfg.models[int(torch.multinomial(w / w.sum(), 1, generator=g))]
+    fov = _u(g, *cfg.fov_range)
+    base = min(cfg.height, cfg.width) / 2.0
+    radius = base * _u(g, *cfg.radius_range)
+    jit = cfg.principal_jitter * min(cfg.height, cfg.width)
+    principal = ((cfg.width - 1) / 2 + _u(g, -jit, jit), (cfg.height - 1) / 2 + _u(g, -jit, jit))
+    params = None
+    for _ in range(8):
+        if model == "kb4":
+            shape = {"k1": _u(g, -0.06, 0.06), "k2": _u(g, -0.015, 0.015), "k3": _u(g, -0.004, 0.004), "k4": _u(g, -0.001, 0.001)}
+        elif model == "ucm":
+            shape = {"xi": _u(g, 0.6, 1.5)}
+        elif model == "eucm":
+            shape = {"alpha": _u(g, 0.45, 0.7), "beta": _u(g, 0.8, 1.3)}
+        else:
+            shape = {"xi": _u(g, -0.3, 0.05), "alpha": _u(g, 0.45, 0.65)}
+        try:
+            params = cameras.make_camera(model, fov, cfg.width, cfg.height, radius, principal, **shape)
+        except ValueError:
+            continue
+        # The whole circle must also unproject (monotonic projection up to the FoV).
+        m = cameras.get_model(model)
+        half = math.radians(fov) / 2
+        th = torch.linspace(0.0, half, 32, dtype=torch.float64)
+        rays = torch.stack([torch.sin(th), torch.zeros_like(th), torch.cos(th)], -1)
+        q, ok = m.project(rays, params)
+        if bool(ok.all()) and bool((q[1:, 0] - q[:-1, 0] > 0).all()):
+            break
+        params = None
+    if params is None:
+        params = cameras.make_camera(model, fov, cfg.width, cfg.height, radius, principal)
+    params = params.clone()
+    params[cameras.get_model(model).index("fy")] *= 1 + _u(g, -cfg.aspect_jitter, cfg.aspect_jitter)
+    return model, params, fov, radius
+
+
+def _sample_pose(cfg: RenderConfig, board: Checkerboard, fov: float, g: torch.Generator) -> Tensor:
+    """T_cam_board: board centre along a random ray (up to FoV/2 + margin off-axis), tilted."""
+    half = min(math.radians(fov / 2 + cfg.offaxis_margin_deg), math.radians(150))
+    theta = half * math.sqrt(_u(g))  # denser towards the edge, where real detectors fail
+    phi = _u(g, 0, 2 * math.pi)
+    d = math.exp(_u(g, math.log(cfg.distance_range[0]), math.log(cfg.distance_range[1])))
+    ray = torch.tensor([math.sin(theta) * math.cos(phi), math.sin(theta) * math.sin(phi), math.cos(theta)], dtype=torch.float64)
+    centre = d * ray
+    # Board facing the camera: its z axis (into the board) along the viewing ray.
+    up = torch.tensor([0.0, -1.0, 0.0], dtype=torch.float64)
+    if abs(float(ray @ up)) > 0.95:
+        up = torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64)
+    R_face = poses.look_at(torch.zeros(3, dtype=torch.float64), ray, up)[:3, :3]  # columns x, y, z
+    tilt = math.radians(cfg.max_tilt_deg) * _u(g) ** 0.7
+    tilt_axis_angle = _u(g, 0, 2 * math.pi)
+    w_tilt = torch.tensor([math.cos(tilt_axis_angle), math.sin(tilt_axis_angle), 0.0], dtype=torch.float64) * tilt
+    w_roll = torch.tensor([0.0, 0.0, _u(g, -math.pi, math.pi)], dtype=torch.float64)
+    R_cam_board = R_face @ poses.rotation_from_axis_angle(w_tilt) @ poses.rotation_from_axis_angle(w_roll)
+    x0, y0, x1, y1 = board.extent()
+    c_board = torch.tensor([(x0 + x1) / 2, (y0 + y1) / 2, 0.0], dtype=torch.float64)
+    # Jitter the centre so the board's centre is not always on the sampled ray.
+    c_board[:2] += torch.tensor([_u(g, -0.3, 0.3) * (x1 - x0), _u(g, -0.3, 0.3) * (y1 - y0)], dtype=torch.float64)
+    t = centre - R_cam_board @ c_board
+    return poses.make_pose(R_cam_board, t)
+
+
+def sample_scene(cfg: RenderConfig, board: Checkerboard, gens: list[torch.Generator]) -> Scene:
+    models, params, fovs, radii, Ts = [], [], [], [], []
+    for g in gens:
+        model, p, fov, radius = _sample_camera(cfg, g)
+        models.append(model)
+        params.append(p)
+        fovs.append(fov)
+        radii.append(radius)
+        Ts.append(_sample_pose(cfg, board, fov, g))
+    return Scene(models, params, torch.tensor(fovs), torch.tensor(radii), torch.stack(Ts))
+
+
+# --------------------------------------------------------------------------------------------
+# Geometry of the batch: rays, board intersection, labels
+# --------------------------------------------------------------------------------------------
+def _pixel_grid(h: int, w: int, ss: int) -> Tensor:
+    """(h*ss, w*ss, 2) sample positions in output-pixel coordinates (centre convention)."""
+    off = (torch.arange(ss, dtype=torch.float32) + 0.5) / ss - 0.5
+    xs = (torch.arange(w, dtype=torch.float32)[:, None] + off[None]).reshape(-1)
+    ys = (torch.arange(h, dtype=torch.float32)[:, None] + off[None]).reshape(-1)
+    yy, xx = torch.meshgrid(ys, xs, indexing="ij")
+    return torch.stack([xx, yy], dim=-1)
+
+
+def _rays(scene: Scene, grid: Tensor) -> tuple[Tensor, Tensor]:
+    """Unit rays (B, H, W, 3) and the in-circle mask (B, H, W) for every sample position."""
+    vs, oks = [], []
+    for model, p, fov in zip(scene.model, scene.params, scene.fov):
+        v, ok = cameras.unproject(model, grid, p.float())
+        ok = ok & (cameras.off_axis_angle(v) <= math.radians(float(fov)) / 2)
+        vs.append(v)
+        oks.append(ok)
+    return torch.stack(vs), torch.stack(oks)
+
+
+def _board_hit(v: Tensor, T_cam_board: Tensor) -> tuple[Tensor, Tensor]:
+    """Board-plane coordinates (B, H, W, 2) hit by rays v (B, H, W, 3), and hit mask (in front)."""
+    R = T_cam_board[:, :3, :3].float()
+    t = T_cam_board[:, :3, 3].float()
+    n = R[:, :, 2]  # board z axis in the camera frame
+    num = (n * t).sum(-1)  # n . t
+    den = torch.einsum("bhwc,bc->bhw", v, n)
+    lam = num[:, None, None] / torch.where(den.abs() > 1e-8, den, torch.full_like(den, 1e-8))
+    hit = (lam > 0) & (num[:, None, None] > 0)  # in front, and the printed side faces the camera
+    p_cam = lam[..., None] * v - t[:, None, None, :]
+    xy = torch.einsum("bhwc,bcd->bhwd", p_cam, R)[..., :2]  # R^T (p - t)
+    return xy, hit
+
+
+def corner_labels(cfg: RenderConfig, board: Checkerboard, scene: Scene) -> dict[str, Tensor]:
+    """Exact labels of every corner slot (see :func:`render_batch` for the keys)."""
+    P = board.points(torch.float64)  # (N, 3)
+    N = P.shape[0]
+    s = board.s
+    qs, valid, l_size, cos_inc = [], [], [], []
+    for b, (model, p) in enumerate(zip(scene.model, scene.params)):
+        T = scene.T_cam_board[b]
+        pc = poses.transform_points(T, P)
+        q, ok = cameras.project(model, pc, p)
+        ok = ok & (cameras.off_axis_angle(pc) <= math.radians(float(scene.fov[b])) / 2)
+        # Local pixels-per-square: Jacobian of the board -> image map by central differences.
+        dx = torch.tensor([s / 2, 0, 0], dtype=torch.float64)
+        dy = torch.tensor([0, s / 2, 0], dtype=torch.float64)
+        qx1, ok1 = cameras.project(model, poses.transform_points(T, P + dx), p)
+        qx0, ok2 = cameras.project(model, poses.transform_points(T, P - dx), p)
+        qy1, ok3 = cameras.project(model, poses.transform_points(T, P + dy), p)
+        qy0, ok4 = cameras.project(model, poses.transform_points(T, P - dy), p)
+        J = torch.stack([qx1 - qx0, qy1 - qy0], dim=-1)  # (N, 2, 2), pixels per square
+        sv = torch.linalg.svdvals(J)
+        size = torch.where(ok1 & ok2 & ok3 & ok4, sv[:, -1], torch.zeros_like(sv[:, -1]))
+        n = T[:3, 2]
+        ray = pc / pc.norm(dim=-1, keepdim=True)
+        cos_inc.append((ray @ n).clamp(0, 1))
+        # Printed side towards the camera.
+        ok = ok & (float(n @ T[:3, 3]) > 0)
+        qs.append(q)
+        valid.append(ok)
+        l_size.append(size)
+    q = torch.stack(qs).float()
+    ok = torch.stack(valid)
+    size = torch.stack(l_size).float()
+    cos_inc = torch.stack(cos_inc).float()
+    bp = cfg.border_px
+    in_image = (q[..., 0] > bp - 0.5) & (q[..., 0] < cfg.width - 0.5 - bp) & (q[..., 1] > bp - 0.5) & (q[..., 1] < cfg.height - 0.5 - bp)
+    centres = torch.stack([torch.stack([p[cameras.get_model(m).index("cx")], p[cameras.get_model(m).index("cy")]]) for m, p in zip(scene.model, scene.params)]).float()
+    r_px = (q - centres[:, None, :]).norm(dim=-1)
+    in_circle = r_px < scene.radius[:, None].float() - bp
+    vis = ok & in_image & in_circle & (size > 0)
+    learn_size = ((size - cfg.min_square_px) / (cfg.good_square_px - cfg.min_square_px)).clamp(0, 1)
+    learn_inc = ((cos_inc - 0.08) / 0.25).clamp(0, 1)
+    return {
+        "corners": torch.where(vis[..., None], q, torch.zeros_like(q)),
+        "corners_raw": q,
+        "visible": vis,
+        "square_px": size,
+        "learn_geom": learn_size * learn_inc,
+        "n": torch.tensor(N),
+    }
+
+
+# --------------------------------------------------------------------------------------------
+# Appearance
+# --------------------------------------------------------------------------------------------
+def _coords(h: int, w: int) -> tuple[Tensor, Tensor]:
+    yy, xx = torch.meshgrid(torch.linspace(-1, 1, h), torch.linspace(-1, 1, w), indexing="ij")
+    return xx, yy
+
+
+def _background(cfg: RenderConfig, gens: list[torch.Generator], h: int, w: int) -> Tensor:
+    """Procedural backgrounds (B, 1, h, w): gradients, clouds, rectangles, lines, distractors."""
+    B = len(gens)
+    xx, yy = _coords(h, w)
+    out = []
+    K = cfg.n_shapes
+    for g in gens:
+        r = lambda *shape: torch.rand(*shape, generator=g)  # noqa: E731
+        base = r(1) * 0.7 + 0.1
+        img = base + (r(1) - 0.5) * 0.6 * xx + (r(1) - 0.5) * 0.6 * yy
+        clouds = F.interpolate(r(1, 1, 6, 10) - 0.5, size=(h, w), mode="bicubic", align_corners=False)[0, 0]
+        img = img + clouds * 0.5 * r(1)
+        fine = F.interpolate(r(1, 1, h // 4 + 1, w // 4 + 1) - 0.5, size=(h, w), mode="bilinear", align_corners=False)[0, 0]
+        img = img + fine * 0.15 * r(1)
+        # Rectangles and lines (thin rectangles), rotated.
+        c = (r(K, 2) * 2.4 - 1.2)
+        ang = r(K) * math.pi
+        half = torch.where(r(K, 1) < 0.35, torch.cat([r(K, 1) * 0.8 + 0.1, r(K, 1) * 0.01 + 0.004], 1), r(K, 2) * 0.4 + 0.03)
+        val = r(K)
+        ca, sa = torch.cos(ang)[:, None, None], torch.sin(ang)[:, None, None]
+        dx = xx[None] - c[:, 0, None, None]
+        dy = (yy[None] - c[:, 1, None, None]) * (h / w)
+        u = ca * dx + sa * dy
+        v = -sa * dx + ca * dy
+        inside = (u.abs() < half[:, 0, None, None]) & (v.abs() < half[:, 1, None, None])
+        for k in range(K):
+            img = torch.where(inside[k], val[k], img)
+        # Checker-like distractors that are not the target (2x2 .. 4x3 squares).
+        if float(r(1)) < cfg.p_distractor:
+            for _ in range(int(r(1) * 3) + 1):
+                c0 = r(2) * 1.6 - 0.8
+                a0 = float(r(1)) * math.pi
+                sq = float(r(1)) * 0.08 + 0.03
+                nx, ny = int(r(1) * 3) + 2, int(r(1) * 2) + 2
+                dx = xx - c0[0]
+                dy = (yy - c0[1]) * (h / w)
+                u = (math.cos(a0) * dx + math.sin(a0) * dy) / sq + nx / 2
+                v = (-math.sin(a0) * dx + math.cos(a0) * dy) / sq + ny / 2
+                inside = (u > 0) & (u < nx) & (v > 0) & (v < ny)
+                pattern = ((torch.floor(u) + torch.floor(v)) % 2 == 0).float() * 0.8 + 0.1
+                img = torch.where(inside, pattern, img)
+        out.append(img)
+    return torch.stack(out)[:, None].clamp(0, 1).float()
+
+
+def render_batch(cfg: RenderConfig, indices: list[int], seed: int = 0, board: Checkerboard | None = None) -> dict[str, Tensor]:
+    """Render samples ``indices`` of the stream ``seed``.
+
+    Returns a dict:
+        image: (B, 1, H, W) float32 in [0, 1], grey
+        corners: (B, N, 2) pixel positions (0 where not visible)
+        corners_raw: (B, N, 2) projected positions whatever their visibility (may be meaningless)
+        visible: (B, N) bool, in front / in the domain / in image and circle / facing / unoccluded
+        learnability: (B, N) float in [0, 1] (0 where not visible)
+        square_px: (B, N) local pixels per square (smallest singular value of the local map)
+        board_mask: (B, 1, H, W) float, fraction of the pixel on the checker squares region
+        board_uv: (B, 2, H, W) board coordinates in corner-grid units (corner (i, j) at (i, j))
+        blur_sigma: (B,) defocus sigma in pixels
+        fov: (B,) degrees; model_index: (B,) index into ``cfg.models``
+        T_cam_board: (B, 4, 4); params: list of per-sample camera parameter tensors
+    """
+    board = board or Checkerboard(cfg.target)
+    gens = [sample_generator(seed, i) for i in indices]
+    B, H, W, ss = len(indices), cfg.height, cfg.width, cfg.supersample
+    scene = sample_scene(cfg, board, gens)
+    labels = corner_labels(cfg, board, scene)
+
+    grid = _pixel_grid(H, W, ss)
+    v, in_circle = _rays(scene, grid)
+    xy, hit = _board_hit(v, scene.T_cam_board)
+    # Footprint of a sample in board metres, from finite differences across neighbouring samples.
+    gx = torch.zeros_like(xy)
+    gy = torch.zeros_like(xy)
+    gx[:, :, 1:-1] = (xy[:, :, 2:] - xy[:, :, :-2]) / 2
+    gy[:, 1:-1] = (xy[:, 2:] - xy[:, :-2]) / 2
+    gx[:, :, 0], gx[:, :, -1] = gx[:, :, 1], gx[:, :, -2]
+    gy[:, 0], gy[:, -1] = gy[:, 1], gy[:, -2]
+    foot = (gx.abs() + gy.abs()).nan_to_num(0.0, 1.0, 1.0)
+    ok = hit & in_circle
+    xy_safe = torch.where(ok[..., None], xy, torch.full_like(xy, -1e3))
+    value, cover = board.intensity(xy_safe, foot.clamp(max=1.0))
+    cover = cover * ok
+    # Board region of the checker squares (for the auxiliary mask) and board (u, v) coordinates.
+    u = xy_safe[..., 0] / board.s - 1
+    vv = xy_safe[..., 1] / board.s - 1
+    in_sq = ok & (u > -1) & (u < board.nx) & (vv > -1) & (vv < board.ny)
+
+    # Per-sample appearance parameters.
+    def rr(g: torch.Generator, lo: float = 0.0, hi: float = 1.0) -> float:
+        return _u(g, lo, hi)
+
+    black = torch.tensor([rr(g, 0.02, 0.2) for g in gens])[:, None, None]
+    white = torch.tensor([rr(g, 0.6, 1.0) for g in gens])[:, None, None]
+    lx = torch.tensor([rr(g, -0.5, 0.5) for g in gens])[:, None, None]
+    ly = torch.tensor([rr(g, -0.5, 0.5) for g in gens])[:, None, None]
+    ext = board.extent()
+    bx = (xy_safe[..., 0] - (ext[0] + ext[2]) / 2) / (ext[2] - ext[0])
+    by = (xy_safe[..., 1] - (ext[1] + ext[3]) / 2) / (ext[3] - ext[1])
+    shade = (1 + lx * bx + ly * by).clamp(0.3, 1.6)
+    board_img = (black + (white - black) * value) * shade
+
+    bg = _background(cfg, gens, H * ss, W * ss)[:, 0]
+    img = bg * (1 - cover) + board_img * cover
+
+    # Occluders: ellipses in front of everything.
+    occ = torch.zeros(B, H * ss, W * ss)
+    xx, yy = _coords(H * ss, W * ss)
+    for b, g in enumerate(gens):
+        if rr(g) < cfg.p_occluder:
+            for _ in range(1 + int(rr(g) * 3)):
+                cxo, cyo = rr(g, -1, 1), rr(g, -1, 1)
+                ax, ay = rr(g, 0.05, 0.35), rr(g, 0.05, 0.35) * W / H
+                a = rr(g, 0, math.pi)
+                dx, dy = xx - cxo, yy - cyo
+                uu = (math.cos(a) * dx + math.sin(a) * dy) / ax
+                vv2 = (-math.sin(a) * dx + math.cos(a) * dy) / ay
+                m = ((uu * uu + vv2 * vv2) < 1).float()
+                img[b] = img[b] * (1 - m) + rr(g, 0.0, 1.0) * m
+                occ[b] = torch.maximum(occ[b], m)
+
+    # Image circle: black outside, with a soft, anti-aliased rim and vignetting.
+    centres = torch.stack([torch.stack([p[cameras.get_model(mm).index("cx")], p[cameras.get_model(mm).index("cy")]]) for mm, p in zip(scene.model, scene.params)]).float()
+    r_px = (grid[None] - centres[:, None, None, :]).norm(dim=-1)
+    rad = scene.radius[:, None, None].float()
+    rim = (rad - r_px + 0.5).clamp(0, 1)
+    vig_strength = torch.tensor([rr(g, 0.0, 0.6) for g in gens])[:, None, None]
+    vignette = 1 - vig_strength * (r_px / rad).clamp(0, 1) ** 3
+    img = img * vignette * rim
+
+    img = img[:, None]
+    if ss > 1:
+        img = F.avg_pool2d(img, ss)
+        cover_m = F.avg_pool2d((in_sq.float() * cover)[:, None], ss)
+        occ = F.avg_pool2d(occ[:, None], ss)[:, 0]
+        u = F.avg_pool2d((u * ok)[:, None], ss)[:, 0]
+        vv = F.avg_pool2d((vv * ok)[:, None], ss)[:, 0]
+    else:
+        cover_m = (in_sq.float() * cover)[:, None]
+
+    # Optics and sensor: exposure and gamma, defocus, motion blur, noise, JPEG.
+    exposure = torch.tensor([rr(g, 0.6, 1.4) for g in gens])[:, None, None, None]
+    gamma = torch.tensor([rr(g, 0.7, 1.4) for g in gens])[:, None, None, None]
+    img = (img * exposure).clamp(0, 1) ** gamma
+    sig = torch.tensor([rr(g, 0.3, cfg.max_blur_sigma) if rr(g) < cfg.p_blur else 0.0 for g in gens])
+    if bool((sig > 0).any()):
+        blurred = kornia.filters.gaussian_blur2d(img, (7, 7), torch.stack([sig.clamp_min(0.05)] * 2, -1))
+        img = torch.where(sig[:, None, None, None] > 0, blurred, img)
+    for b, g in enumerate(gens):
+        if rr(g) < cfg.p_motion:
+            img[b : b + 1] = kornia.filters.motion_blur(img[b : b + 1], 5, rr(g, 0, 180), rr(g, -1, 1))
+    noise = torch.tensor([rr(g, *cfg.noise_range) for g in gens])[:, None, None, None]
+    noise_fields = torch.stack([torch.randn(1, H, W, generator=g) for g in gens])
+    img = (img + noise * noise_fields * (0.5 + img)).clamp(0, 1)
+    for b, g in enumerate(gens):
+        if rr(g) < cfg.p_jpeg:
+            q8 = (img[b, 0] * 255).round().to(torch.uint8).numpy()
+            ok_enc, buf = cv2.imencode(".jpg", q8, [cv2.IMWRITE_JPEG_QUALITY, int(rr(g, 35, 95))])
+            if ok_enc:
+                img[b, 0] = torch.from_numpy(cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE).astype(np.float32) / 255.0)
+
+    # Occlusion and blur enter the labels.
+    q = labels["corners_raw"]
+    occ_d = F.max_pool2d(occ[:, None], 5, 1, 2)[:, 0]
+    qi = q.round().long()
+    qi[..., 0] = qi[..., 0].clamp(0, W - 1)
+    qi[..., 1] = qi[..., 1].clamp(0, H - 1)
+    occluded = torch.stack([occ_d[b, qi[b, :, 1], qi[b, :, 0]] > 0.01 for b in range(B)])
+    visible = labels["visible"] & ~occluded
+    blur_term = (1 - ((sig - 0.8) / 1.5).clamp(0, 1))[:, None]
+    learn = labels["learn_geom"] * blur_term * visible.float()
+    return {
+        "image": img.float(),
+        "corners": torch.where(visible[..., None], q, torch.zeros_like(q)),
+        "corners_raw": q,
+        "visible": visible,
+        "learnability": learn,
+        "square_px": labels["square_px"],
+        "board_mask": cover_m.clamp(0, 1),
+        "board_uv": torch.stack([u, vv], 1) * (cover_m > 0.5),
+        "blur_sigma": sig,
+        "fov": scene.fov.float(),
+        "model_index": torch.tensor([cfg.models.index(m) for m in scene.model]),
+        "T_cam_board": scene.T_cam_board,
+        "params": scene.params,
+    }
+
+
+class RenderedDataset(torch.utils.data.Dataset):
+    """Map-style dataset over an endless stream: item ``idxs`` (a list) renders that batch.
+
+    Use with ``DataLoader(ds, batch_size=None, sampler=BatchSampler(...))`` so that a batch is
+    rendered with tensor ops in one call; works in DataLoader workers.
+    """
+
+    def __init__(self, cfg: RenderConfig, seed: int = 0, length: int = 10**9):
+        self.cfg, self.seed, self.length = cfg, seed, length
+        self.board = Checkerboard(cfg.target)
+
+    def __len__(self) -> int:
+        return self.length
+
+    def __getitem__(self, idxs: list[int]) -> dict[str, Tensor]:
+        out = render_batch(self.cfg, list(idxs), self.seed, self.board)
+        out.pop("params")
+        return out
