@@ -1,0 +1,83 @@
+"""Training behaviour on the tiny config: overfitting, exact resume, 2-process gloo."""
+
+import os
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import torch
+
+from cotrain.config import load_config
+from cotrain.losses import compute_losses
+from cotrain.network import CornerNet
+from cotrain.renderer import render_batch
+from cotrain.train import TrainConfig, build_from_checkpoint, finalize_config, load_checkpoint, train
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = ROOT / "configs" / "tiny.yaml"
+
+
+def tiny(tmp_path, *overrides):
+    return finalize_config(load_config(TrainConfig, TINY, [f"train.out_dir={tmp_path}", *overrides]))
+
+
+def test_forward_keys_and_shapes():
+    cfg = tiny("/tmp/unused")
+    m = CornerNet(cfg.model)
+    out = m(torch.rand(2, 1, 64, 96))
+    N = 54
+    assert out["heatmap"].shape == (2, N, 16, 24)
+    for k in ("corners_rough", "corners_updated", "corners"):
+        assert out[k].shape == (2, N, 2)
+    for k in ("visibility_logit", "learnability", "confidence_logit"):
+        assert out[k].shape == (2, N)
+
+
+def test_overfits_fixed_batch():
+    torch.manual_seed(0)
+    cfg = tiny("/tmp/unused")
+    cfg.render.distance_range = (0.1, 0.2)
+    batch = render_batch(cfg.render, [0, 1], seed=4)
+    model = CornerNet(cfg.model)
+    opt = torch.optim.AdamW(model.parameters(), lr=3e-3)
+    first = None
+    for _ in range(150):
+        loss = compute_losses(model(batch["image"]), batch, cfg.loss)["total"]
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        first = first if first is not None else loss.item()
+    assert loss.item() < first / 5
+
+
+def test_resume_matches_uninterrupted(tmp_path):
+    torch.set_num_threads(1)
+    a = train(tiny(tmp_path / "a", "train.steps=4", "train.ckpt_minutes=0"))
+    train(tiny(tmp_path / "b", "train.steps=4", "train.stop_after=3", "train.ckpt_minutes=0"))
+    ck = load_checkpoint(tmp_path / "b" / "last.pt")
+    assert ck["step"] == 3
+    b = train(tiny(tmp_path / "b", "train.steps=4", "train.ckpt_minutes=0"), resume=True)
+    assert b["step"] == 4
+    assert abs(a["last_loss"] - b["last_loss"]) < 1e-5 * max(1.0, abs(a["last_loss"]))
+    # The checkpoint rebuilds the model on its own.
+    model, cfg = build_from_checkpoint(load_checkpoint(tmp_path / "b" / "last.pt"))
+    assert cfg.model.n_corners == 54 and isinstance(model, CornerNet)
+
+
+def test_two_process_gloo(tmp_path):
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2", "--master_port", str(port), "-m", "cotrain.cli",
+           "train", "--config", str(TINY), f"train.out_dir={tmp_path}", "train.steps=3", "train.save_rank_weights=true", "train.threads=1"]
+    r = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=ROOT, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    w0 = torch.load(tmp_path / "weights_rank0.pt", weights_only=True)
+    w1 = torch.load(tmp_path / "weights_rank1.pt", weights_only=True)
+    assert w0.keys() == w1.keys()
+    for k in w0:
+        assert torch.equal(w0[k], w1[k]), k
+    init = CornerNet(tiny(tmp_path).model).state_dict()
+    assert any(not torch.equal(init[k], w0[k]) for k in w0 if w0[k].is_floating_point())
