@@ -200,6 +200,15 @@ def solve(
             Jpose[sel] = Jp
         return r_all, Jcam[..., :n], Jpose
 
+    def residuals(intr, T_cam_rig, T_rig_board):
+        r_all = torch.zeros(prob.q.shape[0], 2, dtype=torch.float64)
+        for c in cams_present:
+            sel = (prob.cam == c).nonzero()[:, 0]
+            T = T_cam_rig[c] @ T_rig_board[prob.view[sel]]
+            p = (T[:, :3, :3] @ prob.X[sel][:, :, None])[..., 0] + T[:, :3, 3]
+            r_all[sel] = prob.q[sel] - cameras.project(model[c], p, intr[c])[0]
+        return r_all
+
     def cost_of(r):
         e = r.norm(dim=-1)
         rho = torch.where(e < huber, 0.5 * e * e, huber * (e - 0.5 * huber))
@@ -247,12 +256,13 @@ def solve(
                 if ne:
                     new_T[c] = _retract(T_cam_rig[c], dc[o + ni : o + ni + ne])
             new_P = _retract(T_rig_board, dp)
-            r_new, Jc_new, Jp_new = linearise(new_intr, new_T, new_P)
+            r_new = residuals(new_intr, new_T, new_P)
             c_new = cost_of(r_new)
             if math.isfinite(c_new) and c_new < cost:
                 rel = (cost - c_new) / max(cost, 1e-300)
                 intr, T_cam_rig, T_rig_board = new_intr, new_T, new_P
-                r, Jc, Jp, cost = r_new, Jc_new, Jp_new, c_new
+                r, Jc, Jp = linearise(intr, T_cam_rig, T_rig_board)
+                cost = cost_of(r)
                 lam = max(lam / 3, 1e-9)
                 improved = True
                 if rel < 1e-9:
@@ -384,7 +394,10 @@ def _focal_search(model: str, guess: Tensor, obs: list[Observation], board: Chec
 def _intrinsic_stage(model: str, intr: Tensor, obs: list[Observation], board: Checkerboard, cfg: CalibConfig,
                      progressive: bool) -> tuple[Tensor, dict[int, np.ndarray], list[float], SolveResult]:
     """Stage 1 (progressive, gamma recorded) or stage 2 (all at once) for one camera."""
-    steps = [k for k in cfg.init_steps if k < len(obs)] + [len(obs)] if progressive else [len(obs)]
+    if progressive:
+        steps = [k for k in cfg.init_steps if k < len(obs)] + ([len(obs)] if len(obs) <= max(cfg.init_steps) else [])
+    else:
+        steps = [len(obs)]
     poses_cb: dict[int, np.ndarray] = {}
     gammas: list[float] = []
     res = None
@@ -403,7 +416,7 @@ def _intrinsic_stage(model: str, intr: Tensor, obs: list[Observation], board: Ch
         vi = {o.view: i for i, o in enumerate(active)}
         prob = Problem.build(active, board, vi, single_camera=True)
         Tb = torch.from_numpy(np.stack([poses_cb[o.view] for o in active]))
-        iters = cfg.init_iters if progressive and k != steps[-1] else cfg.refine_iters
+        iters = cfg.init_iters if progressive else cfg.refine_iters
         out_intr, _, Tb, res = solve(prob, [model], [intr], torch.eye(4, dtype=torch.float64)[None], Tb, iters=iters, huber=cfg.huber_px)
         gammas.append(res.schur_cond)
         if not all(math.isfinite(v) for v in res.rms):
@@ -484,8 +497,10 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
                 # Stage 2: refinement over all views, then outlier rejection and a final pass.
                 x, pc_, _, res = _intrinsic_stage(cfg.model, x, obs_by_cam[c], board, cfg, progressive=False)
                 keep = _reject_outliers(obs_by_cam[c], pc_, cfg.model, x, board, cfg)
+                removed = sum(len(o.ids) for o in obs_by_cam[c]) - sum(len(o.ids) for o in keep)
                 obs_by_cam[c] = keep
-                x, pc_, _, res = _intrinsic_stage(cfg.model, x, keep, board, cfg, progressive=False)
+                if removed:
+                    x, pc_, _, res = _intrinsic_stage(cfg.model, x, keep, board, cfg, progressive=False)
                 frames.setdefault("refine", []).append(len(keep))
                 stages.append({"stage": "refine", "camera": c, "rms_px": res.rms[0], "iterations": res.iterations, "reason": res.reason})
                 if res.rms[0] > cfg.max_rms_px * 3:

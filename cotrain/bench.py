@@ -24,3 +24,34 @@ def bench_render(cfg: RenderConfig, batch: int = 8, repeats: int = 5, seed: int 
     print(f"render {cfg.width}x{cfg.height} batch {batch}: median {med * 1000:.1f} ms/batch "
           f"({batch / med:.1f} samples/s) over {repeats} runs, {torch.get_num_threads()} threads")
     return out
+
+
+def bench_render_vs_step(cfg_path: str = "configs/default.yaml", repeats: int = 5) -> dict:
+    """Median time to render one training batch and to run one training step on it (same process)."""
+    from cotrain.config import load_config
+    from cotrain.losses import compute_losses
+    from cotrain.network import CornerNet
+    from cotrain.train import TrainConfig, finalize_config
+
+    cfg = finalize_config(load_config(TrainConfig, cfg_path))
+    B = cfg.train.batch_size
+    model = CornerNet(cfg.model)
+    opt = torch.optim.AdamW(model.parameters(), lr=1e-4)
+    t_render, t_step = [], []
+    for r in range(repeats + 1):
+        t0 = time.perf_counter()
+        batch = render_batch(cfg.render, list(range(r * B, (r + 1) * B)), 77)
+        t1 = time.perf_counter()
+        loss = compute_losses(model(batch["image"]), batch, cfg.loss)["total"]
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        t2 = time.perf_counter()
+        if r:  # skip warm-up
+            t_render.append(t1 - t0)
+            t_step.append(t2 - t1)
+    mr, ms = statistics.median(t_render), statistics.median(t_step)
+    out = {"render_s": mr, "step_s": ms, "ratio": mr / ms, "samples_per_s_render": B / mr, "samples_per_s_train": B / (mr + ms)}
+    print(f"training batch {B} at {cfg.render.width}x{cfg.render.height}: render {mr * 1000:.0f} ms, step {ms * 1000:.0f} ms "
+          f"(render/step = {mr / ms:.2f}); training {B / (mr + ms):.1f} samples/s, {torch.get_num_threads()} threads")
+    return out
