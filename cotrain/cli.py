@@ -45,6 +45,36 @@ def cmd_train(args: argparse.Namespace) -> int:
     return main_train(args.config, args.overrides, resume=args.resume)
 
 
+def cmd_export(args: argparse.Namespace) -> int:
+    from export.onnx_export import export_onnx
+
+    r = export_onnx(args.checkpoint, args.out, tol_px=args.tol_px)
+    print(f"wrote {r['out']} (opset {r['opset']}); parity on {r['images']} rendered images: max corner difference "
+          f"{r['max_corner_diff_px']:.2e} px, max probability difference {r['max_prob_diff']:.2e}")
+    return 0
+
+
+def cmd_detect(args: argparse.Namespace) -> int:
+    from cotrain.detect import Detector, detect_files, expand_inputs, write_json_atomic
+
+    if not (0.0 <= args.threshold <= 1.0):
+        raise ValueError("--threshold must be in [0, 1]")
+    paths = expand_inputs(args.inputs)
+    if not paths:
+        raise FileNotFoundError("no images found in the given paths")
+    det = Detector(args.model, threshold=args.threshold)
+    data = detect_files(paths, det, Path(args.draw) if args.draw else None)
+    out = Path(args.out)
+    write_json_atomic(data, out)
+    n_err = sum(1 for e in data["images"] if e["error"])
+    n_found = sum(len(e["corners"]) for e in data["images"])
+    print(f"{len(paths)} images, {n_found} corners, {n_err} errors -> {out}")
+    for e in data["images"]:
+        if e["error"]:
+            print(f"  {e['path']}: {e['error']}", file=sys.stderr)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="cotrain", description="Learned fisheye calibration-target detection.")
     sub = p.add_subparsers(dest="cmd", required=True)
@@ -69,6 +99,20 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--resume", action="store_true", help="continue from the run's last checkpoint")
     s.add_argument("overrides", nargs="*", help="key=value overrides, e.g. train.steps=100")
     s.set_defaults(func=cmd_train)
+
+    s = sub.add_parser("export", help="export a checkpoint to ONNX (with the onnxruntime parity check)")
+    s.add_argument("--checkpoint", required=True)
+    s.add_argument("--out", required=True)
+    s.add_argument("--tol-px", type=float, default=0.01, help="fail if onnxruntime and PyTorch corners differ by more")
+    s.set_defaults(func=cmd_export)
+
+    s = sub.add_parser("detect", help="detect corners in images with the ONNX model (onnxruntime, CPU)")
+    s.add_argument("inputs", nargs="+", metavar="IMAGES_OR_FOLDERS")
+    s.add_argument("--model", help="ONNX model (default: the shipped model)")
+    s.add_argument("--out", default="detections.json")
+    s.add_argument("--threshold", type=float, default=0.5, help="visibility probability to report a corner")
+    s.add_argument("--draw", help="folder for overlays of the detections")
+    s.set_defaults(func=cmd_detect)
     return p
 
 

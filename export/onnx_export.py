@@ -1,0 +1,99 @@
+"""``cotrain export --checkpoint C --out model.onnx``: ONNX (opset 18) with self-describing metadata.
+
+The graph takes ``image`` (B, 1, H, W) float32 grey in [0, 1] at the processing size and returns
+``corners`` (B, N, 2) in processing pixels, ``visibility`` (B, N), ``confidence`` (B, N) and
+``learnability`` (B, N) as probabilities. Resizing (letterbox, top-left) happens outside the graph
+in :mod:`cotrain.detect`, as the metadata says. After export, onnxruntime is compared with PyTorch
+on rendered images; the export fails if any corner differs by more than ``tol_px``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import warnings
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from cotrain.config import to_dict
+from cotrain.network import CornerNet
+from cotrain.renderer import render_batch
+from cotrain.train import TrainConfig, build_from_checkpoint, load_checkpoint
+
+OPSET = 18  # the dynamo exporter's native opset (>= 17 as required; down-conversion to 17 fails)
+OUTPUTS = ["corners", "visibility", "confidence", "learnability"]
+
+
+class ExportWrapper(torch.nn.Module):
+    """The network with probabilities instead of logits, as the detector consumes it."""
+
+    def __init__(self, model: CornerNet):
+        super().__init__()
+        self.model = model
+
+    def forward(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        o = self.model(image)
+        return o["corners"], torch.sigmoid(o["visibility_logit"]), torch.sigmoid(o["confidence_logit"]), o["learnability"]
+
+
+class ExportError(RuntimeError):
+    """Export or parity check failed (one-line message)."""
+
+
+def metadata(cfg: TrainConfig, name: str) -> dict[str, str]:
+    t = cfg.render.target
+    return {
+        "cotrain.name": name,
+        "cotrain.target": json.dumps({"kind": t.kind, "squares_x": t.squares_x, "squares_y": t.squares_y, "square_size": t.square_size}),
+        "cotrain.input_size": json.dumps(list(cfg.model.input_size)),  # [H, W]
+        "cotrain.normalisation": "grey float32 in [0, 1] (8-bit / 255, 16-bit / 65535, colour -> grey); the image is scaled by "
+        "s = min(W / w, H / h) with cv2.INTER_AREA and placed top-left on a black H x W canvas; corner pixels map back as "
+        "x_in = (x + 0.5) / s - 0.5",
+        "cotrain.outputs": json.dumps(OUTPUTS),
+        "cotrain.config": json.dumps(to_dict(cfg)),
+    }
+
+
+def export_onnx(checkpoint: str | Path, out: str | Path, tol_px: float = 0.01, n_check: int = 8) -> dict:
+    """Export ``checkpoint`` to ``out`` and run the parity check; returns the check's figures."""
+    import onnx
+    import onnxruntime as ort
+
+    model, cfg = build_from_checkpoint(load_checkpoint(checkpoint))
+    H, W = cfg.model.input_size
+    wrapper = ExportWrapper(model).eval()
+    example = torch.rand(2, 1, H, W)
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_suffix(".tmp.onnx")
+    logging.getLogger("torch.onnx").setLevel(logging.ERROR)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            prog = torch.onnx.export(wrapper, (example,), input_names=["image"], output_names=OUTPUTS, opset_version=OPSET,
+                                     dynamic_shapes=({0: torch.export.Dim("batch", min=1, max=256)},), dynamo=True, verbose=False)
+        except Exception as e:  # the exporter's errors are long; keep the first line
+            raise ExportError(f"torch.onnx.export failed: {str(e).splitlines()[0][:300]}") from None
+    proto = prog.model_proto
+    got_opset = max(o.version for o in proto.opset_import if o.domain in ("", "ai.onnx"))
+    for k, v in metadata(cfg, Path(checkpoint).stem).items():
+        entry = proto.metadata_props.add()
+        entry.key, entry.value = k, v
+    onnx.save(proto, str(tmp))
+    onnx.checker.check_model(str(tmp))
+    # Parity on rendered images at the processing size.
+    batch = render_batch(cfg.render, list(range(n_check)), seed=424242)
+    sess = ort.InferenceSession(str(tmp), providers=["CPUExecutionProvider"])
+    got = sess.run(None, {"image": batch["image"].numpy().astype(np.float32)})
+    with torch.no_grad():
+        ref = [t.numpy() for t in wrapper(batch["image"])]
+    dq = float(np.abs(got[0] - ref[0]).max())
+    dp = float(max(np.abs(g - r).max() for g, r in zip(got[1:], ref[1:])))
+    if not dq <= tol_px:
+        tmp.unlink(missing_ok=True)
+        raise ExportError(f"parity check failed: onnxruntime corners differ from PyTorch by {dq:.4f} px (> {tol_px} px)")
+    os.replace(tmp, out)
+    return {"out": str(out), "max_corner_diff_px": dq, "max_prob_diff": dp, "opset": got_opset, "images": n_check}
