@@ -82,6 +82,18 @@ def cmd_calibrate(a: argparse.Namespace) -> int:
     return 1
 
 
+def cmd_detection(a: argparse.Namespace) -> int:
+    from calib_eval.detection_eval import EvalConfig, evaluate_detection
+
+    if a.per_fov < 1:
+        raise ValueError("--per-fov must be at least 1")
+    if a.model and not Path(a.model).is_file():
+        raise FileNotFoundError(f"{a.model}: model not found")
+    cfg = EvalConfig(fovs=a.fov, per_fov=a.per_fov, n_empty=a.empty)
+    evaluate_detection(a.model, cfg, Path(a.out), detectors=a.detectors)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="calib-eval", description="Fisheye calibration: selection, calibration, evaluation.")
     sub = p.add_subparsers(dest="cmd", required=True)
@@ -120,6 +132,16 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--no-init", action="store_true", help="skip intrinsic initialisation (BA-only ablation)")
     s.add_argument("--out", required=True)
     s.set_defaults(func=cmd_calibrate)
+
+    s = sub.add_parser("detection", help="per-FoV detection evaluation against geometry-based detectors")
+    s.add_argument("--model", help="ONNX model (default: the shipped model)")
+    s.add_argument("--fov", type=int, nargs="+", default=[180, 200, 220, 240])
+    s.add_argument("--per-fov", type=int, default=50)
+    s.add_argument("--empty", type=int, default=20, help="images without a target")
+    s.add_argument("--detectors", nargs="+", default=["learned", "opencv_sb", "opencv_classic"],
+                   choices=["learned", "opencv_sb", "opencv_classic"])
+    s.add_argument("--out", default="report/detection")
+    s.set_defaults(func=cmd_detection)
     return p
 
 

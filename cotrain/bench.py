@@ -55,3 +55,61 @@ def bench_render_vs_step(cfg_path: str = "configs/default.yaml", repeats: int = 
     print(f"training batch {B} at {cfg.render.width}x{cfg.render.height}: render {mr * 1000:.0f} ms, step {ms * 1000:.0f} ms "
           f"(render/step = {mr / ms:.2f}); training {B / (mr + ms):.1f} samples/s, {torch.get_num_threads()} threads")
     return out
+
+
+def bench_detect(model: str | None = None, checkpoint: str | None = None, n: int = 12, seed: int = 99) -> dict:
+    """Median ms per 1280x720 image: ``cotrain detect``'s onnxruntime path (decode + inference +
+    post-processing), the PyTorch path, and cv2.findChessboardCornersSB (EXHAUSTIVE | ACCURACY)."""
+    import tempfile
+    from pathlib import Path
+
+    import cv2
+    import numpy as np
+
+    from cotrain.detect import Detector, load_image
+
+    cfg = RenderConfig(height=720, width=1280)
+    batch = render_batch(cfg, list(range(n)), seed)
+    tmp = Path(tempfile.mkdtemp())
+    paths = []
+    for i in range(n):
+        p = tmp / f"{i}.png"
+        cv2.imwrite(str(p), (batch["image"][i, 0].numpy() * 255).astype(np.uint8))
+        paths.append(p)
+    det = Detector(model)
+    det.detect(load_image(paths[0]))  # warm-up
+    t_ort = []
+    for p in paths:
+        t0 = time.perf_counter()
+        det.detect(load_image(p))
+        t_ort.append(time.perf_counter() - t0)
+    out = {"onnxruntime_ms": 1000 * statistics.median(t_ort)}
+    if checkpoint:
+        from cotrain.train import build_from_checkpoint, load_checkpoint
+
+        net, _ = build_from_checkpoint(load_checkpoint(checkpoint))
+        t_pt = []
+        for p in paths:
+            t0 = time.perf_counter()
+            x, s = det.preprocess(load_image(p))
+            with torch.no_grad():
+                net(torch.from_numpy(x)[None, None])
+            t_pt.append(time.perf_counter() - t0)
+        out["pytorch_ms"] = 1000 * statistics.median(t_pt)
+    t_cv = []
+    found = 0
+    flags = cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
+    for p in paths:
+        t0 = time.perf_counter()
+        img = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
+        ok, _ = cv2.findChessboardCornersSB(img, (9, 6), flags=flags)
+        t_cv.append(time.perf_counter() - t0)
+        found += int(ok)
+    out["findChessboardCornersSB_ms"] = 1000 * statistics.median(t_cv)
+    out["speedup_vs_SB"] = out["findChessboardCornersSB_ms"] / out["onnxruntime_ms"]
+    out["threads"] = torch.get_num_threads()
+    print(f"detect on {n} rendered 1280x720 images (median ms/image): onnxruntime {out['onnxruntime_ms']:.1f}"
+          + (f", PyTorch {out['pytorch_ms']:.1f}" if "pytorch_ms" in out else "")
+          + f", findChessboardCornersSB {out['findChessboardCornersSB_ms']:.1f} (found the board in {found}/{n}); "
+          f"onnxruntime is {out['speedup_vs_SB']:.1f}x faster than SB")
+    return out

@@ -39,6 +39,8 @@ class RenderConfig:
     radius_range: tuple[float, float] = (0.8, 1.9)  # image-circle radius / (min(h, w) / 2); >1 is cropped
     principal_jitter: float = 0.04  # principal-point offset, fraction of min(h, w)
     aspect_jitter: float = 0.02  # fy / fx - 1 drawn in +-this
+    kb4_k_scale: float = 1.0  # scale of the random k1..k4 of kb4 cameras (0 = the paper's f-theta model)
+    p_no_target: float = 0.03  # probability of an image without the target (negatives)
     distance_range: tuple[float, float] = (0.12, 0.9)  # board-centre distance, metres
     max_tilt_deg: float = 70.0  # board tilt away from facing the camera
     offaxis_margin_deg: float = 12.0  # board centres drawn up to FoV/2 + this (partial views)
@@ -90,7 +92,9 @@ def _sample_camera(cfg: RenderConfig, g: torch.Generator) -> tuple[str, Tensor, 
     params = None
     for _ in range(8):
         if model == "kb4":
-            shape = {"k1": _u(g, -0.06, 0.06), "k2": _u(g, -0.015, 0.015), "k3": _u(g, -0.004, 0.004), "k4": _u(g, -0.001, 0.001)}
+            ks = cfg.kb4_k_scale
+            shape = {"k1": ks * _u(g, -0.06, 0.06), "k2": ks * _u(g, -0.015, 0.015), "k3": ks * _u(g, -0.004, 0.004),
+                     "k4": ks * _u(g, -0.001, 0.001)}
         elif model == "ucm":
             shape = {"xi": _u(g, 0.6, 1.5)}
         elif model == "eucm":
@@ -317,6 +321,7 @@ def render_batch(cfg: RenderConfig, indices: list[int], seed: int = 0, board: Ch
     B, H, W, ss = len(indices), cfg.height, cfg.width, cfg.supersample
     scene = sample_scene(cfg, board, gens)
     labels = corner_labels(cfg, board, scene)
+    no_target = torch.tensor([_u(g) < cfg.p_no_target for g in gens])
 
     grid = _pixel_grid(H, W, ss)
     v, in_circle = _rays(scene, grid)
@@ -332,7 +337,7 @@ def render_batch(cfg: RenderConfig, indices: list[int], seed: int = 0, board: Ch
     ok = hit & in_circle
     xy_safe = torch.where(ok[..., None], xy, torch.full_like(xy, -1e3))
     value, cover = board.intensity(xy_safe, foot.clamp(max=1.0))
-    cover = cover * ok
+    cover = cover * ok * (~no_target)[:, None, None]
     # Board region of the checker squares (for the auxiliary mask) and board (u, v) coordinates.
     u = xy_safe[..., 0] / board.s - 1
     vv = xy_safe[..., 1] / board.s - 1
@@ -418,7 +423,7 @@ def render_batch(cfg: RenderConfig, indices: list[int], seed: int = 0, board: Ch
     qi[..., 0] = qi[..., 0].clamp(0, W - 1)
     qi[..., 1] = qi[..., 1].clamp(0, H - 1)
     occluded = torch.stack([occ_d[b, qi[b, :, 1], qi[b, :, 0]] > 0.01 for b in range(B)])
-    visible = labels["visible"] & ~occluded
+    visible = labels["visible"] & ~occluded & ~no_target[:, None]
     blur_term = (1 - ((sig - 0.8) / 1.5).clamp(0, 1))[:, None]
     learn = labels["learn_geom"] * blur_term * visible.float()
     return {
@@ -432,6 +437,8 @@ def render_batch(cfg: RenderConfig, indices: list[int], seed: int = 0, board: Ch
         "board_uv": torch.stack([u, vv], 1) * (cover_m > 0.5),
         "blur_sigma": sig,
         "fov": scene.fov.float(),
+        "has_target": ~no_target,
+        "radius": scene.radius.float(),
         "model_index": torch.tensor([cfg.models.index(m) for m in scene.model]),
         "T_cam_board": scene.T_cam_board,
         "params": scene.params,
