@@ -94,6 +94,29 @@ def cmd_detection(a: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_benchmark(a: argparse.Namespace) -> int:
+    from calib_eval.benchmark import ALL_CONFIGS, merge, run_benchmark
+
+    configs = ALL_CONFIGS if a.configs == ["all"] else a.configs
+    if a.trials < 1:
+        raise ValueError("--trials must be at least 1")
+    if a.merge_only:
+        merge(Path(a.out), a.merge_only, a.trials, a.variants, a.model)
+        return 0
+    run_benchmark(configs, a.trials, Path(a.out), workers=a.workers, frames=a.frames, variants=a.variants, model=a.model)
+    return 0
+
+
+def cmd_analysis(a: argparse.Namespace) -> int:
+    from calib_eval.analysis import run_analysis
+
+    bdir = Path(a.benchmark) if a.benchmark else None
+    if bdir is not None and not (bdir / "trials.json").is_file():
+        raise FileNotFoundError(f"{bdir}: no trials.json (run calib-eval benchmark --out {bdir} first)")
+    run_analysis(bdir, Path(a.out), fov=a.fov)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="calib-eval", description="Fisheye calibration: selection, calibration, evaluation.")
     sub = p.add_subparsers(dest="cmd", required=True)
@@ -142,6 +165,25 @@ def build_parser() -> argparse.ArgumentParser:
                    choices=["learned", "opencv_sb", "opencv_classic"])
     s.add_argument("--out", default="report/detection")
     s.set_defaults(func=cmd_detection)
+
+    s = sub.add_parser("benchmark", help="synthetic calibration benchmark: all frames, selector, random subset, BA-only")
+    s.add_argument("--configs", nargs="+", default=["FoV180_90", "FoV220_0", "FoV220_90", "FoV240_60"],
+                   help="FoV<deg>_<yaw> / FoV<deg>_hex names, or 'all' (16 paper configurations + the hex rig)")
+    s.add_argument("--trials", type=int, default=2, help="sequences per configuration (paper: 100)")
+    s.add_argument("--frames", type=int, default=480)
+    s.add_argument("--model", default="ds", choices=["kb4", "ucm", "eucm", "ds"], help="camera model the calibrator fits")
+    s.add_argument("--variants", nargs="+", default=["all", "selector", "random", "ba_only"],
+                   choices=["all", "selector", "random", "ba_only"])
+    s.add_argument("--workers", type=int, default=0, help="parallel processes (0 = one per CPU core)")
+    s.add_argument("--merge-only", type=int, default=0, metavar="WORLD", help="only merge the shards of a WORLD-rank run")
+    s.add_argument("--out", default="report/benchmark")
+    s.set_defaults(func=cmd_benchmark)
+
+    s = sub.add_parser("analysis", help="failure analysis: gamma trajectories, coupling index, distribution metrics")
+    s.add_argument("--benchmark", help="a benchmark output folder (for gamma and distribution metrics)")
+    s.add_argument("--fov", type=float, default=220.0, help="FoV of the coupling-index analysis")
+    s.add_argument("--out", default="report/analysis")
+    s.set_defaults(func=cmd_analysis)
     return p
 
 
