@@ -57,6 +57,7 @@ def coupling_table(fov: float = 220.0) -> dict[str, dict[str, float]]:
 
 def distribution_metrics(success_grids: list[np.ndarray], failure_grids: list[np.ndarray], permutations: int = 200, seed: int = 0) -> dict:
     """D_qty, D_sp, D_rand (median over label permutations) and Delta_sp, appendix A."""
+
     def dist(S: list[np.ndarray], F: list[np.ndarray]) -> tuple[float, float]:
         Si = np.mean(S, axis=0)
         Fi = np.mean(F, axis=0)
@@ -66,8 +67,14 @@ def distribution_metrics(success_grids: list[np.ndarray], failure_grids: list[np
         return float(d_qty), float(d_sp)
 
     if not success_grids or not failure_grids:
-        return {"D_qty": float("nan"), "D_sp": float("nan"), "D_rand": float("nan"), "Delta_sp": float("nan"),
-                "n_success": len(success_grids), "n_failure": len(failure_grids)}
+        return {
+            "D_qty": float("nan"),
+            "D_sp": float("nan"),
+            "D_rand": float("nan"),
+            "Delta_sp": float("nan"),
+            "n_success": len(success_grids),
+            "n_failure": len(failure_grids),
+        }
     d_qty, d_sp = dist(success_grids, failure_grids)
     allg = success_grids + failure_grids
     rng = np.random.default_rng(seed)
@@ -75,11 +82,17 @@ def distribution_metrics(success_grids: list[np.ndarray], failure_grids: list[np
     for _ in range(permutations):
         perm = rng.permutation(len(allg))
         S = [allg[i] for i in perm[: len(success_grids)]]
-        F = [allg[i] for i in perm[len(success_grids):]]
+        F = [allg[i] for i in perm[len(success_grids) :]]
         rand.append(dist(S, F)[1])
     d_rand = float(np.median(rand))
-    return {"D_qty": d_qty, "D_sp": d_sp, "D_rand": d_rand, "Delta_sp": abs(d_sp - d_rand),
-            "n_success": len(success_grids), "n_failure": len(failure_grids)}
+    return {
+        "D_qty": d_qty,
+        "D_sp": d_sp,
+        "D_rand": d_rand,
+        "Delta_sp": abs(d_sp - d_rand),
+        "n_success": len(success_grids),
+        "n_failure": len(failure_grids),
+    }
 
 
 def run_analysis(benchmark_dir: Path | None, out: Path, fov: float = 220.0) -> dict:
@@ -106,8 +119,16 @@ def run_analysis(benchmark_dir: Path | None, out: Path, fov: float = 220.0) -> d
     plt.close(fig)
     lines = ["| family | " + " | ".join(PROFILES) + " |", "|---|" + "---|" * len(PROFILES)]
     lines += [f"| {f} | " + " | ".join(f"{table[f][p]:.2f}" for p in PROFILES) + " |" for f in FAMILIES]
-    md = ["# Failure analysis", "", f"## Focal-projection coupling C_f-eta (FoV {fov:.0f}; C/M/E: central/middle/edge bands, R: radial cover)",
-          "", *lines, "", "![coupling](coupling_index.png)", ""]
+    md = [
+        "# Failure analysis",
+        "",
+        f"## Focal-projection coupling C_f-eta (FoV {fov:.0f}; C/M/E: central/middle/edge bands, R: radial cover)",
+        "",
+        *lines,
+        "",
+        "![coupling](coupling_index.png)",
+        "",
+    ]
 
     if benchmark_dir is not None:
         trials = json.loads((benchmark_dir / "trials.json").read_text())
@@ -134,8 +155,14 @@ def run_analysis(benchmark_dir: Path | None, out: Path, fov: float = 220.0) -> d
         plt.close(fig)
         med = {k: float(np.median([np.median(g) for g in v])) if v else float("nan") for k, v in groups.items()}
         result["gamma_median"] = med
-        md += ["## Conditioning trajectories (all-frames pipeline)", "",
-               f"Median gamma: success {med['success']:.2f}, failure {med['failure']:.2f}.", "", "![gamma](gamma_trajectories.png)", ""]
+        md += [
+            "## Conditioning trajectories (all-frames pipeline)",
+            "",
+            f"Median gamma: success {med['success']:.2f}, failure {med['failure']:.2f}.",
+            "",
+            "![gamma](gamma_trajectories.png)",
+            "",
+        ]
         # Spatial distribution metrics per configuration.
         per_cfg = {}
         for t in trials:
@@ -150,10 +177,18 @@ def run_analysis(benchmark_dir: Path | None, out: Path, fov: float = 220.0) -> d
         for cfg, d in per_cfg.items():
             m = distribution_metrics(d["S"], d["F"])
             result["distribution"][cfg] = m
-            rows.append(f"| {cfg} | {100 * m['D_qty']:.2f}% | {100 * m['D_sp']:.2f}% | {100 * m['D_rand']:.2f}% | "
-                        f"{100 * m['Delta_sp']:.2f} pp | {m['n_success']} / {m['n_failure']} |")
-        md += ["## Success/failure distribution comparison (all-frames pipeline)", "", *rows,
-               "", "Settings without failures (or without successes) have no comparison (nan).", ""]
+            rows.append(
+                f"| {cfg} | {100 * m['D_qty']:.2f}% | {100 * m['D_sp']:.2f}% | {100 * m['D_rand']:.2f}% | "
+                f"{100 * m['Delta_sp']:.2f} pp | {m['n_success']} / {m['n_failure']} |"
+            )
+        md += [
+            "## Success/failure distribution comparison (all-frames pipeline)",
+            "",
+            *rows,
+            "",
+            "Settings without failures (or without successes) have no comparison (nan).",
+            "",
+        ]
     (out / "analysis.md").write_text("\n".join(md) + "\n")
     (out / "analysis.json").write_text(json.dumps(result, indent=1))
     print("\n".join(lines))

@@ -24,12 +24,22 @@ def bench_calibration(config: str = "FoV220_90", frames: int = 480, repeats: int
         r_sel = calibrate(seq.subset(sel.keep), CalibConfig(fov=rig.fov), order=sel.order)
         t_select.append(t1 - t0)
         t_sel.append(time.perf_counter() - t0)
-    out = {"config": config, "frames": frames, "all_frames_s": statistics.median(t_all), "selected_s": statistics.median(t_sel),
-           "select_only_s": statistics.median(t_select), "n_selected_obs": len(sel.keep), "n_obs": len(seq.observations),
-           "success_all": r_all.success, "success_selected": r_sel.success}
-    print(f"calibration {config}, {frames} frames ({out['n_obs']} observations): all frames {out['all_frames_s']:.2f} s, "
-          f"selector + selected ({out['n_selected_obs']} observations) {out['selected_s']:.2f} s "
-          f"(selector alone {out['select_only_s']:.2f} s); median of {repeats}")
+    out = {
+        "config": config,
+        "frames": frames,
+        "all_frames_s": statistics.median(t_all),
+        "selected_s": statistics.median(t_sel),
+        "select_only_s": statistics.median(t_select),
+        "n_selected_obs": len(sel.keep),
+        "n_obs": len(seq.observations),
+        "success_all": r_all.success,
+        "success_selected": r_sel.success,
+    }
+    print(
+        f"calibration {config}, {frames} frames ({out['n_obs']} observations): all frames {out['all_frames_s']:.2f} s, "
+        f"selector + selected ({out['n_selected_obs']} observations) {out['selected_s']:.2f} s "
+        f"(selector alone {out['select_only_s']:.2f} s); median of {repeats}"
+    )
     return out
 
 

@@ -33,16 +33,37 @@ import numpy as np
 PAPER_CONFIGS = [f"FoV{f}_{y}" for f in (180, 200, 220, 240) for y in (0, 60, 90, 120)]
 ALL_CONFIGS = PAPER_CONFIGS + ["FoV220_hex"]
 VARIANTS = ["all", "selector", "random", "ba_only"]
-VARIANT_NAMES = {"all": "All frames (Kalibr-style)", "selector": "CO-Calib (selector)", "random": "Random subset", "ba_only": "BA-only two-stage"}
+VARIANT_NAMES = {
+    "all": "All frames (Kalibr-style)",
+    "selector": "CO-Calib (selector)",
+    "random": "Random subset",
+    "ba_only": "BA-only two-stage",
+}
 STRICT = {"intr_px": 2.0, "ext_mm": 5.0, "ext_deg": 0.5}
 # Paper Table IV/V: SR (%), ATE t/r (mm/deg), Ext t/r (mm/deg); Kalibr is the all-frames row.
-PAPER_OVERALL = {"all": (68.1, 3.27, 0.079, 0.54, 0.029), "selector": (99.3, 3.69, 0.111, 0.18, 0.021),
-                 "random": (30.9, 4.43, 0.160, 0.26, 0.029), "ba_only": (13.5, 4.74, 0.178, 0.31, 0.033)}
+PAPER_OVERALL = {
+    "all": (68.1, 3.27, 0.079, 0.54, 0.029),
+    "selector": (99.3, 3.69, 0.111, 0.18, 0.021),
+    "random": (30.9, 4.43, 0.160, 0.26, 0.029),
+    "ba_only": (13.5, 4.74, 0.178, 0.31, 0.033),
+}
 PAPER_SR = {  # per configuration: Kalibr, CO-Calib, random, BA-only success rates (%)
-    "FoV180_0": (97, 100, 39, 29), "FoV180_60": (100, 100, 42, 28), "FoV180_90": (100, 99, 35, 17), "FoV180_120": (100, 100, 24, 12),
-    "FoV200_0": (97, 100, 59, 22), "FoV200_60": (98, 99, 52, 26), "FoV200_90": (97, 100, 54, 19), "FoV200_120": (92, 100, 50, 20),
-    "FoV220_0": (33, 100, 13, 3), "FoV220_60": (64, 100, 33, 10), "FoV220_90": (56, 99, 21, 9), "FoV220_120": (54, 97, 20, 8),
-    "FoV240_0": (12, 98, 12, 1), "FoV240_60": (41, 98, 22, 6), "FoV240_90": (25, 98, 13, 5), "FoV240_120": (23, 100, 5, 1),
+    "FoV180_0": (97, 100, 39, 29),
+    "FoV180_60": (100, 100, 42, 28),
+    "FoV180_90": (100, 99, 35, 17),
+    "FoV180_120": (100, 100, 24, 12),
+    "FoV200_0": (97, 100, 59, 22),
+    "FoV200_60": (98, 99, 52, 26),
+    "FoV200_90": (97, 100, 54, 19),
+    "FoV200_120": (92, 100, 50, 20),
+    "FoV220_0": (33, 100, 13, 3),
+    "FoV220_60": (64, 100, 33, 10),
+    "FoV220_90": (56, 99, 21, 9),
+    "FoV220_120": (54, 97, 20, 8),
+    "FoV240_0": (12, 98, 12, 1),
+    "FoV240_60": (41, 98, 22, 6),
+    "FoV240_90": (25, 98, 13, 5),
+    "FoV240_120": (23, 100, 5, 1),
 }
 
 
@@ -85,10 +106,16 @@ def evaluate_result(res, gt, fov: float) -> dict:
         Tg = gt.T_rig_board[v]
         ate_t.append(1000 * np.linalg.norm(T[:3, 3] - Tg[:3, 3]))
         ate_r.append(_rot_deg(T[:3, :3] @ Tg[:3, :3].T))
-    out.update({
-        "intr_px": float(intr_px), "ext_mm": float(np.mean(ext_t)), "ext_deg": float(np.mean(ext_r)),
-        "ate_mm": float(np.mean(ate_t)), "ate_deg": float(np.mean(ate_r)), "rms_px": res.rms_px,
-    })
+    out.update(
+        {
+            "intr_px": float(intr_px),
+            "ext_mm": float(np.mean(ext_t)),
+            "ext_deg": float(np.mean(ext_r)),
+            "ate_mm": float(np.mean(ate_t)),
+            "ate_deg": float(np.mean(ate_r)),
+            "rms_px": res.rms_px,
+        }
+    )
     out["strict"] = bool(intr_px < STRICT["intr_px"] and out["ext_mm"] < STRICT["ext_mm"] and out["ext_deg"] < STRICT["ext_deg"])
     return out
 
@@ -106,8 +133,9 @@ def coverage_grid(seq, cells: int = 16) -> list[list[int]]:
     return out
 
 
-def run_trial(config: str, trial: int, frames: int = 480, noise_px: float = 0.3, variants: list[str] | None = None,
-              model: str = "ds") -> dict:
+def run_trial(
+    config: str, trial: int, frames: int = 480, noise_px: float = 0.3, variants: list[str] | None = None, model: str = "ds"
+) -> dict:
     """One sequence, calibrated by every variant. Deterministic in (config, trial)."""
     import torch
 
@@ -153,10 +181,16 @@ def _summarise(trials: list[dict], variants: list[str]) -> dict:
     def agg(rs: list[dict]) -> dict:
         strict = [r for r in rs if r.get("strict")]
         f = lambda k: float(np.mean([r[k] for r in strict])) if strict else float("nan")  # noqa: E731
-        return {"n": len(rs), "sr": 100 * np.mean([r["success"] for r in rs]) if rs else float("nan"),
-                "strict_sr": 100 * np.mean([r.get("strict", False) for r in rs]) if rs else float("nan"),
-                "ate_mm": f("ate_mm"), "ate_deg": f("ate_deg"), "ext_mm": f("ext_mm"), "ext_deg": f("ext_deg"),
-                "runtime_s": float(np.median([r["runtime_s"] for r in rs])) if rs else float("nan")}
+        return {
+            "n": len(rs),
+            "sr": 100 * np.mean([r["success"] for r in rs]) if rs else float("nan"),
+            "strict_sr": 100 * np.mean([r.get("strict", False) for r in rs]) if rs else float("nan"),
+            "ate_mm": f("ate_mm"),
+            "ate_deg": f("ate_deg"),
+            "ext_mm": f("ext_mm"),
+            "ext_deg": f("ext_deg"),
+            "runtime_s": float(np.median([r["runtime_s"] for r in rs])) if rs else float("nan"),
+        }
 
     summary = {cfg: {v: agg(rs) for v, rs in d.items()} for cfg, d in by_cfg.items()}
     summary["overall"] = {v: agg([t[v] for t in trials if v in t and t["config"] in PAPER_CONFIGS]) for v in variants}
@@ -164,7 +198,10 @@ def _summarise(trials: list[dict], variants: list[str]) -> dict:
 
 
 def _table(summary: dict, variants: list[str], trials: int) -> str:
-    lines = ["| configuration | method | SR | strict SR | ATE t/r (mm/deg) | Ext. t/r (mm/deg) | paper SR |", "|---|---|---|---|---|---|---|"]
+    lines = [
+        "| configuration | method | SR | strict SR | ATE t/r (mm/deg) | Ext. t/r (mm/deg) | paper SR |",
+        "|---|---|---|---|---|---|---|",
+    ]
     idx = {v: i for i, v in enumerate(["all", "selector", "random", "ba_only"])}
     for cfg in [c for c in ALL_CONFIGS if c in summary] + ["overall"]:
         for v in variants:
@@ -173,20 +210,38 @@ def _table(summary: dict, variants: list[str], trials: int) -> str:
                 p = f"{PAPER_OVERALL[v][0]:.1f}%"
             else:
                 p = f"{PAPER_SR[cfg][idx[v]]}%" if cfg in PAPER_SR else ""
-            lines.append(f"| {cfg} | {VARIANT_NAMES[v]} | {s['sr']:.0f}% | {s['strict_sr']:.0f}% | {s['ate_mm']:.2f}/{s['ate_deg']:.3f} | "
-                         f"{s['ext_mm']:.2f}/{s['ext_deg']:.3f} | {p} |")
-    lines += ["", f"{trials} trial(s) per configuration. Paper overall (SR, ATE, Ext.): "
-              + "; ".join(f"{VARIANT_NAMES[v]} {PAPER_OVERALL[v][0]}%, {PAPER_OVERALL[v][1]}/{PAPER_OVERALL[v][2]}, "
-                          f"{PAPER_OVERALL[v][3]}/{PAPER_OVERALL[v][4]}" for v in variants),
-              "", "Success: the pipeline ends normally with every camera's RMS <= 2 px. Strict success: success, projections within "
-              f"{STRICT['intr_px']} px RMS of the true camera over 95 % of the FoV, extrinsics within {STRICT['ext_mm']} mm and {STRICT['ext_deg']} deg of the ground truth. "
-              "ATE and Ext. are means over strict successes; the criteria are the same for every method. The overall row covers the 16 "
-              "paper configurations (not the hex rig)."]
+            lines.append(
+                f"| {cfg} | {VARIANT_NAMES[v]} | {s['sr']:.0f}% | {s['strict_sr']:.0f}% | {s['ate_mm']:.2f}/{s['ate_deg']:.3f} | "
+                f"{s['ext_mm']:.2f}/{s['ext_deg']:.3f} | {p} |"
+            )
+    lines += [
+        "",
+        f"{trials} trial(s) per configuration. Paper overall (SR, ATE, Ext.): "
+        + "; ".join(
+            f"{VARIANT_NAMES[v]} {PAPER_OVERALL[v][0]}%, {PAPER_OVERALL[v][1]}/{PAPER_OVERALL[v][2]}, "
+            f"{PAPER_OVERALL[v][3]}/{PAPER_OVERALL[v][4]}"
+            for v in variants
+        ),
+        "",
+        "Success: the pipeline ends normally with every camera's RMS <= 2 px. Strict success: success, projections within "
+        f"{STRICT['intr_px']} px RMS of the true camera over 95 % of the FoV, extrinsics within {STRICT['ext_mm']} mm and "
+        f"{STRICT['ext_deg']} deg of the ground truth. "
+        "ATE and Ext. are means over strict successes; the criteria are the same for every method. The overall row covers the 16 "
+        "paper configurations (not the hex rig).",
+    ]
     return "\n".join(lines)
 
 
-def run_benchmark(configs: list[str], trials: int, out: Path, workers: int = 0, frames: int = 480, variants: list[str] | None = None,
-                  progress: bool = True, model: str = "ds") -> dict:
+def run_benchmark(
+    configs: list[str],
+    trials: int,
+    out: Path,
+    workers: int = 0,
+    frames: int = 480,
+    variants: list[str] | None = None,
+    progress: bool = True,
+    model: str = "ds",
+) -> dict:
     """Run (this rank's share of) the benchmark, write its shard, and on rank 0 merge all shards."""
     from tqdm import tqdm
 
@@ -235,10 +290,12 @@ def merge(out: Path, world: int, trials: int, variants: list[str], model: str = 
     summary = _summarise(all_trials, variants)
     table = _table(summary, variants, trials)
     (out / "trials.json").write_text(json.dumps(all_trials))
-    (out / "results.json").write_text(json.dumps({"summary": summary, "elapsed_s": elapsed, "trials": trials, "strict": STRICT,
-                                                  "calibration_model": model}, indent=1))
-    (out / "results.md").write_text(f"# Synthetic calibration benchmark\n\nf-theta cameras calibrated with the `{model}` model; "
-                                    f"wall time {elapsed:.0f} s.\n\n{table}\n")
+    (out / "results.json").write_text(
+        json.dumps({"summary": summary, "elapsed_s": elapsed, "trials": trials, "strict": STRICT, "calibration_model": model}, indent=1)
+    )
+    (out / "results.md").write_text(
+        f"# Synthetic calibration benchmark\n\nf-theta cameras calibrated with the `{model}` model; wall time {elapsed:.0f} s.\n\n{table}\n"
+    )
     print(table)
     print(f"benchmark took {elapsed:.0f} s -> {out}/results.md")
     return {"summary": summary, "table": table, "elapsed_s": elapsed}

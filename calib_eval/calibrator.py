@@ -61,8 +61,9 @@ def _retract(T: Tensor, d: Tensor) -> Tensor:
 def _skew(p: Tensor) -> Tensor:
     """(O, 3) -> (O, 3, 3) with skew(p) w = p x w."""
     z = torch.zeros_like(p[:, 0])
-    return torch.stack([torch.stack([z, -p[:, 2], p[:, 1]], -1), torch.stack([p[:, 2], z, -p[:, 0]], -1),
-                        torch.stack([-p[:, 1], p[:, 0], z], -1)], -2)
+    return torch.stack(
+        [torch.stack([z, -p[:, 2], p[:, 1]], -1), torch.stack([p[:, 2], z, -p[:, 0]], -1), torch.stack([-p[:, 1], p[:, 0], z], -1)], -2
+    )
 
 
 def project_with_jacobians(model: str, p: Tensor, intr: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
@@ -174,7 +175,7 @@ def solve(
     T_cam_rig = T_cam_rig.clone()
     T_rig_board = T_rig_board.clone()
     # Column layout of the camera block.
-    offs, blocks = [], []
+    offs = []
     n = 0
     for c in range(C):
         ni = intr[c].numel() if opt_intr else 0
@@ -391,8 +392,9 @@ def _focal_search(model: str, guess: Tensor, obs: list[Observation], board: Chec
     return best
 
 
-def _intrinsic_stage(model: str, intr: Tensor, obs: list[Observation], board: Checkerboard, cfg: CalibConfig,
-                     progressive: bool) -> tuple[Tensor, dict[int, np.ndarray], list[float], SolveResult]:
+def _intrinsic_stage(
+    model: str, intr: Tensor, obs: list[Observation], board: Checkerboard, cfg: CalibConfig, progressive: bool
+) -> tuple[Tensor, dict[int, np.ndarray], list[float], SolveResult]:
     """Stage 1 (progressive, gamma recorded) or stage 2 (all at once) for one camera."""
     if progressive:
         steps = [k for k in cfg.init_steps if k < len(obs)] + ([len(obs)] if len(obs) <= max(cfg.init_steps) else [])
@@ -457,9 +459,19 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
     stages: list[dict] = []
 
     def fail(reason: str, intr=None, T_cr=None) -> CalibrationResult:
-        return CalibrationResult(False, reason, models, [np.asarray(x) for x in (intr or [])],
-                                 T_cr if T_cr is not None else np.tile(np.eye(4), (C, 1, 1)), {}, [float("nan")] * C,
-                                 frames, gammas, time.time() - t0, stages)
+        return CalibrationResult(
+            False,
+            reason,
+            models,
+            [np.asarray(x) for x in (intr or [])],
+            T_cr if T_cr is not None else np.tile(np.eye(4), (C, 1, 1)),
+            {},
+            [float("nan")] * C,
+            frames,
+            gammas,
+            time.time() - t0,
+            stages,
+        )
 
     try:
         cameras.get_model(cfg.model)
@@ -542,8 +554,16 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
     used = [o for c in range(C) for o in obs_by_cam[c] if o.view in vi]
     prob = Problem.build(used, board, vi)
     Tb = torch.from_numpy(np.stack([T_rig_board[v] for v in views]))
-    intr_t, Tcr, Tb, res = solve(prob, models, intr, torch.from_numpy(T_cam_rig), Tb, opt_extr=C > 1,
-                                 iters=cfg.refine_iters * (2 if cfg.no_init else 1), huber=cfg.huber_px)
+    intr_t, Tcr, Tb, res = solve(
+        prob,
+        models,
+        intr,
+        torch.from_numpy(T_cam_rig),
+        Tb,
+        opt_extr=C > 1,
+        iters=cfg.refine_iters * (2 if cfg.no_init else 1),
+        huber=cfg.huber_px,
+    )
     frames["full"] = [len(obs_by_cam[c]) for c in range(C)]
     stages.append({"stage": "full", "rms_px": res.rms, "iterations": res.iterations, "reason": res.reason})
     intr_np = [x.numpy() for x in intr_t]
@@ -552,12 +572,14 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
     worst = max(res.rms) if res.rms else float("nan")
     success = ok_finite and math.isfinite(worst) and worst <= cfg.max_rms_px
     reason = "ok" if success else (f"final RMS {worst:.2f} px exceeds {cfg.max_rms_px} px" if ok_finite else "non-finite parameters")
-    return CalibrationResult(success, reason, models, intr_np, T_cr, {v: Tb[i].numpy() for v, i in vi.items()}, res.rms, frames,
-                             gammas, time.time() - t0, stages)
+    return CalibrationResult(
+        success, reason, models, intr_np, T_cr, {v: Tb[i].numpy() for v, i in vi.items()}, res.rms, frames, gammas, time.time() - t0, stages
+    )
 
 
-def _reject_outliers(obs: list[Observation], poses_cb: dict[int, np.ndarray], model: str, intr: Tensor, board: Checkerboard,
-                     cfg: CalibConfig) -> list[Observation]:
+def _reject_outliers(
+    obs: list[Observation], poses_cb: dict[int, np.ndarray], model: str, intr: Tensor, board: Checkerboard, cfg: CalibConfig
+) -> list[Observation]:
     errs = []
     per = []
     for o in obs:

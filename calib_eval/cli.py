@@ -27,9 +27,16 @@ def cmd_synth(a: argparse.Namespace) -> int:
     rig.model = a.model
     seq, gt = make_sequence(rig, SynthSpec(n_frames=a.frames, noise_px=a.noise, outlier_rate=a.outliers), seed=a.seed)
     root = write_sequence(seq, a.out)
-    (Path(a.out) / "ground_truth.json").write_text(json.dumps({
-        "model": gt.model, "params": [p.tolist() for p in gt.params], "T_cam_rig": gt.T_cam_rig.tolist(),
-    }, indent=1))
+    (Path(a.out) / "ground_truth.json").write_text(
+        json.dumps(
+            {
+                "model": gt.model,
+                "params": [p.tolist() for p in gt.params],
+                "T_cam_rig": gt.T_cam_rig.tolist(),
+            },
+            indent=1,
+        )
+    )
     print(f"wrote {root} ({len(seq.cameras)} cameras, {seq.n_views} frames, {len(seq.observations)} observations)")
     return 0
 
@@ -37,9 +44,16 @@ def cmd_synth(a: argparse.Namespace) -> int:
 def _selector_cfg(a: argparse.Namespace):
     from calib_eval.selector import SelectorConfig
 
-    return SelectorConfig(fov=a.fov, iso_gate=a.iso_gate, drs_numerator=a.drs_numerator, min_corners=a.min_corners,
-                          max_anchors=a.max_anchors, max_covisible=a.max_covisible, max_monofill=a.max_monofill,
-                          target=_target(a.target))
+    return SelectorConfig(
+        fov=a.fov,
+        iso_gate=a.iso_gate,
+        drs_numerator=a.drs_numerator,
+        min_corners=a.min_corners,
+        max_anchors=a.max_anchors,
+        max_covisible=a.max_covisible,
+        max_monofill=a.max_monofill,
+        target=_target(a.target),
+    )
 
 
 def cmd_select(a: argparse.Namespace) -> int:
@@ -48,9 +62,20 @@ def cmd_select(a: argparse.Namespace) -> int:
 
     seq = load_sequence(a.seq, a.tolerance_ms)
     sel = select(seq, _selector_cfg(a))
-    rows = [{"camera": seq.cameras[s.cam].name, "view": s.view, "frame": s.frame, "stage": s.stage, "order": s.order,
-             "n_corners": s.n_corners, "s_iso": round(s.s_iso, 4), "s_drs": round(s.s_drs, 4), "reason": s.reason}
-            for s in sorted(sel.scores, key=lambda s: (s.cam, s.order if s.order >= 0 else 10**9, s.view))]
+    rows = [
+        {
+            "camera": seq.cameras[s.cam].name,
+            "view": s.view,
+            "frame": s.frame,
+            "stage": s.stage,
+            "order": s.order,
+            "n_corners": s.n_corners,
+            "s_iso": round(s.s_iso, 4),
+            "s_drs": round(s.s_drs, 4),
+            "reason": s.reason,
+        }
+        for s in sorted(sel.scores, key=lambda s: (s.cam, s.order if s.order >= 0 else 10**9, s.view))
+    ]
     out = Path(a.out) if a.out else Path(a.seq) / "selection.json"
     out.write_text(json.dumps({"summary": sel.summary(), "frames": rows}, indent=1))
     print(f"selected {len(sel.keep)} of {len(sel.scores)} observations: {sel.summary()} -> {out}")
@@ -161,19 +186,25 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--fov", type=int, nargs="+", default=[180, 200, 220, 240])
     s.add_argument("--per-fov", type=int, default=50)
     s.add_argument("--empty", type=int, default=20, help="images without a target")
-    s.add_argument("--detectors", nargs="+", default=["learned", "opencv_sb", "opencv_classic"],
-                   choices=["learned", "opencv_sb", "opencv_classic"])
+    s.add_argument(
+        "--detectors", nargs="+", default=["learned", "opencv_sb", "opencv_classic"], choices=["learned", "opencv_sb", "opencv_classic"]
+    )
     s.add_argument("--out", default="report/detection")
     s.set_defaults(func=cmd_detection)
 
     s = sub.add_parser("benchmark", help="synthetic calibration benchmark: all frames, selector, random subset, BA-only")
-    s.add_argument("--configs", nargs="+", default=["FoV180_90", "FoV220_0", "FoV220_90", "FoV240_60"],
-                   help="FoV<deg>_<yaw> / FoV<deg>_hex names, or 'all' (16 paper configurations + the hex rig)")
+    s.add_argument(
+        "--configs",
+        nargs="+",
+        default=["FoV180_90", "FoV220_0", "FoV220_90", "FoV240_60"],
+        help="FoV<deg>_<yaw> / FoV<deg>_hex names, or 'all' (16 paper configurations + the hex rig)",
+    )
     s.add_argument("--trials", type=int, default=2, help="sequences per configuration (paper: 100)")
     s.add_argument("--frames", type=int, default=480)
     s.add_argument("--model", default="ds", choices=["kb4", "ucm", "eucm", "ds"], help="camera model the calibrator fits")
-    s.add_argument("--variants", nargs="+", default=["all", "selector", "random", "ba_only"],
-                   choices=["all", "selector", "random", "ba_only"])
+    s.add_argument(
+        "--variants", nargs="+", default=["all", "selector", "random", "ba_only"], choices=["all", "selector", "random", "ba_only"]
+    )
     s.add_argument("--workers", type=int, default=0, help="parallel processes (0 = one per CPU core)")
     s.add_argument("--merge-only", type=int, default=0, metavar="WORLD", help="only merge the shards of a WORLD-rank run")
     s.add_argument("--out", default="report/benchmark")

@@ -53,8 +53,16 @@ class EvalConfig:
 def _render_cfg(fov: float, cfg: EvalConfig, models: list[str], no_target: bool = False):
     from cotrain.renderer import RenderConfig
 
-    return RenderConfig(height=cfg.height, width=cfg.width, models=models, model_weights=[1.0] * len(models), fov_range=(fov, fov),
-                        kb4_k_scale=0.0, p_no_target=1.0 if no_target else 0.0, distance_range=(0.15, 1.2))
+    return RenderConfig(
+        height=cfg.height,
+        width=cfg.width,
+        models=models,
+        model_weights=[1.0] * len(models),
+        fov_range=(fov, fov),
+        kb4_k_scale=0.0,
+        p_no_target=1.0 if no_target else 0.0,
+        distance_range=(0.15, 1.2),
+    )
 
 
 def render_benchmark(cfg: EvalConfig, out: Path, progress: bool = True) -> dict:
@@ -87,11 +95,19 @@ def render_benchmark(cfg: EvalConfig, out: Path, progress: bool = True) -> dict:
         m = cameras.get_model(model)
         centre = [float(p[m.index("cx")]), float(p[m.index("cy")])]
         det = (b["visible"][0] & (b["square_px"][0] >= cfg.min_square_px) & (b["learnability"][0] > 0)).tolist()
-        labels.append({
-            "image": name, "fov": fov if kind != "empty" else None, "model": model, "has_target": kind != "empty",
-            "corners": b["corners_raw"][0].tolist(), "visible": b["visible"][0].tolist(), "detectable": det,
-            "centre": centre, "radius": float(b["radius"][0]),
-        })
+        labels.append(
+            {
+                "image": name,
+                "fov": fov if kind != "empty" else None,
+                "model": model,
+                "has_target": kind != "empty",
+                "corners": b["corners_raw"][0].tolist(),
+                "visible": b["visible"][0].tolist(),
+                "detectable": det,
+                "centre": centre,
+                "radius": float(b["radius"][0]),
+            }
+        )
     meta = {"version": BENCH_VERSION, "config": cfg.__dict__, "labels": labels}
     (out / "labels.json").write_text(json.dumps(meta))
     return meta
@@ -141,8 +157,9 @@ def run_geometry(kind: str, images: list[Path], pattern: tuple[int, int] = (9, 6
 # --------------------------------------------------------------------------------------------
 # Scoring
 # --------------------------------------------------------------------------------------------
-def score_image(pred: list[list[float]], has_id: bool, gt: np.ndarray, visible: np.ndarray, detectable: np.ndarray,
-                tol: float = TOL_PX) -> dict:
+def score_image(
+    pred: list[list[float]], has_id: bool, gt: np.ndarray, visible: np.ndarray, detectable: np.ndarray, tol: float = TOL_PX
+) -> dict:
     """Match one image's predictions to ground truth.
 
     pred: [[id, x, y], ...] (id -1 when the detector gives none); gt (N, 2); visible, detectable (N,).
@@ -223,16 +240,21 @@ def score(preds: dict[str, dict], labels: list[dict]) -> dict:
             "n_detectable": g["det"],
             "n_reported": g["rep"],
         }
-    return {"per_fov": rows, "false_images": empty_flagged, "n_empty": n_empty, "ms_per_image": statistics.median(ms) if ms else float("nan"),
-            "errors": errors_by_fov, "radial": radial}
+    return {
+        "per_fov": rows,
+        "false_images": empty_flagged,
+        "n_empty": n_empty,
+        "ms_per_image": statistics.median(ms) if ms else float("nan"),
+        "errors": errors_by_fov,
+        "radial": radial,
+    }
 
 
 # --------------------------------------------------------------------------------------------
 # Report
 # --------------------------------------------------------------------------------------------
 def _table(results: dict[str, dict], fovs: list[int]) -> str:
-    lines = ["| FoV | detector | recall | mean err px | median err px | outliers | paper recall / err |",
-             "|---|---|---|---|---|---|---|"]
+    lines = ["| FoV | detector | recall | mean err px | median err px | outliers | paper recall / err |", "|---|---|---|---|---|---|---|"]
     for fov in fovs:
         for name, r in results.items():
             row = r["per_fov"].get(str(fov))
@@ -240,8 +262,10 @@ def _table(results: dict[str, dict], fovs: list[int]) -> str:
                 continue
             paper = PAPER.get(fov, {}).get("learned" if name == "learned" else "geometry")
             ptxt = f"{paper[0]:.3f} / {paper[1]:.3f}" if paper and name in ("learned", "opencv_sb") else ""
-            lines.append(f"| {fov} | {name} | {row['recall']:.3f} | {row['mean_error_px']:.3f} | {row['median_error_px']:.3f} | "
-                         f"{100 * row['outlier_rate']:.2f}% | {ptxt} |")
+            lines.append(
+                f"| {fov} | {name} | {row['recall']:.3f} | {row['mean_error_px']:.3f} | {row['median_error_px']:.3f} | "
+                f"{100 * row['outlier_rate']:.2f}% | {ptxt} |"
+            )
     lines.append("")
     lines.append("| detector | images without target with reports | ms / image (median) |")
     lines.append("|---|---|---|")
@@ -274,7 +298,8 @@ def _plots(results: dict[str, dict], fovs: list[int], out: Path) -> list[Path]:
         ax.set_ylim(0, 1.02)
         ax.grid(alpha=0.3)
     axes[0][0].set_ylabel("recall")
-    axes[0][-1].legend(fontsize=8)
+    if axes[0][-1].get_legend_handles_labels()[0]:
+        axes[0][-1].legend(fontsize=8)
     fig.tight_layout()
     p = out / "recall_vs_radius.png"
     fig.savefig(p, dpi=110)
@@ -321,16 +346,33 @@ def evaluate_detection(model: str | None, cfg: EvalConfig, out: Path, progress: 
     table = _table(results, cfg.fovs)
     elapsed = time.time() - t0
     plots = _plots(results, cfg.fovs, out)
-    md = [f"# Detection evaluation (benchmark v{BENCH_VERSION}, seed {cfg.seed})", "",
-          f"{cfg.per_fov} images per FoV at {cfg.width}x{cfg.height} (half f-theta, half ucm/eucm/ds), {cfg.n_empty} without a target. "
-          f"Model: {model or 'shipped default'}. Whole evaluation: {elapsed:.0f} s.", "", table, "",
-          "Recall: detectable ground-truth corners found within 3 px (learned: right id; OpenCV: matched by position). "
-          "Outliers: reported corners with a wrong id or over 3 px off. Paper numbers: learned / geometry-based rows of its table.",
-          "", *[f"![{p.stem}]({p.name})" for p in plots]]
+    md = [
+        f"# Detection evaluation (benchmark v{BENCH_VERSION}, seed {cfg.seed})",
+        "",
+        f"{cfg.per_fov} images per FoV at {cfg.width}x{cfg.height} (half f-theta, half ucm/eucm/ds), {cfg.n_empty} without a target. "
+        f"Model: {model or 'shipped default'}. Whole evaluation: {elapsed:.0f} s.",
+        "",
+        table,
+        "",
+        "Recall: detectable ground-truth corners found within 3 px (learned: right id; OpenCV: matched by position). "
+        "Outliers: reported corners with a wrong id or over 3 px off. Paper numbers: learned / geometry-based rows of its table.",
+        "",
+        *[f"![{p.stem}]({p.name})" for p in plots],
+    ]
     (out / "results.md").write_text("\n".join(md) + "\n")
     slim = {k: {kk: vv for kk, vv in v.items() if kk not in ("errors", "radial")} for k, v in results.items()}
-    (out / "results.json").write_text(json.dumps({"version": BENCH_VERSION, "elapsed_s": elapsed, "model": model, "results": slim,
-                                                  "paper": {str(k): v for k, v in PAPER.items()}}, indent=1))
+    (out / "results.json").write_text(
+        json.dumps(
+            {
+                "version": BENCH_VERSION,
+                "elapsed_s": elapsed,
+                "model": model,
+                "results": slim,
+                "paper": {str(k): v for k, v in PAPER.items()},
+            },
+            indent=1,
+        )
+    )
     print(table)
     print(f"evaluation took {elapsed:.0f} s -> {out}/results.md")
     return {"results": slim, "elapsed_s": elapsed, "table": table}

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from calib_eval.sequence import Observation, Sequence
+from calib_eval.sequence import Sequence
 from cotrain.targets import Checkerboard, TargetConfig
 
 
@@ -184,7 +184,7 @@ def select(seq: Sequence, cfg: SelectorConfig) -> Selection:
         g = cfg.grid_cells
         counts = np.zeros((g, g))
 
-        def cells(q: np.ndarray) -> np.ndarray:
+        def cells(q: np.ndarray, cam=cam, g=g) -> np.ndarray:
             ix = np.clip((q[:, 0] / cam.width * g).astype(int), 0, g - 1)
             iy = np.clip((q[:, 1] / cam.height * g).astype(int), 0, g - 1)
             return iy * g + ix

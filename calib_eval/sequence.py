@@ -106,8 +106,9 @@ def load_sequence(seq: str | Path, tolerance_ms: float = 10.0, detect=None) -> S
     root = Path(seq)
     if not root.is_dir():
         raise SequenceError(f"{seq}: not a folder")
-    cam_dirs = sorted((p for p in root.iterdir() if p.is_dir() and p.name.startswith("cam") and p.name[3:].isdigit()),
-                      key=lambda p: int(p.name[3:]))
+    cam_dirs = sorted(
+        (p for p in root.iterdir() if p.is_dir() and p.name.startswith("cam") and p.name[3:].isdigit()), key=lambda p: int(p.name[3:])
+    )
     if not cam_dirs:
         raise SequenceError(f"{seq}: no cam0/, cam1/, ... folders")
     per_cam = []
@@ -175,12 +176,19 @@ def write_sequence(seq: Sequence, root: str | Path, target: dict | None = None, 
             name = f"{v:06d}.png"
             lines.append(f"{v},{int(ts[v])},{name}")
             o = by_cam_view.get((c, v))
-            corners = [] if o is None else [
-                {"id": int(i), "x": float(x), "y": float(y), "confidence": float(w)} for i, (x, y), w in zip(o.ids, o.q, o.weight)
-            ]
-            images.append({"path": f"{cam.name}/images/{name}", "width": cam.width, "height": cam.height, "corners": corners, "error": None})
+            corners = (
+                []
+                if o is None
+                else [{"id": int(i), "x": float(x), "y": float(y), "confidence": float(w)} for i, (x, y), w in zip(o.ids, o.q, o.weight)]
+            )
+            images.append(
+                {"path": f"{cam.name}/images/{name}", "width": cam.width, "height": cam.height, "corners": corners, "error": None}
+            )
         (d / "timestamps.csv").write_text("\n".join(lines) + "\n")
-        det = {"model": model_name, "target": target or {"kind": "checkerboard", "squares_x": 10, "squares_y": 7, "square_size": 0.04},
-               "images": images}
+        det = {
+            "model": model_name,
+            "target": target or {"kind": "checkerboard", "squares_x": 10, "squares_y": 7, "square_size": 0.04},
+            "images": images,
+        }
         (d / "detections.json").write_text(json.dumps(det))
     return root

@@ -19,10 +19,19 @@ def bench_render(cfg: RenderConfig, batch: int = 8, repeats: int = 5, seed: int 
         render_batch(cfg, list(range((r + 1) * batch, (r + 2) * batch)), seed)
         times.append(time.perf_counter() - t0)
     med = statistics.median(times)
-    out = {"batch": batch, "height": cfg.height, "width": cfg.width, "threads": torch.get_num_threads(),
-           "median_s_per_batch": med, "samples_per_s": batch / med, "runs": times}
-    print(f"render {cfg.width}x{cfg.height} batch {batch}: median {med * 1000:.1f} ms/batch "
-          f"({batch / med:.1f} samples/s) over {repeats} runs, {torch.get_num_threads()} threads")
+    out = {
+        "batch": batch,
+        "height": cfg.height,
+        "width": cfg.width,
+        "threads": torch.get_num_threads(),
+        "median_s_per_batch": med,
+        "samples_per_s": batch / med,
+        "runs": times,
+    }
+    print(
+        f"render {cfg.width}x{cfg.height} batch {batch}: median {med * 1000:.1f} ms/batch "
+        f"({batch / med:.1f} samples/s) over {repeats} runs, {torch.get_num_threads()} threads"
+    )
     return out
 
 
@@ -52,8 +61,10 @@ def bench_render_vs_step(cfg_path: str = "configs/default.yaml", repeats: int = 
             t_step.append(t2 - t1)
     mr, ms = statistics.median(t_render), statistics.median(t_step)
     out = {"render_s": mr, "step_s": ms, "ratio": mr / ms, "samples_per_s_render": B / mr, "samples_per_s_train": B / (mr + ms)}
-    print(f"training batch {B} at {cfg.render.width}x{cfg.render.height}: render {mr * 1000:.0f} ms, step {ms * 1000:.0f} ms "
-          f"(render/step = {mr / ms:.2f}); training {B / (mr + ms):.1f} samples/s, {torch.get_num_threads()} threads")
+    print(
+        f"training batch {B} at {cfg.render.width}x{cfg.render.height}: render {mr * 1000:.0f} ms, step {ms * 1000:.0f} ms "
+        f"(render/step = {mr / ms:.2f}); training {B / (mr + ms):.1f} samples/s, {torch.get_num_threads()} threads"
+    )
     return out
 
 
@@ -108,8 +119,10 @@ def bench_detect(model: str | None = None, checkpoint: str | None = None, n: int
     out["findChessboardCornersSB_ms"] = 1000 * statistics.median(t_cv)
     out["speedup_vs_SB"] = out["findChessboardCornersSB_ms"] / out["onnxruntime_ms"]
     out["threads"] = torch.get_num_threads()
-    print(f"detect on {n} rendered 1280x720 images (median ms/image): onnxruntime {out['onnxruntime_ms']:.1f}"
-          + (f", PyTorch {out['pytorch_ms']:.1f}" if "pytorch_ms" in out else "")
-          + f", findChessboardCornersSB {out['findChessboardCornersSB_ms']:.1f} (found the board in {found}/{n}); "
-          f"onnxruntime is {out['speedup_vs_SB']:.1f}x faster than SB")
+    print(
+        f"detect on {n} rendered 1280x720 images (median ms/image): onnxruntime {out['onnxruntime_ms']:.1f}"
+        + (f", PyTorch {out['pytorch_ms']:.1f}" if "pytorch_ms" in out else "")
+        + f", findChessboardCornersSB {out['findChessboardCornersSB_ms']:.1f} (found the board in {found}/{n}); "
+        f"onnxruntime is {out['speedup_vs_SB']:.1f}x faster than SB"
+    )
     return out

@@ -1,4 +1,4 @@
-"""The ``cotrain`` command: render-preview, bench-render, train (more stages as they land)."""
+"""The ``cotrain`` command: pipeline, render-preview, bench-render, train, export, detect."""
 
 from __future__ import annotations
 
@@ -49,8 +49,10 @@ def cmd_export(args: argparse.Namespace) -> int:
     from export.onnx_export import export_onnx
 
     r = export_onnx(args.checkpoint, args.out, tol_px=args.tol_px)
-    print(f"wrote {r['out']} (opset {r['opset']}); parity on {r['images']} rendered images: max corner difference "
-          f"{r['max_corner_diff_px']:.2e} px, max probability difference {r['max_prob_diff']:.2e}")
+    print(
+        f"wrote {r['out']} (opset {r['opset']}); parity on {r['images']} rendered images: max corner difference "
+        f"{r['max_corner_diff_px']:.2e} px, max probability difference {r['max_prob_diff']:.2e}"
+    )
     return 0
 
 
@@ -73,6 +75,14 @@ def cmd_detect(args: argparse.Namespace) -> int:
         if e["error"]:
             print(f"  {e['path']}: {e['error']}", file=sys.stderr)
     return 0
+
+
+def cmd_pipeline(args: argparse.Namespace) -> int:
+    from cotrain.config import load_config
+    from cotrain.pipeline import PipelineConfig, run_pipeline
+
+    cfg = load_config(PipelineConfig, args.config, args.overrides)
+    return run_pipeline(cfg, from_scratch=args.from_scratch)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -113,6 +123,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--threshold", type=float, default=0.5, help="visibility probability to report a corner")
     s.add_argument("--draw", help="folder for overlays of the detections")
     s.set_defaults(func=cmd_detect)
+
+    s = sub.add_parser("pipeline", help="the main job: train, export, evaluate, calibrate; writes a report folder")
+    s.add_argument("--config", default=None, help="pipeline YAML (default: the embedded defaults = configs/pipeline.yaml)")
+    s.add_argument("--from-scratch", action="store_true", help="train from random weights instead of fine-tuning the shipped model")
+    s.add_argument("overrides", nargs="*", help="key=value overrides, e.g. train_steps=50")
+    s.set_defaults(func=cmd_pipeline)
     return p
 
 

@@ -159,7 +159,9 @@ def draw_detection(grey: np.ndarray, det: Detection) -> np.ndarray:
         col = (0, int(255 * c), int(255 * (1 - c)))
         cv2.circle(im, (int(round(x)), int(round(y))), r, col, -1, cv2.LINE_AA)
         if i % 9 == 0:
-            cv2.putText(im, str(int(i)), (int(x) + r + 1, int(y) - r - 1), cv2.FONT_HERSHEY_SIMPLEX, 0.35 * r / 2, (0, 255, 255), 1, cv2.LINE_AA)
+            cv2.putText(
+                im, str(int(i)), (int(x) + r + 1, int(y) - r - 1), cv2.FONT_HERSHEY_SIMPLEX, 0.35 * r / 2, (0, 255, 255), 1, cv2.LINE_AA
+            )
     return im
 
 
@@ -176,8 +178,10 @@ def detect_files(paths: list[Path], detector: Detector, draw_dir: Path | None = 
             grey = load_image(p)
             entry["height"], entry["width"] = grey.shape
             det = detector.detect(grey)
-            entry["corners"] = [{"id": int(i), "x": round(float(x), 3), "y": round(float(y), 3), "confidence": round(float(c), 4)}
-                                for i, (x, y), c in zip(det.ids, det.xy, det.confidence)]
+            entry["corners"] = [
+                {"id": int(i), "x": round(float(x), 3), "y": round(float(y), 3), "confidence": round(float(c), 4)}
+                for i, (x, y), c in zip(det.ids, det.xy, det.confidence)
+            ]
             if draw_dir is not None:
                 cv2.imwrite(str(draw_dir / (p.stem + "_det.png")), draw_detection(grey, det))
         except ImageError as e:

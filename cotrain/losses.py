@@ -113,8 +113,17 @@ def compute_losses(out: dict[str, Tensor], batch: dict[str, Tensor], cfg: LossCo
     L_mask = F.binary_cross_entropy_with_logits(out["board_mask_logit"], mask4)
 
     terms = {
-        "heat_pos": L_hpos, "heat_neg": L_hneg, "exclusion": L_e, "rough": L_r, "updated": L_u, "refined": L_f,
-        "visibility": L_v, "learnability": L_l, "confidence": L_c, "board_uv": L_uv, "board_mask": L_mask,
+        "heat_pos": L_hpos,
+        "heat_neg": L_hneg,
+        "exclusion": L_e,
+        "rough": L_r,
+        "updated": L_u,
+        "refined": L_f,
+        "visibility": L_v,
+        "learnability": L_l,
+        "confidence": L_c,
+        "board_uv": L_uv,
+        "board_mask": L_mask,
     }
     total = sum(getattr(cfg, k) * v for k, v in terms.items())
     return {**terms, "total": total, "refined_error": err}

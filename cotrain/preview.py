@@ -10,8 +10,9 @@ import numpy as np
 from cotrain.renderer import RenderConfig, render_batch
 
 
-def draw_sample(image: np.ndarray, corners: np.ndarray, visible: np.ndarray, learn: np.ndarray | None = None,
-                ids_every: int = 9) -> np.ndarray:
+def draw_sample(
+    image: np.ndarray, corners: np.ndarray, visible: np.ndarray, learn: np.ndarray | None = None, ids_every: int = 9
+) -> np.ndarray:
     """Grey float image (H, W) + corners (N, 2) -> BGR uint8 with corners marked.
 
     Green: visible (brighter = more learnable); red cross: labelled but not visible (if in frame).
@@ -37,15 +38,16 @@ def render_preview(cfg: RenderConfig, n: int, out: str | Path, seed: int = 0) ->
     """Render ``n`` samples and write them as one grid image to ``out``."""
     batch = render_batch(cfg, list(range(n)), seed=seed)
     tiles = [
-        draw_sample(batch["image"][b, 0].numpy(), batch["corners_raw"][b].numpy(), batch["visible"][b].numpy(),
-                    batch["learnability"][b].numpy())
+        draw_sample(
+            batch["image"][b, 0].numpy(), batch["corners_raw"][b].numpy(), batch["visible"][b].numpy(), batch["learnability"][b].numpy()
+        )
         for b in range(n)
     ]
     cols = int(np.ceil(np.sqrt(n)))
     rows = int(np.ceil(n / cols))
     blank = np.zeros_like(tiles[0])
     tiles += [blank] * (rows * cols - n)
-    grid = np.concatenate([np.concatenate(tiles[r * cols:(r + 1) * cols], 1) for r in range(rows)], 0)
+    grid = np.concatenate([np.concatenate(tiles[r * cols : (r + 1) * cols], 1) for r in range(rows)], 0)
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(out), grid):

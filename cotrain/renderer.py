@@ -93,8 +93,12 @@ def _sample_camera(cfg: RenderConfig, g: torch.Generator) -> tuple[str, Tensor, 
     for _ in range(8):
         if model == "kb4":
             ks = cfg.kb4_k_scale
-            shape = {"k1": ks * _u(g, -0.06, 0.06), "k2": ks * _u(g, -0.015, 0.015), "k3": ks * _u(g, -0.004, 0.004),
-                     "k4": ks * _u(g, -0.001, 0.001)}
+            shape = {
+                "k1": ks * _u(g, -0.06, 0.06),
+                "k2": ks * _u(g, -0.015, 0.015),
+                "k3": ks * _u(g, -0.004, 0.004),
+                "k4": ks * _u(g, -0.001, 0.001),
+            }
         elif model == "ucm":
             shape = {"xi": _u(g, 0.6, 1.5)}
         elif model == "eucm":
@@ -231,7 +235,9 @@ def corner_labels(cfg: RenderConfig, board: Checkerboard, scene: Scene) -> dict[
     cos_inc = torch.stack(cos_inc).float()
     bp = cfg.border_px
     in_image = (q[..., 0] > bp - 0.5) & (q[..., 0] < cfg.width - 0.5 - bp) & (q[..., 1] > bp - 0.5) & (q[..., 1] < cfg.height - 0.5 - bp)
-    centres = torch.stack([torch.stack([p[cameras.get_model(m).index("cx")], p[cameras.get_model(m).index("cy")]]) for m, p in zip(scene.model, scene.params)]).float()
+    centres = torch.stack(
+        [torch.stack([p[cameras.get_model(m).index("cx")], p[cameras.get_model(m).index("cy")]]) for m, p in zip(scene.model, scene.params)]
+    ).float()
     r_px = (q - centres[:, None, :]).norm(dim=-1)
     in_circle = r_px < scene.radius[:, None].float() - bp
     vis = ok & in_image & in_circle & (size > 0)
@@ -257,12 +263,11 @@ def _coords(h: int, w: int) -> tuple[Tensor, Tensor]:
 
 def _background(cfg: RenderConfig, gens: list[torch.Generator], h: int, w: int) -> Tensor:
     """Procedural backgrounds (B, 1, h, w): gradients, clouds, rectangles, lines, distractors."""
-    B = len(gens)
     xx, yy = _coords(h, w)
     out = []
     K = cfg.n_shapes
     for g in gens:
-        r = lambda *shape: torch.rand(*shape, generator=g)  # noqa: E731
+        r = lambda *shape, g=g: torch.rand(*shape, generator=g)  # noqa: E731
         base = r(1) * 0.7 + 0.1
         img = base + (r(1) - 0.5) * 0.6 * xx + (r(1) - 0.5) * 0.6 * yy
         clouds = F.interpolate(r(1, 1, 6, 10) - 0.5, size=(h, w), mode="bicubic", align_corners=False)[0, 0]
@@ -270,7 +275,7 @@ def _background(cfg: RenderConfig, gens: list[torch.Generator], h: int, w: int) 
         fine = F.interpolate(r(1, 1, h // 4 + 1, w // 4 + 1) - 0.5, size=(h, w), mode="bilinear", align_corners=False)[0, 0]
         img = img + fine * 0.15 * r(1)
         # Rectangles and lines (thin rectangles), rotated.
-        c = (r(K, 2) * 2.4 - 1.2)
+        c = r(K, 2) * 2.4 - 1.2
         ang = r(K) * math.pi
         half = torch.where(r(K, 1) < 0.35, torch.cat([r(K, 1) * 0.8 + 0.1, r(K, 1) * 0.01 + 0.004], 1), r(K, 2) * 0.4 + 0.03)
         val = r(K)
@@ -318,8 +323,13 @@ def render_batch(cfg: RenderConfig, indices: list[int], seed: int = 0, board: Ch
     """
     board = board or Checkerboard(cfg.target)
     gens = [sample_generator(seed, i) for i in indices]
-    B, H, W, ss = len(indices), cfg.height, cfg.width, cfg.supersample
-    scene = sample_scene(cfg, board, gens)
+    return render_scene(cfg, board, sample_scene(cfg, board, gens), gens)
+
+
+def render_scene(cfg: RenderConfig, board: Checkerboard, scene: Scene, gens: list[torch.Generator]) -> dict[str, Tensor]:
+    """Render given cameras and poses (``scene``); appearance is drawn from ``gens`` (one per
+    sample). Returns the dict of :func:`render_batch`."""
+    B, H, W, ss = len(gens), cfg.height, cfg.width, cfg.supersample
     labels = corner_labels(cfg, board, scene)
     no_target = torch.tensor([_u(g) < cfg.p_no_target for g in gens])
 
@@ -377,7 +387,12 @@ def render_batch(cfg: RenderConfig, indices: list[int], seed: int = 0, board: Ch
                 occ[b] = torch.maximum(occ[b], m)
 
     # Image circle: black outside, with a soft, anti-aliased rim and vignetting.
-    centres = torch.stack([torch.stack([p[cameras.get_model(mm).index("cx")], p[cameras.get_model(mm).index("cy")]]) for mm, p in zip(scene.model, scene.params)]).float()
+    centres = torch.stack(
+        [
+            torch.stack([p[cameras.get_model(mm).index("cx")], p[cameras.get_model(mm).index("cy")]])
+            for mm, p in zip(scene.model, scene.params)
+        ]
+    ).float()
     r_px = (grid[None] - centres[:, None, None, :]).norm(dim=-1)
     rad = scene.radius[:, None, None].float()
     rim = (rad - r_px + 0.5).clamp(0, 1)
@@ -439,7 +454,7 @@ def render_batch(cfg: RenderConfig, indices: list[int], seed: int = 0, board: Ch
         "fov": scene.fov.float(),
         "has_target": ~no_target,
         "radius": scene.radius.float(),
-        "model_index": torch.tensor([cfg.models.index(m) for m in scene.model]),
+        "model_index": torch.tensor([cfg.models.index(m) if m in cfg.models else -1 for m in scene.model]),
         "T_cam_board": scene.T_cam_board,
         "params": scene.params,
     }

@@ -8,6 +8,7 @@ CPU). Checkpoints are written atomically, carry their config, and ``--resume`` c
 from __future__ import annotations
 
 import csv
+import dataclasses
 import math
 import os
 import time
@@ -47,6 +48,9 @@ class TrainSettings:
     save_rank_weights: bool = False  # debug: write each rank's final weights (DDP test)
     threads: int = 0  # torch threads per process (0 = leave torch's default)
     stop_after: int = 0  # stop (with a checkpoint) after this step, as if interrupted (0 = run to the end)
+    curriculum_steps: int = 0  # before this step, train on closer, less cropped boards (identity is learned there first)
+    curriculum_distance: tuple[float, float] = (0.1, 0.45)  # render.distance_range during the curriculum
+    curriculum_offaxis_margin_deg: float = -10.0  # render.offaxis_margin_deg during the curriculum (negative: inside the FoV)
 
 
 @dataclass
@@ -186,6 +190,7 @@ def train(cfg: TrainConfig, resume: bool = False) -> dict:
     ddp = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
 
     board = Checkerboard(cfg.render.target)
+    easy = dataclasses.replace(cfg.render, distance_range=tuple(s.curriculum_distance), offaxis_margin_deg=s.curriculum_offaxis_margin_deg)
     val = render_batch(cfg.render, list(range(s.val_size)), seed=s.val_seed, board=board) if rank == 0 else None
     writer = None
     if rank == 0:
@@ -204,16 +209,24 @@ def train(cfg: TrainConfig, resume: bool = False) -> dict:
     t_log, n_log = time.time(), 0
 
     def save(path: Path) -> None:
-        ck = {"model": model.state_dict(), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
-              "rng": torch.get_rng_state(), "step": step, "best_score": best, "wall_time": time.time() - t_start,
-              "config": to_dict(cfg)}
+        ck = {
+            "model": model.state_dict(),
+            "optimizer": opt.state_dict(),
+            "scheduler": sched.state_dict(),
+            "rng": torch.get_rng_state(),
+            "step": step,
+            "best_score": best,
+            "wall_time": time.time() - t_start,
+            "config": to_dict(cfg),
+        }
         _atomic_save(ck, path)
 
     end = min(s.steps, s.stop_after) if s.stop_after > 0 else s.steps
     last_loss = float("nan")
     while step < end:
         first = (step * world + rank) * s.batch_size
-        batch = render_batch(cfg.render, list(range(first, first + s.batch_size)), seed=s.seed, board=board)
+        rcfg = easy if step < s.curriculum_steps else cfg.render  # validation always uses cfg.render
+        batch = render_batch(rcfg, list(range(first, first + s.batch_size)), seed=s.seed, board=board)
         out = ddp(batch["image"])
         losses = compute_losses(out, batch, cfg.loss)
         opt.zero_grad(set_to_none=True)
@@ -245,8 +258,12 @@ def train(cfg: TrainConfig, resume: bool = False) -> dict:
             wall = time.time() - t_start
             writer.add_scalar("val/recall_vs_wall_s", m["recall"], int(wall))
             with curve_path.open("a") as f:
-                csv.writer(f).writerow([step, f"{wall:.1f}", f"{m['recall']:.4f}", f"{m['error_px']:.4f}", f"{m['id_acc']:.4f}", f"{m['outlier_rate']:.4f}"])
-            bar.write(f"step {step}: recall {m['recall']:.3f} err {m['error_px']:.3f}px id_acc {m['id_acc']:.3f} outliers {m['outlier_rate']:.3f}")
+                csv.writer(f).writerow(
+                    [step, f"{wall:.1f}", f"{m['recall']:.4f}", f"{m['error_px']:.4f}", f"{m['id_acc']:.4f}", f"{m['outlier_rate']:.4f}"]
+                )
+            bar.write(
+                f"step {step}: recall {m['recall']:.3f} err {m['error_px']:.3f}px id_acc {m['id_acc']:.3f} outliers {m['outlier_rate']:.3f}"
+            )
             if m["recall"] > best:
                 best = m["recall"]
                 save(out_dir / "best.pt")

@@ -73,8 +73,16 @@ def export_onnx(checkpoint: str | Path, out: str | Path, tol_px: float = 0.01, n
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         try:
-            prog = torch.onnx.export(wrapper, (example,), input_names=["image"], output_names=OUTPUTS, opset_version=OPSET,
-                                     dynamic_shapes=({0: torch.export.Dim("batch", min=1, max=256)},), dynamo=True, verbose=False)
+            prog = torch.onnx.export(
+                wrapper,
+                (example,),
+                input_names=["image"],
+                output_names=OUTPUTS,
+                opset_version=OPSET,
+                dynamic_shapes=({0: torch.export.Dim("batch", min=1, max=256)},),
+                dynamo=True,
+                verbose=False,
+            )
         except Exception as e:  # the exporter's errors are long; keep the first line
             raise ExportError(f"torch.onnx.export failed: {str(e).splitlines()[0][:300]}") from None
     proto = prog.model_proto

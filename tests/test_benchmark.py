@@ -11,8 +11,9 @@ from calib_eval.cli import run as calib_cli
 
 def test_two_trial_benchmark_two_configs(tmp_path):
     out = tmp_path / "bench"
-    rc = calib_cli(["benchmark", "--configs", "FoV200_0", "FoV220_90", "--trials", "2", "--frames", "80", "--workers", "1",
-                    "--out", str(out)])
+    rc = calib_cli(
+        ["benchmark", "--configs", "FoV200_0", "FoV220_90", "--trials", "2", "--frames", "80", "--workers", "1", "--out", str(out)]
+    )
     assert rc == 0
     res = json.loads((out / "results.json").read_text())["summary"]
     assert set(res) == {"FoV200_0", "FoV220_90", "overall"}

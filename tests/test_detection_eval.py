@@ -11,9 +11,11 @@ DET = np.array([True, True, True, False])
 
 
 def test_score_image_learned():
-    pred = [[0, 100.5, 100.0],  # exact within 0.5 px
-            [1, 300.0, 100.0],  # wrong id (lands on corner 2)
-            [2, 305.0, 100.0]]  # right id, 5 px off
+    pred = [
+        [0, 100.5, 100.0],  # exact within 0.5 px
+        [1, 300.0, 100.0],  # wrong id (lands on corner 2)
+        [2, 305.0, 100.0],
+    ]  # right id, 5 px off
     s = score_image(pred, True, GT, VIS, DET)
     assert s["hits"] == [(0, 0.5)]
     assert s["n_detectable"] == 3 and s["n_reported"] == 3 and s["n_outliers"] == 2
@@ -28,8 +30,16 @@ def test_score_image_position_matched():
 
 def test_score_aggregates_and_empty_images():
     labels = [
-        {"image": "a.png", "fov": 200, "has_target": True, "corners": GT.tolist(), "visible": VIS.tolist(), "detectable": DET.tolist(),
-         "centre": [250.0, 100.0], "radius": 300.0},
+        {
+            "image": "a.png",
+            "fov": 200,
+            "has_target": True,
+            "corners": GT.tolist(),
+            "visible": VIS.tolist(),
+            "detectable": DET.tolist(),
+            "centre": [250.0, 100.0],
+            "radius": 300.0,
+        },
         {"image": "e.png", "fov": None, "has_target": False, "corners": [], "visible": [], "detectable": [], "centre": [0, 0], "radius": 1},
         {"image": "f.png", "fov": None, "has_target": False, "corners": [], "visible": [], "detectable": [], "centre": [0, 0], "radius": 1},
     ]

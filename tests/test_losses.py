@@ -55,8 +55,22 @@ def test_terms_match_hand_values():
     assert L["board_mask"].item() == pytest.approx(math.log(2), rel=1e-6)
     # exclusion: only one visible corner -> no pairs -> 0.
     assert L["exclusion"].item() == pytest.approx(0.0, abs=1e-9)
-    total = sum(getattr(cfg, k) * L[k] for k in ["heat_pos", "heat_neg", "exclusion", "rough", "updated", "refined",
-                                                  "visibility", "learnability", "confidence", "board_uv", "board_mask"])
+    total = sum(
+        getattr(cfg, k) * L[k]
+        for k in [
+            "heat_pos",
+            "heat_neg",
+            "exclusion",
+            "rough",
+            "updated",
+            "refined",
+            "visibility",
+            "learnability",
+            "confidence",
+            "board_uv",
+            "board_mask",
+        ]
+    )
     assert L["total"].item() == pytest.approx(total.item(), rel=1e-6)
 
 
@@ -69,11 +83,23 @@ def test_gaussian_target_peaks_at_corner():
 def test_exclusion_penalises_other_corners_only():
     B, N, h, w = 1, 2, 8, 8
     corners = torch.tensor([[[5.5, 5.5], [17.5, 17.5]]])  # cells (1, 1) and (4, 4)
-    batch = {"corners": corners, "visible": torch.tensor([[True, True]]), "learnability": torch.ones(1, 2),
-             "board_mask": torch.zeros(1, 1, 32, 32), "board_uv": torch.zeros(1, 2, 32, 32)}
-    base = {"corners_rough": corners, "corners_updated": corners, "corners": corners, "visibility_logit": torch.zeros(1, 2),
-            "learnability": torch.ones(1, 2), "confidence_logit": torch.zeros(1, 2), "board_uv": torch.zeros(1, 2, h, w),
-            "board_mask_logit": torch.zeros(1, 1, h, w)}
+    batch = {
+        "corners": corners,
+        "visible": torch.tensor([[True, True]]),
+        "learnability": torch.ones(1, 2),
+        "board_mask": torch.zeros(1, 1, 32, 32),
+        "board_uv": torch.zeros(1, 2, 32, 32),
+    }
+    base = {
+        "corners_rough": corners,
+        "corners_updated": corners,
+        "corners": corners,
+        "visibility_logit": torch.zeros(1, 2),
+        "learnability": torch.ones(1, 2),
+        "confidence_logit": torch.zeros(1, 2),
+        "board_uv": torch.zeros(1, 2, h, w),
+        "board_mask_logit": torch.zeros(1, 1, h, w),
+    }
     own = torch.full((B, N, h, w), -6.0)
     own[0, 0, 1, 1] = 6.0  # channel 0 fires at its own corner
     wrong = torch.full((B, N, h, w), -6.0)

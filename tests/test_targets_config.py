@@ -65,8 +65,15 @@ def test_config_yaml_and_overrides(tmp_path):
     assert cfg.inner.a == 5 and cfg.inner.b == 3.0 and cfg.name == "hello" and cfg.sizes == [4, 5]
 
 
-@pytest.mark.parametrize("override,msg", [("inner.c=1", "inner.c: unknown key"), ("inner.a=abc", "inner.a: expected an integer"),
-                                          ("nokey", "key=value"), ("sizes=[1, x]", r"sizes\[1\]")])
+@pytest.mark.parametrize(
+    "override,msg",
+    [
+        ("inner.c=1", "inner.c: unknown key"),
+        ("inner.a=abc", "inner.a: expected an integer"),
+        ("nokey", "key=value"),
+        ("sizes=[1, x]", r"sizes\[1\]"),
+    ],
+)
 def test_config_errors_name_the_key(override, msg):
     with pytest.raises(ConfigError, match=msg):
         load_config(Outer, None, [override])
@@ -76,7 +83,10 @@ def test_bad_config_cli_one_line_nonzero(tmp_path):
     bad = tmp_path / "bad.yaml"
     bad.write_text("height: [unclosed\n")
     for args in (["--config", str(bad)], ["widht=3"], ["--config", str(tmp_path / "missing.yaml")]):
-        r = subprocess.run([sys.executable, "-m", "cotrain.cli", "render-preview", "--n", "1", "--out", str(tmp_path / "p.png"), *args],
-                           capture_output=True, text=True)
+        r = subprocess.run(
+            [sys.executable, "-m", "cotrain.cli", "render-preview", "--n", "1", "--out", str(tmp_path / "p.png"), *args],
+            capture_output=True,
+            text=True,
+        )
         assert r.returncode == 2
         assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1

@@ -70,8 +70,24 @@ def test_two_process_gloo(tmp_path):
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2", "--master_port", str(port), "-m", "cotrain.cli",
-           "train", "--config", str(TINY), f"train.out_dir={tmp_path}", "train.steps=3", "train.save_rank_weights=true", "train.threads=1"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "torch.distributed.run",
+        "--nproc_per_node",
+        "2",
+        "--master_port",
+        str(port),
+        "-m",
+        "cotrain.cli",
+        "train",
+        "--config",
+        str(TINY),
+        f"train.out_dir={tmp_path}",
+        "train.steps=3",
+        "train.save_rank_weights=true",
+        "train.threads=1",
+    ]
     r = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=ROOT, timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
     w0 = torch.load(tmp_path / "weights_rank0.pt", weights_only=True)

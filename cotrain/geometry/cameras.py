@@ -29,8 +29,8 @@ ds     xi, alpha, fx, fy, cx, cy   Usenko et al. 2018 (double sphere)
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import torch
 from torch import Tensor
@@ -107,7 +107,7 @@ def unproject_kb4(q: Tensor, params: Tensor) -> tuple[Tensor, Tensor]:
         dd_safe = torch.where(dd.abs() > 1e-9, dd, torch.ones_like(dd))
         theta = (theta - (d - rd) / dd_safe).clamp(0.0, math.pi)
     d, dd = _kb4_poly(theta, k)
-    ok = (rd > 1e-12)
+    ok = rd > 1e-12
     rd_safe = torch.where(ok, rd, torch.ones_like(rd))
     s = torch.where(ok, torch.sin(theta) / rd_safe, torch.ones_like(rd))
     v = torch.cat([s * mx, s * my, torch.cos(theta)], dim=-1)
@@ -238,13 +238,16 @@ class CameraModel:
 
 MODELS: dict[str, CameraModel] = {
     "kb4": CameraModel(
-        "kb4", ("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4"), project_kb4, unproject_kb4,
-        ("k1", "k2", "k3", "k4"), "pinhole", "equidistant",
+        "kb4",
+        ("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4"),
+        project_kb4,
+        unproject_kb4,
+        ("k1", "k2", "k3", "k4"),
+        "pinhole",
+        "equidistant",
     ),
     "ucm": CameraModel("ucm", ("xi", "fx", "fy", "cx", "cy"), project_ucm, unproject_ucm, ("xi",), "omni", "none"),
-    "eucm": CameraModel(
-        "eucm", ("alpha", "beta", "fx", "fy", "cx", "cy"), project_eucm, unproject_eucm, ("alpha", "beta"), "eucm", "none"
-    ),
+    "eucm": CameraModel("eucm", ("alpha", "beta", "fx", "fy", "cx", "cy"), project_eucm, unproject_eucm, ("alpha", "beta"), "eucm", "none"),
     "ds": CameraModel("ds", ("xi", "alpha", "fx", "fy", "cx", "cy"), project_ds, unproject_ds, ("xi", "alpha"), "ds", "none"),
 }
 

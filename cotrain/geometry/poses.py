@@ -16,9 +16,7 @@ def _skew(w: Tensor) -> Tensor:
     """(..., 3) -> (..., 3, 3) cross-product matrix."""
     z = torch.zeros_like(w[..., 0])
     x, y, zz = w[..., 0], w[..., 1], w[..., 2]
-    return torch.stack(
-        [torch.stack([z, -zz, y], -1), torch.stack([zz, z, -x], -1), torch.stack([-y, x, z], -1)], -2
-    )
+    return torch.stack([torch.stack([z, -zz, y], -1), torch.stack([zz, z, -x], -1), torch.stack([-y, x, z], -1)], -2)
 
 
 def rotation_from_axis_angle(w: Tensor) -> Tensor:
