@@ -83,7 +83,7 @@ class Detection:
 class Detector:
     """onnxruntime inference on the CPU, pre- and post-processing as the model's metadata says."""
 
-    def __init__(self, model: str | Path | None = None, threshold: float = 0.5, threads: int = 0):
+    def __init__(self, model: str | Path | None = None, threshold: float = 0.5, threads: int = 0, consistency: bool = True):
         import onnxruntime as ort
 
         path = Path(model) if model else default_model_path()
@@ -104,6 +104,8 @@ class Detector:
         self.input_size = tuple(json.loads(meta["cotrain.input_size"]))  # (H, W)
         self.target = json.loads(meta.get("cotrain.target", "{}"))
         self.threshold = threshold
+        self.consistency = consistency  # drop corners that sit in no consistent grid triple (see grid_consistent)
+        self.nx = int(self.target.get("squares_x", 10)) - 1
 
     def preprocess(self, grey: np.ndarray) -> tuple[np.ndarray, float]:
         """Letterbox: scale to fit the processing size (INTER_AREA), top-left on black. -> (H, W), s."""
@@ -135,7 +137,35 @@ class Detector:
         inside = (xy[:, 0] > -0.5) & (xy[:, 0] < w - 0.5) & (xy[:, 1] > -0.5) & (xy[:, 1] < h - 0.5)
         keep = (vis >= self.threshold) & inside & np.isfinite(xy).all(1)
         ids = np.nonzero(keep)[0]
+        if self.consistency and len(ids):
+            ids = ids[grid_consistent(ids, xy[ids], self.nx)]
         return Detection(ids, xy[ids], conf[ids].astype(np.float64), vis[ids].astype(np.float64), w, h, xy, vis)
+
+
+def grid_consistent(ids: np.ndarray, xy: np.ndarray, nx: int, rel_tol: float = 0.35, min_step_px: float = 2.0) -> np.ndarray:
+    """Which corners sit in a locally consistent grid: (K,) bool.
+
+    A corner is kept when it belongs to at least one triple of grid neighbours (i-1, i, i+1 along
+    a row or a column) whose two steps agree: |d1 - d2| < rel_tol * max(|d1|, |d2|). Fisheye
+    curvature over one square is small, so true neighbours pass; a corner with a wrong id lands
+    far from where its id's neighbours are and takes part in no consistent triple. Steps shorter
+    than ``min_step_px`` (corners collapsed onto each other) never count as consistent.
+    """
+    pos = {int(i): k for k, i in enumerate(ids)}
+    keep = np.zeros(len(ids), dtype=bool)
+    for k, i in enumerate(ids):
+        gi, gj = int(i) % nx, int(i) // nx
+        for di, dj in ((1, 0), (0, 1)):
+            if not (0 <= gi - di and gi + di < nx and gj - dj >= 0):
+                continue
+            a, b = pos.get(int(i) - di - dj * nx), pos.get(int(i) + di + dj * nx)
+            if a is None or b is None:
+                continue
+            d1, d2 = xy[k] - xy[a], xy[b] - xy[k]
+            n1, n2 = np.linalg.norm(d1), np.linalg.norm(d2)
+            if min(n1, n2) > min_step_px and np.linalg.norm(d1 - d2) < rel_tol * max(n1, n2):
+                keep[[a, k, b]] = True
+    return keep
 
 
 def expand_inputs(items: list[str]) -> list[Path]:

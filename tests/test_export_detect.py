@@ -72,6 +72,7 @@ def test_detect_rendered_and_broken_inputs(tiny_onnx, tmp_path):
             str(out),
             "--threshold",
             "0.0",
+            "--no-consistency",
             "--draw",
             str(tmp_path / "draw"),
         ]
@@ -85,7 +86,7 @@ def test_detect_rendered_and_broken_inputs(tiny_onnx, tmp_path):
         e = by[name]
         assert e["error"] is None and (e["width"], e["height"]) == (200, 120)
         # Threshold 0: every slot whose corner lands inside the image is reported.
-        full = Detector(tiny_onnx, threshold=0.0).detect(load_image(folder / name))
+        full = Detector(tiny_onnx, threshold=0.0, consistency=False).detect(load_image(folder / name))
         inside = ((full.all_xy[:, 0] > -0.5) & (full.all_xy[:, 0] < 199.5) & (full.all_xy[:, 1] > -0.5) & (full.all_xy[:, 1] < 119.5)).sum()
         assert len(e["corners"]) == inside > 0
         for c in e["corners"]:
@@ -107,7 +108,7 @@ def test_detect_rendered_and_broken_inputs(tiny_onnx, tmp_path):
 
 def test_detect_maps_back_to_input_resolution(tiny_onnx):
     """A corner the model puts at processing pixel x maps to (x + 0.5) / s - 0.5 in the input."""
-    det = Detector(tiny_onnx, threshold=0.0)
+    det = Detector(tiny_onnx, threshold=0.0, consistency=False)
     img = np.random.default_rng(0).random((240, 400)).astype(np.float32)  # 2.5x the 96x64 size in x, 3.75 in y
     d = det.detect(img)
     x, s = det.preprocess(img)
@@ -125,3 +126,20 @@ def test_expand_inputs_sorted(tmp_path):
         (tmp_path / n).write_bytes(b"x")
     assert [p.name for p in expand_inputs([str(tmp_path)])] == ["a.jpg", "b.png"]
     assert detect_files  # the API is importable alongside the CLI
+
+
+def test_grid_consistency_drops_wrong_ids():
+    from cotrain.detect import grid_consistent
+
+    nx, ny = 9, 6
+    ids = np.arange(nx * ny)
+    jj, ii = np.divmod(ids, nx)
+    # A smoothly distorted grid (quadratic warp, like a fisheye patch).
+    xy = np.stack([100 + 20 * ii + 0.3 * ii**2, 80 + 18 * jj + 0.2 * ii * jj], -1).astype(float)
+    assert grid_consistent(ids, xy, nx).all()
+    bad = xy.copy()
+    bad[[10, 40]] = bad[[40, 10]]  # two corners with swapped ids
+    keep = grid_consistent(ids, bad, nx)
+    assert not keep[10] and not keep[40] and keep.sum() >= len(ids) - 8
+    # An isolated corner (no neighbours reported) is not trusted.
+    assert not grid_consistent(np.array([5]), np.array([[3.0, 4.0]]), nx).any()
