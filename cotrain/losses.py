@@ -26,7 +26,7 @@ class LossConfig:
     visibility: float = 0.5  # lambda_v
     learnability: float = 0.5  # lambda_l
     confidence: float = 0.2  # lambda_c
-    board_uv: float = 0.5  # auxiliary: dense board-coordinate regression on board cells
+    board_uv: float = 0.5  # auxiliary: dense board coordinates on board cells (regression, or column/row classification)
     board_mask: float = 0.5  # auxiliary: board mask BCE
     heat_sigma_cells: float = 0.75  # sigma of the target Gaussian G_i, in 1/4 cells
     huber_rough_px: float = 2.0  # delta of the rough stage's Huber loss (processing px)
@@ -109,7 +109,15 @@ def compute_losses(out: dict[str, Tensor], batch: dict[str, Tensor], cfg: LossCo
     mask4 = F.avg_pool2d(batch["board_mask"].to(heat.dtype), 4)[..., :h, :w]
     uv4 = F.avg_pool2d(batch["board_uv"].to(heat.dtype) * batch["board_mask"], 4)[..., :h, :w] / mask4.clamp_min(1e-6)
     on = (mask4 > 0.99).to(heat.dtype)
-    L_uv = _weighted_mean(F.smooth_l1_loss(out["board_uv"], uv4, reduction="none").sum(1, keepdim=True), on)
+    cols, rows = out.get("board_col_logits"), out.get("board_row_logits")
+    if cols is not None and cols.shape[1] > 0:
+        # Classification of the nearest corner column (-1 .. nx) and row (-1 .. ny).
+        ci = (uv4[:, 0].round() + 1).clamp(0, cols.shape[1] - 1).long()
+        cj = (uv4[:, 1].round() + 1).clamp(0, rows.shape[1] - 1).long()
+        ce = F.cross_entropy(cols, ci, reduction="none") + F.cross_entropy(rows, cj, reduction="none")
+        L_uv = _weighted_mean(ce[:, None], on)
+    else:
+        L_uv = _weighted_mean(F.smooth_l1_loss(out["board_uv"], uv4, reduction="none").sum(1, keepdim=True), on)
     L_mask = F.binary_cross_entropy_with_logits(out["board_mask_logit"], mask4)
 
     terms = {

@@ -37,6 +37,8 @@ class ModelConfig:
     softargmax_window: int = 5  # window (cells) of the local soft-argmax around each peak
     n_corners: int = 54  # corner slots (from the target)
     grid_nx: int = 9  # inner corners along x (from the target)
+    grid_ny: int = 6  # inner corners along y (from the target)
+    identity: str = "regress"  # "regress": uv regression + Gaussian kernel; "classify": nearest column / row classes
 
 
 def _conv(cin: int, cout: int, stride: int = 1) -> nn.Sequential:
@@ -98,7 +100,11 @@ class CornerNet(nn.Module):
         self.dec2 = _conv(w[2] + w[3], cfg.decoder_width)
         D = cfg.decoder_width
         self.head_corner = nn.Conv2d(D, 1, 1)
-        self.head_uv = nn.Conv2d(D, 2, 1)
+        if cfg.identity not in ("regress", "classify"):
+            raise ValueError(f"model.identity must be 'regress' or 'classify', not {cfg.identity!r}")
+        # classify: logits over the nearest corner column (-1 .. nx) and row (-1 .. ny).
+        self.n_cols, self.n_rows = cfg.grid_nx + 2, cfg.grid_ny + 2
+        self.head_uv = nn.Conv2d(D, 2 if cfg.identity == "regress" else self.n_cols + self.n_rows, 1)
         self.head_mask = nn.Conv2d(D, 1, 1)
         self.head_residual = nn.Conv2d(D, cfg.n_corners, 1)
         nn.init.zeros_(self.head_residual.weight)
@@ -153,6 +159,8 @@ class CornerNet(nn.Module):
             heatmap: (B, N, H/4, W/4) per-slot heatmap logits
             corner_logit: (B, 1, H/4, W/4) class-agnostic corner score
             board_uv: (B, 2, H/4, W/4) predicted board grid coordinates (corner (i, j) at (i, j))
+            board_col_logits: (B, nx + 2, H/4, W/4) logits of the nearest corner column -1 .. nx ("classify"; 0 channels otherwise)
+            board_row_logits: (B, ny + 2, H/4, W/4) logits of the nearest corner row -1 .. ny ("classify"; 0 channels otherwise)
             board_mask_logit: (B, 1, H/4, W/4) logit of "this cell is on the checker squares"
             corners_rough: (B, N, 2) soft-argmax corners, processing pixels
             corners_updated: (B, N, 2) after the 1/8 and 1/16 feature update
@@ -174,10 +182,24 @@ class CornerNet(nn.Module):
         d2 = self.dec2(torch.cat([f2, up(d3, f2)], 1))
 
         corner = self.head_corner(d2)
-        uv = self.head_uv(d2)
         mask = self.head_mask(d2)
-        dist2 = ((uv[:, None] - self.grid_pos[None, :, :, None, None]) ** 2).sum(2)  # (B, N, h, w)
-        heat = corner - dist2 / (2 * cfg.tau**2) + self.head_residual(d2)
+        if cfg.identity == "regress":
+            uv = self.head_uv(d2)
+            col_logits, row_logits = uv[:, :0], uv[:, :0]
+            dist2 = ((uv[:, None] - self.grid_pos[None, :, :, None, None]) ** 2).sum(2)  # (B, N, h, w)
+            ident = -dist2 / (2 * cfg.tau**2)
+        else:
+            uv_logits = self.head_uv(d2)
+            col_logits, row_logits = uv_logits[:, : self.n_cols], uv_logits[:, self.n_cols :]
+            lu = F.log_softmax(col_logits, 1)  # (B, nx + 2, h, w)
+            lv = F.log_softmax(row_logits, 1)
+            gi = self.grid_pos[:, 0].long() + 1
+            gj = self.grid_pos[:, 1].long() + 1
+            ident = lu[:, gi] + lv[:, gj]  # log p(column i_k) + log p(row j_k), (B, N, h, w)
+            cols = torch.arange(-1, cfg.grid_nx + 1, dtype=d2.dtype, device=d2.device)
+            rows = torch.arange(-1, cfg.grid_ny + 1, dtype=d2.dtype, device=d2.device)
+            uv = torch.stack([(lu.exp() * cols[None, :, None, None]).sum(1), (lv.exp() * rows[None, :, None, None]).sum(1)], 1)
+        heat = corner + ident + self.head_residual(d2)
 
         q_rough, peak = self._soft_argmax(heat)
         B, N = q_rough.shape[:2]
@@ -199,6 +221,8 @@ class CornerNet(nn.Module):
             "heatmap": heat,
             "corner_logit": corner,
             "board_uv": uv,
+            "board_col_logits": col_logits,
+            "board_row_logits": row_logits,
             "board_mask_logit": mask,
             "corners_rough": q_rough,
             "corners_updated": q_upd,

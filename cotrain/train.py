@@ -66,6 +66,7 @@ def finalize_config(cfg: TrainConfig) -> TrainConfig:
     board = Checkerboard(cfg.render.target)
     cfg.model.n_corners = board.n_corners
     cfg.model.grid_nx = board.nx
+    cfg.model.grid_ny = board.ny
     if tuple(cfg.model.input_size) != (cfg.render.height, cfg.render.width):
         raise ConfigError(f"model.input_size {tuple(cfg.model.input_size)} must equal (render.height, render.width)")
     if cfg.train.batch_size < 1 or cfg.train.steps < 1:
