@@ -142,6 +142,20 @@ def cmd_analysis(a: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_opencv_detect(a: argparse.Namespace) -> int:
+    from calib_eval.opencv_detect import folder_to_sequence
+
+    if not Path(a.images).is_dir():
+        raise NotADirectoryError(f"{a.images}: not a folder of images")
+    tgt = TargetConfig(squares_x=a.squares_x, squares_y=a.squares_y, square_size=a.square_size, margin=0.0)
+    seq = folder_to_sequence(Path(a.images), Path(a.out), tgt, sb=a.sb)
+    print(
+        f"wrote {seq}/cam0 (images, timestamps.csv, detections.json); calibrate it with "
+        f"calib-eval calibrate {seq} --fov F --target <yaml with squares_x: {a.squares_x}, squares_y: {a.squares_y}>"
+    )
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="calib-eval", description="Fisheye calibration: selection, calibration, evaluation.")
     sub = p.add_subparsers(dest="cmd", required=True)
@@ -209,6 +223,15 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--merge-only", type=int, default=0, metavar="WORLD", help="only merge the shards of a WORLD-rank run")
     s.add_argument("--out", default="report/benchmark")
     s.set_defaults(func=cmd_benchmark)
+
+    s = sub.add_parser("opencv-detect", help="one-camera sequence folder from images, with OpenCV chessboard detections")
+    s.add_argument("images", help="folder of images")
+    s.add_argument("--squares-x", type=int, required=True, help="squares along the board's x axis")
+    s.add_argument("--squares-y", type=int, required=True)
+    s.add_argument("--square-size", type=float, default=1.0, help="metres (any unit: it only scales the poses)")
+    s.add_argument("--sb", action="store_true", help="findChessboardCornersSB instead of findChessboardCorners + cornerSubPix")
+    s.add_argument("--out", required=True, help="sequence folder to write")
+    s.set_defaults(func=cmd_opencv_detect)
 
     s = sub.add_parser("analysis", help="failure analysis: gamma trajectories, coupling index, distribution metrics")
     s.add_argument("--benchmark", help="a benchmark output folder (for gamma and distribution metrics)")

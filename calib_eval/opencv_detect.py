@@ -1,0 +1,70 @@
+"""Geometry-based detections in the JSON of CONVENTIONS (``calib-eval opencv-detect``), so real
+sequences can be calibrated with OpenCV's detector as well as with ours.
+
+OpenCV orders a symmetric board's corners arbitrarily up to a 180-degree turn; for a board that is
+symmetric under that turn (both square counts odd) the geometry is identical either way, so
+calibration is unaffected. For asymmetric boards the ids are only as reliable as OpenCV's order.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from cotrain.detect import ImageError, load_image
+from cotrain.targets import TargetConfig
+
+
+def opencv_detect(paths: list[Path], target: TargetConfig, sb: bool = False, progress: bool = True) -> dict:
+    from tqdm import tqdm
+
+    pattern = (target.squares_x - 1, target.squares_y - 1)
+    images = []
+    for p in tqdm(paths, desc="opencv", disable=not progress):
+        e = {"path": str(p), "width": 0, "height": 0, "corners": [], "error": None}
+        try:
+            g = (load_image(p) * 255).round().astype(np.uint8)
+            e["height"], e["width"] = g.shape
+            if sb:
+                ok, c = cv2.findChessboardCornersSB(g, pattern, flags=cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY)
+            else:
+                ok, c = cv2.findChessboardCorners(g, pattern, flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
+                if ok:
+                    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 40, 0.01)
+                    c = cv2.cornerSubPix(g, c, (5, 5), (-1, -1), crit)
+            if ok:
+                e["corners"] = [{"id": i, "x": float(x), "y": float(y), "confidence": 1.0} for i, (x, y) in enumerate(c.reshape(-1, 2))]
+        except ImageError as err:
+            e["error"] = str(err)
+        images.append(e)
+    t = {"kind": target.kind, "squares_x": target.squares_x, "squares_y": target.squares_y, "square_size": target.square_size}
+    return {"model": "opencv_sb" if sb else "opencv_classic", "target": t, "images": images}
+
+
+def folder_to_sequence(images_dir: Path, seq_dir: Path, target: TargetConfig, sb: bool = False) -> Path:
+    """Make a one-camera sequence folder (cam0) from a folder of images, with OpenCV detections."""
+    import json
+
+    from cotrain.detect import expand_inputs
+
+    paths = expand_inputs([str(images_dir)])
+    if not paths:
+        raise FileNotFoundError(f"{images_dir}: no images")
+    cam = seq_dir / "cam0"
+    (cam / "images").mkdir(parents=True, exist_ok=True)
+    lines = ["frame_id,timestamp_ns,filename"]
+    for k, p in enumerate(paths):
+        dst = cam / "images" / p.name
+        if not dst.exists():
+            dst.write_bytes(p.read_bytes())
+        lines.append(f"{k},{k * 100_000_000},{p.name}")
+    (cam / "timestamps.csv").write_text("\n".join(lines) + "\n")
+    det = opencv_detect(
+        sorted((cam / "images").iterdir(), key=lambda q: paths.index(next(x for x in paths if x.name == q.name))), target, sb
+    )
+    for e in det["images"]:
+        e["path"] = f"cam0/images/{Path(e['path']).name}"
+    (cam / "detections.json").write_text(json.dumps(det))
+    return seq_dir

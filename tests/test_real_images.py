@@ -1,0 +1,42 @@
+"""Real, camera-captured fisheye images (../shared/real, CC-BY 4.0 BoofCV-Data, Peter Abeles)."""
+
+import json
+from pathlib import Path
+
+import pytest
+import yaml
+
+from calib_eval.cli import run as calib_cli
+from cotrain.detect import Detector, load_image
+
+REAL = Path(__file__).resolve().parents[2] / "shared" / "real" / "boofcv_fisheye_chessboard"
+pytestmark = pytest.mark.skipif(not REAL.is_dir(), reason="../shared/real is not beside the checkout")
+
+
+def test_calibrate_real_fisheye_against_boofcv(tmp_path):
+    """OpenCV detections -> our sequence layout -> UCM calibration. BoofCV's own calibration of the
+    same images (Mei model with radial distortion) puts the principal point at (319.18, 319.72)."""
+    seq = tmp_path / "seq"
+    assert calib_cli(["opencv-detect", str(REAL / "images"), "--squares-x", "5", "--squares-y", "7", "--out", str(seq)]) == 0
+    det = json.loads((seq / "cam0" / "detections.json").read_text())
+    assert sum(1 for e in det["images"] if len(e["corners"]) == 24) >= 24
+    target = tmp_path / "target.yaml"
+    target.write_text("squares_x: 5\nsquares_y: 7\nsquare_size: 1.0\nmargin: 0.0\n")
+    out = tmp_path / "out"
+    assert calib_cli(["calibrate", str(seq), "--fov", "190", "--model", "ucm", "--target", str(target), "--out", str(out)]) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert report["success"] and report["rms_px"]["cam0"] < 0.5
+    cam = yaml.safe_load((out / "camchain.yaml").read_text())["cam0"]
+    xi, fx, fy, cx, cy = cam["intrinsics"]
+    assert cam["camera_model"] == "omni" and xi > 1.0  # over 180 degrees
+    assert abs(cx - 319.18) < 2.0 and abs(cy - 319.72) < 2.0
+
+
+def test_detector_runs_on_real_images():
+    """The shipped model on real frames: no crash, arrays of the documented shapes, pixels inside."""
+    det = Detector()
+    for p in sorted((REAL / "images").glob("*.jpg"))[:3]:
+        img = load_image(p)
+        d = det.detect(img)
+        assert d.xy.shape == (len(d.ids), 2) and (d.width, d.height) == (640, 720)
+        assert ((d.xy >= -0.5) & (d.xy < [639.5, 719.5])).all()
