@@ -69,6 +69,13 @@ class Scene:
     radius: Tensor  # (B,) image-circle radius, pixels
     T_cam_board: Tensor  # (B, 4, 4)
 
+    def principal_points(self) -> Tensor:
+        """(B, 2) float32 principal points (cx, cy) of the cameras."""
+        pp = [
+            torch.stack([p[cameras.get_model(m).index("cx")], p[cameras.get_model(m).index("cy")]]) for m, p in zip(self.model, self.params)
+        ]
+        return torch.stack(pp).float()
+
 
 def sample_generator(seed: int, index: int) -> torch.Generator:
     """The generator of sample ``index`` under ``seed`` (independent of batch composition)."""
@@ -235,9 +242,7 @@ def corner_labels(cfg: RenderConfig, board: Checkerboard, scene: Scene) -> dict[
     cos_inc = torch.stack(cos_inc).float()
     bp = cfg.border_px
     in_image = (q[..., 0] > bp - 0.5) & (q[..., 0] < cfg.width - 0.5 - bp) & (q[..., 1] > bp - 0.5) & (q[..., 1] < cfg.height - 0.5 - bp)
-    centres = torch.stack(
-        [torch.stack([p[cameras.get_model(m).index("cx")], p[cameras.get_model(m).index("cy")]]) for m, p in zip(scene.model, scene.params)]
-    ).float()
+    centres = scene.principal_points()
     r_px = (q - centres[:, None, :]).norm(dim=-1)
     in_circle = r_px < scene.radius[:, None].float() - bp
     vis = ok & in_image & in_circle & (size > 0)
@@ -387,12 +392,7 @@ def render_scene(cfg: RenderConfig, board: Checkerboard, scene: Scene, gens: lis
                 occ[b] = torch.maximum(occ[b], m)
 
     # Image circle: black outside, with a soft, anti-aliased rim and vignetting.
-    centres = torch.stack(
-        [
-            torch.stack([p[cameras.get_model(mm).index("cx")], p[cameras.get_model(mm).index("cy")]])
-            for mm, p in zip(scene.model, scene.params)
-        ]
-    ).float()
+    centres = scene.principal_points()
     r_px = (grid[None] - centres[:, None, None, :]).norm(dim=-1)
     rad = scene.radius[:, None, None].float()
     rim = (rad - r_px + 0.5).clamp(0, 1)

@@ -141,6 +141,32 @@ def evaluate(model: CornerNet, val: dict[str, Tensor], batch_size: int = 16, tol
     }
 
 
+def plot_curve(curve_csv: Path, out_png: Path) -> None:
+    """Wall time against validation recall, identity accuracy and error (the training curve)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = list(csv.DictReader(curve_csv.open()))
+    if not rows:
+        return
+    t = [float(r["wall_s"]) / 60 for r in rows]
+    fig, ax = plt.subplots(figsize=(6, 3.6))
+    ax.plot(t, [float(r["recall"]) for r in rows], "o-", label="recall (right id, <3 px, reported)")
+    ax.plot(t, [float(r["id_acc"]) for r in rows], "s--", label="identity accuracy (<3 px)")
+    ax.set_xlabel("wall time (min)")
+    ax.set_ylabel("fraction of detectable corners")
+    ax.set_ylim(0, 1)
+    ax2 = ax.twinx()
+    ax2.plot(t, [float(r["error_px"]) for r in rows], "r.:", label="error of recalled (px)")
+    ax2.set_ylabel("px (processing resolution)", color="r")
+    fig.legend(loc="upper left", fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out_png, dpi=100)
+    plt.close(fig)
+
+
 def _panel(model_out: dict[str, Tensor], images: Tensor) -> Tensor:
     """(3, H, 2W) image panel: predicted corners (green = reported) next to the input."""
     import cv2
