@@ -83,7 +83,9 @@ class Detection:
 class Detector:
     """onnxruntime inference on the CPU, pre- and post-processing as the model's metadata says."""
 
-    def __init__(self, model: str | Path | None = None, threshold: float = 0.5, threads: int = 0, consistency: bool = True):
+    def __init__(
+        self, model: str | Path | None = None, threshold: float = 0.5, threads: int = 0, consistency: bool = True, polish: bool = False
+    ):
         import onnxruntime as ort
 
         path = Path(model) if model else default_model_path()
@@ -105,6 +107,7 @@ class Detector:
         self.target = json.loads(meta.get("cotrain.target", "{}"))
         self.threshold = threshold
         self.consistency = consistency  # drop corners that sit in no consistent grid triple (see grid_consistent)
+        self.polish = polish  # classical saddle-point polish of the final corners (see polish_corners)
         self.nx = int(self.target.get("squares_x", 10)) - 1
 
     def preprocess(self, grey: np.ndarray) -> tuple[np.ndarray, float]:
@@ -130,7 +133,10 @@ class Detector:
             raise ImageError(f"image too small ({w}x{h}); need at least {MIN_SIDE} px per side")
         x, s = self.preprocess(grey)
         corners, vis, conf, _ = self.run(x[None, None])
-        return self._postprocess(corners[0], vis[0], conf[0], s, w, h)
+        det = self._postprocess(corners[0], vis[0], conf[0], s, w, h)
+        if self.polish and len(det.ids):
+            det.xy = polish_corners(grey, det.xy, local_square_px(det.ids, det.xy, self.nx))
+        return det
 
     def _postprocess(self, corners: np.ndarray, vis: np.ndarray, conf: np.ndarray, s: float, w: int, h: int) -> Detection:
         xy = (corners.astype(np.float64) + 0.5) / s - 0.5
@@ -166,6 +172,57 @@ def grid_consistent(ids: np.ndarray, xy: np.ndarray, nx: int, rel_tol: float = 0
             if min(n1, n2) > min_step_px and np.linalg.norm(d1 - d2) < rel_tol * max(n1, n2):
                 keep[[a, k, b]] = True
     return keep
+
+
+def local_square_px(ids: np.ndarray, xy: np.ndarray, nx: int, default: float = 10.0) -> np.ndarray:
+    """Per corner, the median distance (px) to its reported grid neighbours (default if none)."""
+    pos = {int(i): k for k, i in enumerate(ids)}
+    out = np.full(len(ids), default)
+    for k, i in enumerate(ids):
+        gi = int(i) % nx
+        nb = [int(i) + d for d, ok in ((-1, gi > 0), (1, gi < nx - 1), (-nx, True), (nx, True)) if ok]
+        d = [np.linalg.norm(xy[pos[j]] - xy[k]) for j in nb if j in pos]
+        if d:
+            out[k] = float(np.median(d))
+    return out
+
+
+def polish_corners(grey: np.ndarray, xy: np.ndarray, square_px: np.ndarray, iterations: int = 3) -> np.ndarray:
+    """Classical sub-pixel polish: fit a quadratic surface to the (smoothed) image in a window
+    scaled to the local square size and move to its saddle point. Corners whose fit is not a
+    saddle, or that would move more than half the window, keep their position. (K, 2) -> (K, 2)."""
+    out = xy.astype(np.float64).copy()
+    img = grey.astype(np.float32)
+    halves = np.clip(np.round(0.3 * np.asarray(square_px)), 2, 8).astype(int)
+    smoothed = {h: cv2.GaussianBlur(img, (0, 0), max(0.7, h / 2.5)) for h in set(halves.tolist())}  # one blur per window size
+    for k in range(len(out)):
+        half = int(halves[k])
+        n = 2 * half + 1
+        sm = smoothed[half]
+        g = np.arange(n) - half
+        X, Y = np.meshgrid(g, g)
+        w = np.exp(-(X**2 + Y**2) / (2 * (0.6 * half) ** 2)).ravel()
+        A = np.stack([X.ravel() ** 2, X.ravel() * Y.ravel(), Y.ravel() ** 2, X.ravel(), Y.ravel(), np.ones(n * n)], 1)
+        Aw = A * w[:, None]
+        p = out[k].copy()
+        for _ in range(iterations):
+            patch = cv2.getRectSubPix(sm, (n, n), (float(p[0]), float(p[1])))
+            if patch is None:
+                break
+            c = np.linalg.lstsq(Aw, patch.ravel() * w, rcond=None)[0]
+            a, b, cc, d, e = c[:5]
+            det = 4 * a * cc - b * b
+            if det >= 0:  # not a saddle
+                break
+            step = np.linalg.solve(np.array([[2 * a, b], [b, 2 * cc]]), -np.array([d, e]))
+            if np.linalg.norm(step) > half / 2:
+                break
+            p = p + step
+            if np.linalg.norm(step) < 1e-3:
+                break
+        if np.linalg.norm(p - xy[k]) <= half:
+            out[k] = p
+    return out
 
 
 def expand_inputs(items: list[str]) -> list[Path]:

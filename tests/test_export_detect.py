@@ -143,3 +143,25 @@ def test_grid_consistency_drops_wrong_ids():
     assert not keep[10] and not keep[40] and keep.sum() >= len(ids) - 8
     # An isolated corner (no neighbours reported) is not trusted.
     assert not grid_consistent(np.array([5]), np.array([[3.0, 4.0]]), nx).any()
+
+
+def test_polish_moves_noisy_corners_to_the_saddle():
+    from cotrain.detect import polish_corners
+    from cotrain.renderer import RenderConfig
+
+    cfg = RenderConfig(height=480, width=640, p_occluder=0.0, p_no_target=0.0, p_blur=0.0, p_motion=0.0, p_jpeg=0.0)
+    out = render_batch(cfg, list(range(6)), seed=8)
+    rng = np.random.default_rng(0)
+    before, after = [], []
+    for b in range(6):
+        sel = out["visible"][b].numpy() & (out["square_px"][b].numpy() >= 10)
+        if not sel.any():
+            continue
+        gt = out["corners_raw"][b].numpy()[sel].astype(float)
+        q = gt + rng.normal(scale=0.7, size=gt.shape)
+        p = polish_corners(out["image"][b, 0].numpy(), q, out["square_px"][b].numpy()[sel])
+        before.append(np.linalg.norm(q - gt, axis=1))
+        after.append(np.linalg.norm(p - gt, axis=1))
+    before, after = np.concatenate(before), np.concatenate(after)
+    assert len(before) > 50
+    assert np.median(after) < 0.2 < np.median(before)
