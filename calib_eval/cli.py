@@ -201,7 +201,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--per-fov", type=int, default=50)
     s.add_argument("--empty", type=int, default=20, help="images without a target")
     s.add_argument(
-        "--detectors", nargs="+", default=["learned", "opencv_sb", "opencv_classic"], choices=["learned", "opencv_sb", "opencv_classic"]
+        "--detectors",
+        nargs="+",
+        default=["learned", "learned_polish", "opencv_sb", "opencv_classic"],
+        choices=["learned", "learned_polish", "opencv_sb", "opencv_classic"],
     )
     s.add_argument("--out", default="report/detection")
     s.set_defaults(func=cmd_detection)

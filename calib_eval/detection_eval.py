@@ -116,14 +116,14 @@ def render_benchmark(cfg: EvalConfig, out: Path, progress: bool = True) -> dict:
 # --------------------------------------------------------------------------------------------
 # Detectors
 # --------------------------------------------------------------------------------------------
-def run_learned(model: str | None, images: list[Path], progress: bool = True) -> dict:
+def run_learned(model: str | None, images: list[Path], progress: bool = True, polish: bool = False) -> dict:
     from tqdm import tqdm
 
     from cotrain.detect import Detector, ImageError, load_image
 
-    det = Detector(model)
+    det = Detector(model, polish=polish)
     out = {}
-    for p in tqdm(images, desc="learned", disable=not progress):
+    for p in tqdm(images, desc="learned" + (" + polish" if polish else ""), disable=not progress):
         t0 = time.perf_counter()
         try:
             d = det.detect(load_image(p))
@@ -260,7 +260,7 @@ def _table(results: dict[str, dict], fovs: list[int]) -> str:
             row = r["per_fov"].get(str(fov))
             if row is None:
                 continue
-            paper = PAPER.get(fov, {}).get("learned" if name == "learned" else "geometry")
+            paper = PAPER.get(fov, {}).get("learned" if name.startswith("learned") else "geometry")
             ptxt = f"{paper[0]:.3f} / {paper[1]:.3f}" if paper and name in ("learned", "opencv_sb") else ""
             lines.append(
                 f"| {fov} | {name} | {row['recall']:.3f} | {row['mean_error_px']:.3f} | {row['median_error_px']:.3f} | "
@@ -333,11 +333,11 @@ def evaluate_detection(model: str | None, cfg: EvalConfig, out: Path, progress: 
     if meta is None:
         meta = render_benchmark(cfg, out, progress)
     images = [out / "images" / lab["image"] for lab in meta["labels"]]
-    detectors = detectors or ["learned", "opencv_sb", "opencv_classic"]
+    detectors = detectors or ["learned", "learned_polish", "opencv_sb", "opencv_classic"]
     preds = {}
     for name in detectors:
-        if name == "learned":
-            preds[name] = run_learned(model, images, progress)
+        if name in ("learned", "learned_polish"):
+            preds[name] = run_learned(model, images, progress, polish=name == "learned_polish")
         else:
             preds[name] = run_geometry(name, images, progress=progress)
         (out / f"predictions_{name}.json").write_text(json.dumps(preds[name]))
