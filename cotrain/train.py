@@ -200,6 +200,14 @@ def train(cfg: TrainConfig, resume: bool = False) -> dict:
     out_dir.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(s.seed)
 
+    init_state = None
+    if s.init_from and not resume:
+        # Fine-tuning: the checkpoint carries its config; its architecture wins over the recipe's.
+        ck = load_checkpoint(s.init_from)
+        cfg.model = from_dict(ModelConfig, ck["config"]["model"])
+        if tuple(cfg.model.input_size) != (cfg.render.height, cfg.render.width):
+            raise ConfigError(f"{s.init_from}: its processing size {tuple(cfg.model.input_size)} differs from render.height/width")
+        init_state = ck["model"]
     model = CornerNet(cfg.model)
     opt = torch.optim.AdamW(model.parameters(), lr=s.lr, weight_decay=s.weight_decay)
     sched = torch.optim.lr_scheduler.LambdaLR(opt, _lr_lambda(s))
@@ -212,8 +220,8 @@ def train(cfg: TrainConfig, resume: bool = False) -> dict:
         sched.load_state_dict(ck["scheduler"])
         torch.set_rng_state(ck["rng"])
         step, best, wall0 = ck["step"], ck["best_score"], ck["wall_time"]
-    elif s.init_from:
-        model.load_state_dict(load_checkpoint(s.init_from)["model"])
+    elif init_state is not None:
+        model.load_state_dict(init_state)
     ddp = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
 
     board = Checkerboard(cfg.render.target)

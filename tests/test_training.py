@@ -97,3 +97,11 @@ def test_two_process_gloo(tmp_path):
         assert torch.equal(w0[k], w1[k]), k
     init = CornerNet(tiny(tmp_path).model).state_dict()
     assert any(not torch.equal(init[k], w0[k]) for k in w0 if w0[k].is_floating_point())
+
+
+def test_fine_tuning_adopts_checkpoint_architecture(tmp_path):
+    train(tiny(tmp_path / "a", "train.steps=1", "model.identity=classify"))
+    r = train(tiny(tmp_path / "b", "train.steps=1", f"train.init_from={tmp_path / 'a' / 'last.pt'}"))
+    assert r["step"] == 1
+    _, cfg = build_from_checkpoint(load_checkpoint(tmp_path / "b" / "last.pt"))
+    assert cfg.model.identity == "classify"
