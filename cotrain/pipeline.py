@@ -35,6 +35,7 @@ class PipelineConfig:
             "train.warmup_steps=10",
             "train.lr=0.0003",
             "train.image_every=60",
+            "train.curriculum_steps=0",
         ]
     )  # key=value
     init_checkpoint: str = "export/default.pt"  # shipped weights to fine-tune ("" or --from-scratch: random init)
