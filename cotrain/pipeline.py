@@ -99,6 +99,10 @@ def run_pipeline(cfg: PipelineConfig, from_scratch: bool = False) -> int:
     status: dict[str, str] = {}
     figures: dict[str, object] = {}
     init = "" if from_scratch else cfg.init_checkpoint
+    if init == "export/default.pt" and not Path(init).is_file():  # an installed package: the shipped file
+        from cotrain.detect import default_model_path
+
+        init = str(default_model_path().with_suffix(".pt"))
     if init and not Path(init).is_file():
         raise FileNotFoundError(f"{init}: shipped checkpoint not found (use --from-scratch to train without it)")
     if not Path(cfg.train_config).is_file():
