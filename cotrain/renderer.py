@@ -15,6 +15,7 @@ seeded by both, and the pixel work is batched tensor code (no per-pixel Python l
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -173,8 +174,10 @@ def sample_scene(cfg: RenderConfig, board: Checkerboard, gens: list[torch.Genera
 # --------------------------------------------------------------------------------------------
 # Geometry of the batch: rays, board intersection, labels
 # --------------------------------------------------------------------------------------------
+@functools.lru_cache(maxsize=8)
 def _pixel_grid(h: int, w: int, ss: int) -> Tensor:
-    """(h*ss, w*ss, 2) sample positions in output-pixel coordinates (centre convention)."""
+    """(h*ss, w*ss, 2) sample positions in output-pixel coordinates (centre convention); cached,
+    never modified in place."""
     off = (torch.arange(ss, dtype=torch.float32) + 0.5) / ss - 0.5
     xs = (torch.arange(w, dtype=torch.float32)[:, None] + off[None]).reshape(-1)
     ys = (torch.arange(h, dtype=torch.float32)[:, None] + off[None]).reshape(-1)
