@@ -89,10 +89,12 @@ def _read_timestamps(path: Path) -> list[tuple[str, int, str]]:
     with path.open() as f:
         reader = csv.reader(f)
         for i, row in enumerate(reader):
-            if not row or row[0].startswith("#") or (i == 0 and not row[1].strip().lstrip("-").isdigit()):
+            if not row or row[0].startswith("#"):
                 continue
             if len(row) < 3:
                 raise SequenceError(f"{path}:{i + 1}: expected frame_id,timestamp_ns,filename")
+            if i == 0 and not row[1].strip().lstrip("-").isdigit():
+                continue  # the header line
             try:
                 rows.append((row[0].strip(), int(row[1]), row[2].strip()))
             except ValueError:

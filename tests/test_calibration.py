@@ -114,3 +114,19 @@ def test_cli_synth_select_calibrate(tmp_path):
     assert report["success"] and set(report["rms_px"]) == {"cam0", "cam1"}
     # Bad input: one line, exit 2.
     assert calib_cli(["calibrate", str(tmp_path / "missing"), "--fov", "200", "--out", str(tmp_path / "o2")]) == 2
+
+
+def test_bad_sequence_folders_are_one_line_errors(tmp_path, capsys):
+    seq = tmp_path / "seq"
+    assert calib_cli(["select", str(seq), "--fov", "200"]) == 2  # missing folder
+    (seq / "cam0" / "images").mkdir(parents=True)
+    assert calib_cli(["select", str(seq), "--fov", "200"]) == 2  # no timestamps.csv
+    (seq / "cam0" / "timestamps.csv").write_text("frame_id\n")
+    assert calib_cli(["select", str(seq), "--fov", "200"]) == 2  # malformed header
+    (seq / "cam0" / "timestamps.csv").write_text("frame_id,timestamp_ns,filename\n0,abc,0.png\n")
+    assert calib_cli(["select", str(seq), "--fov", "200"]) == 2  # bad timestamp
+    (seq / "cam0" / "timestamps.csv").write_text("frame_id,timestamp_ns,filename\n0,0,0.png\n")
+    (seq / "cam0" / "detections.json").write_text("{not json")
+    assert calib_cli(["select", str(seq), "--fov", "200"]) == 2  # corrupt detections
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 5 and all(line.startswith("calib-eval select: error:") for line in err)
