@@ -8,7 +8,7 @@ import sys
 import time
 from pathlib import Path
 
-from cotrain.config import ConfigError, build, load_yaml
+from cotrain.config import build, load_yaml
 from cotrain.targets import TargetConfig
 
 
@@ -245,17 +245,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def run(argv: list[str] | None = None) -> int:
-    from calib_eval.sequence import SequenceError
+    from cotrain.cli import dispatch
 
-    args = build_parser().parse_args(argv)
-    try:
-        return int(args.func(args) or 0)
-    except (SequenceError, ConfigError, FileNotFoundError, NotADirectoryError, PermissionError, ValueError, OSError) as e:
-        print(f"calib-eval {args.cmd}: error: {e}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"calib-eval {args.cmd}: interrupted", file=sys.stderr)
-        return 130
+    return dispatch("calib-eval", build_parser().parse_args(argv))
 
 
 def main() -> None:

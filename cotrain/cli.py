@@ -134,17 +134,21 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def run(argv: list[str] | None = None) -> int:
-    """Parse and run; known failures become a one-line message and exit code 2."""
-    args = build_parser().parse_args(argv)
+def dispatch(prog: str, args: argparse.Namespace) -> int:
+    """Run a parsed sub-command; bad input (config, file, value errors) becomes a one-line message
+    and exit code 2, an interrupt exit code 130. Shared by ``cotrain`` and ``calib-eval``."""
     try:
         return int(args.func(args) or 0)
-    except (ConfigError, FileNotFoundError, NotADirectoryError, PermissionError, ValueError, OSError) as e:
-        print(f"cotrain {args.cmd}: error: {e}", file=sys.stderr)
+    except (ConfigError, ValueError, OSError) as e:  # OSError covers missing files, folders, permissions
+        print(f"{prog} {args.cmd}: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"cotrain {args.cmd}: interrupted", file=sys.stderr)
+        print(f"{prog} {args.cmd}: interrupted", file=sys.stderr)
         return 130
+
+
+def run(argv: list[str] | None = None) -> int:
+    return dispatch("cotrain", build_parser().parse_args(argv))
 
 
 def main() -> None:

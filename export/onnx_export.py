@@ -39,7 +39,7 @@ class ExportWrapper(torch.nn.Module):
         return o["corners"], torch.sigmoid(o["visibility_logit"]), torch.sigmoid(o["confidence_logit"]), o["learnability"]
 
 
-class ExportError(RuntimeError):
+class ExportError(ValueError):
     """Export or parity check failed (one-line message)."""
 
 
