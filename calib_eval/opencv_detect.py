@@ -61,9 +61,7 @@ def folder_to_sequence(images_dir: Path, seq_dir: Path, target: TargetConfig, sb
             dst.write_bytes(p.read_bytes())
         lines.append(f"{k},{k * 100_000_000},{p.name}")
     (cam / "timestamps.csv").write_text("\n".join(lines) + "\n")
-    det = opencv_detect(
-        sorted((cam / "images").iterdir(), key=lambda q: paths.index(next(x for x in paths if x.name == q.name))), target, sb
-    )
+    det = opencv_detect([cam / "images" / p.name for p in paths], target, sb)
     for e in det["images"]:
         e["path"] = f"cam0/images/{Path(e['path']).name}"
     (cam / "detections.json").write_text(json.dumps(det))
