@@ -296,6 +296,7 @@ def train(cfg: TrainConfig, resume: bool = False) -> dict:
                 csv.writer(f).writerow(
                     [step, f"{wall:.1f}", f"{m['recall']:.4f}", f"{m['error_px']:.4f}", f"{m['id_acc']:.4f}", f"{m['outlier_rate']:.4f}"]
                 )
+            plot_curve(curve_path, out_dir / "curve.png")
             bar.write(
                 f"step {step}: recall {m['recall']:.3f} err {m['error_px']:.3f}px id_acc {m['id_acc']:.3f} outliers {m['outlier_rate']:.3f}"
             )
