@@ -57,6 +57,7 @@ def test_resume_matches_uninterrupted(tmp_path):
     train(tiny(tmp_path / "b", "train.steps=4", "train.stop_after=3", "train.ckpt_minutes=0"))
     ck = load_checkpoint(tmp_path / "b" / "last.pt")
     assert ck["step"] == 3
+    assert (tmp_path / "a" / "curve.csv").is_file() and (tmp_path / "a" / "curve.png").is_file()
     b = train(tiny(tmp_path / "b", "train.steps=4", "train.ckpt_minutes=0"), resume=True)
     assert b["step"] == 4
     assert abs(a["last_loss"] - b["last_loss"]) < 1e-5 * max(1.0, abs(a["last_loss"]))
