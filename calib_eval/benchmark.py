@@ -68,8 +68,14 @@ PAPER_SR = {  # per configuration: Kalibr, CO-Calib, random, BA-only success rat
 }
 
 
-def _rot_deg(R: np.ndarray) -> float:
-    return math.degrees(math.acos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0)))
+def _pose_errors(T: np.ndarray, T_gt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Translation (mm) and rotation (deg) errors of poses (K, 4, 4) against ground truth."""
+    import torch
+
+    from cotrain.geometry import rotation_angle_deg
+
+    dR = torch.from_numpy(T[:, :3, :3] @ np.swapaxes(T_gt[:, :3, :3], -1, -2))
+    return 1000 * np.linalg.norm(T[:, :3, 3] - T_gt[:, :3, 3], axis=-1), rotation_angle_deg(dR).numpy()
 
 
 def projection_difference(model: str, params: np.ndarray, gt_model: str, gt_params: np.ndarray, fov: float, n: int = 400) -> float:
@@ -97,16 +103,9 @@ def evaluate_result(res, gt, fov: float) -> dict:
         out["strict"] = False
         return out
     intr_px = max(projection_difference(res.model[c], res.intrinsics[c], gt.model[c], gt.params[c], fov) for c in range(len(gt.params)))
-    ext_t, ext_r = [], []
-    for c in range(1, len(gt.params)):
-        T, Tg = res.T_cam_rig[c], gt.T_cam_rig[c]
-        ext_t.append(1000 * np.linalg.norm(T[:3, 3] - Tg[:3, 3]))
-        ext_r.append(_rot_deg(T[:3, :3] @ Tg[:3, :3].T))
-    ate_t, ate_r = [], []
-    for v, T in res.T_rig_board.items():
-        Tg = gt.T_rig_board[v]
-        ate_t.append(1000 * np.linalg.norm(T[:3, 3] - Tg[:3, 3]))
-        ate_r.append(_rot_deg(T[:3, :3] @ Tg[:3, :3].T))
+    ext_t, ext_r = _pose_errors(np.asarray(res.T_cam_rig)[1:], gt.T_cam_rig[1:])
+    views = sorted(res.T_rig_board)
+    ate_t, ate_r = _pose_errors(np.stack([res.T_rig_board[v] for v in views]), gt.T_rig_board[views])
     out.update(
         {
             "intr_px": float(intr_px),

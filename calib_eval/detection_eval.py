@@ -69,6 +69,7 @@ def render_benchmark(cfg: EvalConfig, out: Path, progress: bool = True) -> dict:
     """Render the benchmark set into ``out/images`` and its labels into ``out/labels.json``."""
     from tqdm import tqdm
 
+    from cotrain.geometry import cameras
     from cotrain.renderer import render_batch
 
     img_dir = out / "images"
@@ -90,8 +91,6 @@ def render_benchmark(cfg: EvalConfig, out: Path, progress: bool = True) -> dict:
         cv2.imwrite(str(img_dir / name), (b["image"][0, 0].numpy() * 255).round().astype(np.uint8))
         p = b["params"][0]
         model = rc.models[int(b["model_index"][0])]
-        from cotrain.geometry import cameras
-
         m = cameras.get_model(model)
         centre = [float(p[m.index("cx")]), float(p[m.index("cy")])]
         det = (b["visible"][0] & (b["square_px"][0] >= cfg.min_square_px) & (b["learnability"][0] > 0)).tolist()
