@@ -203,8 +203,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument(
         "--detectors",
         nargs="+",
-        default=["learned", "learned_polish", "opencv_sb", "opencv_classic"],
-        choices=["learned", "learned_polish", "opencv_sb", "opencv_classic"],
+        default=["learned", "learned_slots", "opencv_sb", "opencv_classic"],
+        choices=["learned", "learned_slots", "learned_slots_polish", "opencv_sb", "opencv_classic"],
+        help="learned: the default detector (grid pass); learned_slots: the network's per-slot corners",
     )
     s.add_argument("--out", default="report/detection")
     s.set_defaults(func=cmd_detection)

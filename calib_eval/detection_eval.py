@@ -115,14 +115,14 @@ def render_benchmark(cfg: EvalConfig, out: Path, progress: bool = True) -> dict:
 # --------------------------------------------------------------------------------------------
 # Detectors
 # --------------------------------------------------------------------------------------------
-def run_learned(model: str | None, images: list[Path], progress: bool = True, polish: bool = False) -> dict:
+def run_learned(model: str | None, images: list[Path], progress: bool = True, mode: str = "grid", polish: bool = False) -> dict:
     from tqdm import tqdm
 
     from cotrain.detect import Detector, ImageError, load_image
 
-    det = Detector(model, polish=polish)
+    det = Detector(model, polish=polish, mode=mode)
     out = {}
-    for p in tqdm(images, desc="learned" + (" + polish" if polish else ""), disable=not progress):
+    for p in tqdm(images, desc=f"learned ({det.mode}{' + polish' if polish else ''})", disable=not progress):
         t0 = time.perf_counter()
         try:
             d = det.detect(load_image(p))
@@ -332,11 +332,13 @@ def evaluate_detection(model: str | None, cfg: EvalConfig, out: Path, progress: 
     if meta is None:
         meta = render_benchmark(cfg, out, progress)
     images = [out / "images" / lab["image"] for lab in meta["labels"]]
-    detectors = detectors or ["learned", "learned_polish", "opencv_sb", "opencv_classic"]
+    detectors = detectors or ["learned", "learned_slots", "opencv_sb", "opencv_classic"]
     preds = {}
     for name in detectors:
-        if name in ("learned", "learned_polish"):
-            preds[name] = run_learned(model, images, progress, polish=name == "learned_polish")
+        if name.startswith("learned"):
+            preds[name] = run_learned(
+                model, images, progress, mode="grid" if name == "learned" else "slots", polish=name.endswith("polish")
+            )
         else:
             preds[name] = run_geometry(name, images, progress=progress)
         (out / f"predictions_{name}.json").write_text(json.dumps(preds[name]))

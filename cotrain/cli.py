@@ -64,7 +64,13 @@ def cmd_detect(args: argparse.Namespace) -> int:
     paths = expand_inputs(args.inputs)
     if not paths:
         raise FileNotFoundError("no images found in the given paths")
-    det = Detector(args.model, threshold=args.threshold, consistency=not args.no_consistency, polish=args.polish)
+    det = Detector(
+        args.model,
+        threshold=args.threshold,
+        consistency=not args.no_consistency,
+        polish=args.polish,
+        mode="slots" if args.slots else "grid",
+    )
     data = detect_files(paths, det, Path(args.draw) if args.draw else None)
     out = Path(args.out)
     write_json_atomic(data, out)
@@ -122,8 +128,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", default="detections.json")
     s.add_argument("--threshold", type=float, default=0.5, help="visibility probability to report a corner")
     s.add_argument("--draw", help="folder for overlays of the detections")
-    s.add_argument("--polish", action="store_true", help="classical saddle-point polish of the corners (see docs/benchmarks.md)")
-    s.add_argument("--no-consistency", action="store_true", help="keep corners that fail the grid-consistency check on identities")
+    s.add_argument("--slots", action="store_true", help="report the network's per-slot corners instead of the grid pass (cotrain.grid)")
+    s.add_argument("--polish", action="store_true", help="with --slots: classical saddle-point polish of the corners")
+    s.add_argument("--no-consistency", action="store_true", help="with --slots: keep corners that fail the grid-consistency check")
     s.set_defaults(func=cmd_detect)
 
     s = sub.add_parser("pipeline", help="the main job: train, export, evaluate, calibrate; writes a report folder")

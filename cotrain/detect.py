@@ -4,6 +4,13 @@
     found = det.detect(image)             # image: (H, W) or (H, W, 3|4), uint8 / uint16 / float
     found.ids, found.xy, found.confidence  # arrays, input-image pixels (CONVENTIONS convention)
 
+Two ways to turn the network's outputs into identified corners:
+- ``grid`` (default): the network's corner score and dense column / row maps feed the grid pass
+  of :mod:`cotrain.grid` (saddle points at full resolution, lattice growth, one identity decision
+  per board); corners are found at the input resolution, below the network's processing size.
+- ``slots``: the network's own per-slot corners (one heatmap channel per id), kept when the
+  visibility head says so and they sit in a consistent grid; ``polish`` refines them.
+
 An unreadable image becomes an entry with an ``error`` in the JSON and the run goes on.
 """
 
@@ -16,6 +23,8 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+
+from cotrain.grid import GridConfig, grid_pass
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp"}
 MIN_SIDE = 16  # smaller images are rejected with an error entry
@@ -84,7 +93,14 @@ class Detector:
     """onnxruntime inference on the CPU, pre- and post-processing as the model's metadata says."""
 
     def __init__(
-        self, model: str | Path | None = None, threshold: float = 0.5, threads: int = 0, consistency: bool = True, polish: bool = False
+        self,
+        model: str | Path | None = None,
+        threshold: float = 0.5,
+        threads: int = 0,
+        consistency: bool = True,
+        polish: bool = False,
+        mode: str = "grid",
+        grid: GridConfig | None = None,
     ):
         import onnxruntime as ort
 
@@ -109,6 +125,13 @@ class Detector:
         self.consistency = consistency  # drop corners that sit in no consistent grid triple (see grid_consistent)
         self.polish = polish  # classical saddle-point polish of the final corners (see polish_corners)
         self.nx = int(self.target.get("squares_x", 10)) - 1
+        self.ny = int(self.target.get("squares_y", 7)) - 1
+        if mode not in ("grid", "slots"):
+            raise ValueError(f"mode must be 'grid' or 'slots', not {mode!r}")
+        if mode == "grid" and len(self.session.get_outputs()) < 8:
+            mode = "slots"  # a model exported before the grid pass: no dense outputs
+        self.mode = mode
+        self.grid = grid or GridConfig()
 
     def preprocess(self, grey: np.ndarray) -> tuple[np.ndarray, float]:
         """Letterbox: scale to fit the processing size (INTER_AREA), top-left on black. -> (H, W), s."""
@@ -132,9 +155,14 @@ class Detector:
         if min(h, w) < MIN_SIDE:
             raise ImageError(f"image too small ({w}x{h}); need at least {MIN_SIDE} px per side")
         x, s = self.preprocess(grey)
-        corners, vis, conf, _ = self.run(x[None, None])
+        out = self.run(x[None, None])
+        corners, vis, conf = out[:3]
         det = self._postprocess(corners[0], vis[0], conf[0], s, w, h)
-        if self.polish and len(det.ids):
+        if self.mode == "grid":
+            g = grid_pass(grey, s, out[4][0, 0], out[5][0, 0], out[6][0], out[7][0], self.nx, self.ny, self.grid)
+            det.ids, det.xy, det.confidence = g.ids, g.xy, g.confidence
+            det.visibility = np.ones(len(g.ids))
+        elif self.polish and len(det.ids):
             det.xy = polish_corners(grey, det.xy, local_square_px(det.ids, det.xy, self.nx))
         return det
 

@@ -1,7 +1,7 @@
 """The paper's training objective (appendix A-C), every term weighted in the config.
 
 L = l_h+ L_h+ + l_h- L_h- + l_e L_e + sum_s l_s L_s (s = rough, updated, refined)
-    + sum_a l_a L_a (a = visibility, learnability, confidence) + auxiliary board terms.
+    + sum_a l_a L_a (a = visibility, learnability, confidence) + auxiliary board and corner-score terms.
 
 Shapes: N corner slots, (h, w) the 1/4 heatmap grid, coordinates in processing pixels.
 """
@@ -28,6 +28,7 @@ class LossConfig:
     confidence: float = 0.2  # lambda_c
     board_uv: float = 0.5  # auxiliary: dense board coordinates on board cells (regression, or column/row classification)
     board_mask: float = 0.5  # auxiliary: board mask BCE
+    corner: float = 0.0  # auxiliary: class-agnostic corner score towards max_k G_k (balanced BCE); feeds the detector's grid pass
     heat_sigma_cells: float = 0.75  # sigma of the target Gaussian G_i, in 1/4 cells
     huber_rough_px: float = 2.0  # delta of the rough stage's Huber loss (processing px)
     huber_updated_px: float = 1.0  # delta of the updated stage's Huber loss
@@ -70,7 +71,7 @@ def compute_losses(out: dict[str, Tensor], batch: dict[str, Tensor], cfg: LossCo
     ``batch`` needs (processing resolution): corners (B, N, 2), visible (B, N) bool,
     learnability (B, N), board_mask (B, 1, H, W), board_uv (B, 2, H, W).
     Returns dict of scalars: heat_pos, heat_neg, exclusion, rough, updated, refined, visibility,
-    learnability, confidence, board_uv, board_mask, total; and ``refined_error`` (B, N) px.
+    learnability, confidence, board_uv, board_mask, corner, total; and ``refined_error`` (B, N) px.
     """
     heat = out["heatmap"]
     B, N, h, w = heat.shape
@@ -120,6 +121,13 @@ def compute_losses(out: dict[str, Tensor], batch: dict[str, Tensor], cfg: LossCo
         L_uv = _weighted_mean(F.smooth_l1_loss(out["board_uv"], uv4, reduction="none").sum(1, keepdim=True), on)
     L_mask = F.binary_cross_entropy_with_logits(out["board_mask_logit"], mask4)
 
+    # Class-agnostic corner score: every visible corner, whatever its id (balanced like L_h+).
+    Gmax = (G * m_vis[..., None, None]).amax(1, keepdim=True)  # (B, 1, h, w)
+    cl = out["corner_logit"]
+    c_pos = -(Gmax * F.logsigmoid(cl)).sum((1, 2, 3)) / Gmax.sum((1, 2, 3)).clamp_min(1e-6)
+    c_neg = -((1 - Gmax) * F.logsigmoid(-cl)).sum((1, 2, 3)) / (1 - Gmax).sum((1, 2, 3)).clamp_min(1e-6)
+    L_corner = (c_pos + c_neg).mean()
+
     terms = {
         "heat_pos": L_hpos,
         "heat_neg": L_hneg,
@@ -132,6 +140,7 @@ def compute_losses(out: dict[str, Tensor], batch: dict[str, Tensor], cfg: LossCo
         "confidence": L_c,
         "board_uv": L_uv,
         "board_mask": L_mask,
+        "corner": L_corner,
     }
     total = sum(getattr(cfg, k) * v for k, v in terms.items())
     return {**terms, "total": total, "refined_error": err}

@@ -2,7 +2,9 @@
 
 The graph takes ``image`` (B, 1, H, W) float32 grey in [0, 1] at the processing size and returns
 ``corners`` (B, N, 2) in processing pixels, ``visibility`` (B, N), ``confidence`` (B, N) and
-``learnability`` (B, N) as probabilities. Resizing (letterbox, top-left) happens outside the graph
+``learnability`` (B, N) as probabilities, and the dense maps the detector's grid pass reads
+(:mod:`cotrain.grid`) at 1/4 of the processing size: ``corner_prob`` (B, 1, h, w), ``mask_prob``
+(B, 1, h, w), ``col_logp`` (B, nx + 2, h, w) and ``row_logp`` (B, ny + 2, h, w). Resizing (letterbox, top-left) happens outside the graph
 in :mod:`cotrain.detect`, as the metadata says. After export, onnxruntime is compared with PyTorch
 on rendered images; the export fails if any corner differs by more than ``tol_px``.
 """
@@ -24,7 +26,7 @@ from cotrain.renderer import render_batch
 from cotrain.train import TrainConfig, build_from_checkpoint, load_checkpoint
 
 OPSET = 18  # the dynamo exporter's native opset (>= 17 as required; down-conversion to 17 fails)
-OUTPUTS = ["corners", "visibility", "confidence", "learnability"]
+OUTPUTS = ["corners", "visibility", "confidence", "learnability", "corner_prob", "mask_prob", "col_logp", "row_logp"]
 
 
 class ExportWrapper(torch.nn.Module):
@@ -34,9 +36,26 @@ class ExportWrapper(torch.nn.Module):
         super().__init__()
         self.model = model
 
-    def forward(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    def forward(self, image: torch.Tensor) -> tuple[torch.Tensor, ...]:
         o = self.model(image)
-        return o["corners"], torch.sigmoid(o["visibility_logit"]), torch.sigmoid(o["confidence_logit"]), o["learnability"]
+        cfg = self.model.cfg
+        if o["board_col_logits"].shape[1] > 0:
+            lc, lr = torch.log_softmax(o["board_col_logits"], 1), torch.log_softmax(o["board_row_logits"], 1)
+        else:  # uv regression: classes from the distance of uv to every column / row (0.5 grid units wide)
+            cols = torch.arange(-1, cfg.grid_nx + 1, dtype=image.dtype, device=image.device)[None, :, None, None]
+            rows = torch.arange(-1, cfg.grid_ny + 1, dtype=image.dtype, device=image.device)[None, :, None, None]
+            lc = torch.log_softmax(-((o["board_uv"][:, :1] - cols) ** 2) / 0.5, 1)
+            lr = torch.log_softmax(-((o["board_uv"][:, 1:] - rows) ** 2) / 0.5, 1)
+        return (
+            o["corners"],
+            torch.sigmoid(o["visibility_logit"]),
+            torch.sigmoid(o["confidence_logit"]),
+            o["learnability"],
+            torch.sigmoid(o["corner_logit"]),
+            torch.sigmoid(o["board_mask_logit"]),
+            lc,
+            lr,
+        )
 
 
 class ExportError(ValueError):

@@ -73,6 +73,7 @@ def test_detect_rendered_and_broken_inputs(tiny_onnx, tmp_path):
             "--threshold",
             "0.0",
             "--no-consistency",
+            "--slots",
             "--draw",
             str(tmp_path / "draw"),
         ]
@@ -86,7 +87,7 @@ def test_detect_rendered_and_broken_inputs(tiny_onnx, tmp_path):
         e = by[name]
         assert e["error"] is None and (e["width"], e["height"]) == (200, 120)
         # Threshold 0: every slot whose corner lands inside the image is reported.
-        full = Detector(tiny_onnx, threshold=0.0, consistency=False).detect(load_image(folder / name))
+        full = Detector(tiny_onnx, threshold=0.0, consistency=False, mode="slots").detect(load_image(folder / name))
         inside = ((full.all_xy[:, 0] > -0.5) & (full.all_xy[:, 0] < 199.5) & (full.all_xy[:, 1] > -0.5) & (full.all_xy[:, 1] < 119.5)).sum()
         assert len(e["corners"]) == inside > 0
         for c in e["corners"]:

@@ -21,6 +21,7 @@ def _small_case():
         "confidence_logit": torch.tensor([[0.0, 0.0]]),
         "board_uv": torch.zeros(B, 2, h, w),
         "board_mask_logit": torch.zeros(B, 1, h, w),
+        "corner_logit": torch.full((B, 1, h, w), 1.0),
     }
     batch = {
         "corners": torch.tensor([[[5.5, 5.5], [0.0, 0.0]]]),  # corner 0 at cell (1, 1)
@@ -55,6 +56,8 @@ def test_terms_match_hand_values():
     assert L["board_mask"].item() == pytest.approx(math.log(2), rel=1e-6)
     # exclusion: only one visible corner -> no pairs -> 0.
     assert L["exclusion"].item() == pytest.approx(0.0, abs=1e-9)
+    # corner score: constant logit 1 -> positive part softplus(-1), negative part softplus(1).
+    assert L["corner"].item() == pytest.approx(sp(-1.0) + sp(1.0), rel=1e-5)
     total = sum(
         getattr(cfg, k) * L[k]
         for k in [
@@ -69,6 +72,7 @@ def test_terms_match_hand_values():
             "confidence",
             "board_uv",
             "board_mask",
+            "corner",
         ]
     )
     assert L["total"].item() == pytest.approx(total.item(), rel=1e-6)
@@ -99,6 +103,7 @@ def test_exclusion_penalises_other_corners_only():
         "confidence_logit": torch.zeros(1, 2),
         "board_uv": torch.zeros(1, 2, h, w),
         "board_mask_logit": torch.zeros(1, 1, h, w),
+        "corner_logit": torch.zeros(1, 1, h, w),
     }
     own = torch.full((B, N, h, w), -6.0)
     own[0, 0, 1, 1] = 6.0  # channel 0 fires at its own corner
@@ -109,3 +114,20 @@ def test_exclusion_penalises_other_corners_only():
     assert e_own < 0.01 and e_wrong > 1.0
     H = sample_logits(wrong, corners)
     assert H[0, 0, 1].item() == pytest.approx(6.0) and H[0, 0, 0].item() == pytest.approx(-6.0)
+
+
+def test_corner_term_rewards_any_visible_corner():
+    """The class-agnostic score is low only when it fires at every visible corner, whatever its id."""
+    out, batch = _small_case()
+    batch["visible"] = torch.tensor([[True, True]])
+    batch["corners"] = torch.tensor([[[5.5, 5.5], [13.5, 13.5]]])  # cells (1, 1) and (3, 3)
+    cfg = LossConfig()
+    both = torch.full((1, 1, 4, 4), -6.0)
+    both[0, 0, 1, 1] = both[0, 0, 3, 3] = 6.0
+    one = torch.full((1, 1, 4, 4), -6.0)
+    one[0, 0, 1, 1] = 6.0
+    out["corner_logit"] = both
+    l_both = compute_losses(out, batch, cfg)["corner"].item()
+    out["corner_logit"] = one
+    l_one = compute_losses(out, batch, cfg)["corner"].item()
+    assert l_both < l_one - 0.5  # measured 3.71 vs 4.86

@@ -1,0 +1,495 @@
+"""Grid pass of the detector: corner identities from the board's topology, not from one pixel.
+
+The network's per-slot heatmaps must recognise *which* of the 54 corners a blob is from global
+context alone, and that is what trains slowest on a CPU budget. The network's class-agnostic
+corner score and its dense column / row classification (where on the board each pixel lies) train
+much faster. This pass turns them into identities the way a person would:
+
+1. candidates: peaks of the corner score, refined at full resolution to the saddle point of the
+   image (a quadratic fit; non-saddles are dropped), which also gives the two edge directions;
+2. growth: from a seed, neighbours are predicted one square step along each grid axis (linear
+   extrapolation, so the fisheye's slow curvature is followed) and matched to a candidate, or, when
+   the network missed it, to a saddle found at the predicted spot; the result is a lattice
+   coordinate (a, b) per corner;
+3. identity: the lattice is placed on the board by one of the four in-plane rotations and an
+   integer offset; every placement is scored by the network's column / row log-probabilities at
+   the corners plus the checker colour of every lattice cell (square (i, j) of corners is black
+   when i + j is even), and the best one wins if it beats the runner-up by a margin.
+
+So one identity decision is made per board from all its corners, and a corner only gets an id if
+it is connected to the board's lattice. Pure functions over numpy arrays; pixels follow
+CONVENTIONS (centre of the top-left pixel at (0, 0)).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy.spatial import cKDTree
+
+
+@dataclass
+class GridConfig:
+    peak_threshold: float = 0.3  # corner-score probability a 1/4-resolution peak needs to become a candidate
+    min_corners: int = 6  # smallest lattice that is reported
+    match_radius: float = 0.45  # a neighbour must lie within this fraction of the grid step of its prediction
+    agree_radius: float = 0.3  # predictions of one corner from different neighbours must agree within this fraction of a step
+    min_step_px: float = 4.5  # no growth into squares smaller than this (saddles of tinier squares are unreliable)
+    min_board_prob: float = 0.3  # mean board probability (network mask) at a lattice's corners
+    min_saddle_contrast: float = 0.04  # |eigenvalue| of the fitted quadratic * half^2 (intensity units) a saddle needs
+    min_saddle_ratio: float = 0.03  # smaller / larger |eigenvalue|: below this the fit is an edge, not an X
+    min_symmetry: float = 0.5  # correlation of the window with itself turned 180 deg (X-junctions are point-symmetric)
+    parity_weight: float = 2.0  # log-likelihood per lattice cell whose checker colour agrees with a placement
+    min_margin: float = 8.0  # the best placement must beat the runner-up by this (nats) to be reported
+    max_seeds: int = 12  # seeds tried (best corner scores first); the lattice with the surest identity wins
+    logp_floor: float = -7.0  # network log-probabilities are clamped here (one corner cannot veto a board)
+
+
+# --------------------------------------------------------------------------------------------
+# Saddle points
+# --------------------------------------------------------------------------------------------
+def _design(half: int) -> tuple[np.ndarray, np.ndarray]:
+    g = np.arange(2 * half + 1) - half
+    X, Y = np.meshgrid(g, g)
+    x, y = X.ravel().astype(np.float64), Y.ravel().astype(np.float64)
+    w = np.exp(-(x**2 + y**2) / (2 * (0.6 * half) ** 2))
+    A = np.stack([x * x, x * y, y * y, x, y, np.ones_like(x)], 1)
+    pinv = np.linalg.pinv(A * w[:, None]) * w[None, :]  # c = pinv @ patch
+    return pinv, w
+
+
+def saddle_fit(
+    smoothed: np.ndarray, xy: np.ndarray, half: int, iterations: int = 4, cfg: GridConfig | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Move points to the saddle of a quadratic fitted in a (2 half + 1)^2 window.
+
+    Args:
+        smoothed: (H, W) float32 grey image, already blurred for this window size.
+        xy: (K, 2) start points, pixels.
+    Returns:
+        xy: (K, 2) saddle points (start point where the fit failed);
+        ok: (K,) bool, a saddle with enough contrast and X shape, converged within half a window;
+        axes: (K, 2, 2) unit edge directions (the quadratic's zero lines) per point.
+    """
+    cfg = cfg or GridConfig()
+    pinv, _ = _design(half)
+    n = 2 * half + 1
+    K = len(xy)
+    out = np.asarray(xy, np.float64).copy()
+    ok = np.zeros(K, bool)
+    axes = np.zeros((K, 2, 2))
+    H, W = smoothed.shape
+    for k in range(K):
+        p = out[k].copy()
+        good = False
+        for _ in range(iterations):
+            if not (half <= p[0] < W - 1 - half and half <= p[1] < H - 1 - half):
+                good = False
+                break
+            patch = cv2.getRectSubPix(smoothed, (n, n), (float(p[0]), float(p[1])))
+            a, b, c, d, e, _ = pinv @ patch.ravel().astype(np.float64)
+            Hm = np.array([[2 * a, b], [b, 2 * c]])
+            if np.linalg.det(Hm) >= 0:
+                good = False
+                break
+            step = np.linalg.solve(Hm, -np.array([d, e]))
+            if np.linalg.norm(step) > half:
+                good = False
+                break
+            p = p + step
+            good = True
+            if np.linalg.norm(step) < 1e-3:
+                break
+        if not good or np.linalg.norm(p - xy[k]) > half:
+            continue
+        patch = cv2.getRectSubPix(smoothed, (n, n), (float(p[0]), float(p[1]))).astype(np.float64)
+        z = patch - patch.mean()
+        if (z * z[::-1, ::-1]).sum() < cfg.min_symmetry * max((z * z).sum(), 1e-12):
+            continue  # an L- or T-junction or an edge, not a checker X
+        lam, vec = np.linalg.eigh(np.array([[a, b / 2], [b / 2, c]]))  # lam[0] < 0 < lam[1]
+        if lam[0] >= 0 or lam[1] <= 0:
+            continue
+        big = max(-lam[0], lam[1])
+        if big * half * half < cfg.min_saddle_contrast or min(-lam[0], lam[1]) / big < cfg.min_saddle_ratio:
+            continue
+        t = np.arctan(np.sqrt(lam[1] / -lam[0]))  # zero lines: cos t e_pos +- sin t e_neg
+        e_pos, e_neg = vec[:, 1], vec[:, 0]
+        axes[k, 0] = np.cos(t) * e_pos + np.sin(t) * e_neg
+        axes[k, 1] = np.cos(t) * e_pos - np.sin(t) * e_neg
+        out[k], ok[k] = p, True
+    return out, ok, axes
+
+
+def window_half(spacing_px: float) -> int:
+    """Fit window half-size for a local grid spacing (px): about a third of a square."""
+    return int(np.clip(round(0.3 * spacing_px), 2, 8))
+
+
+def smooth_for(grey: np.ndarray, half: int) -> np.ndarray:
+    return cv2.GaussianBlur(grey.astype(np.float32), (0, 0), max(0.7, half / 2.5))
+
+
+# --------------------------------------------------------------------------------------------
+# Candidates
+# --------------------------------------------------------------------------------------------
+def saddle_candidates(
+    grey: np.ndarray, roi: np.ndarray, sigma: float = 1.5, max_candidates: int = 600, min_response: float = 0.002
+) -> tuple[np.ndarray, np.ndarray]:
+    """X-junction candidates: local maxima (5x5) of the scale-normalised negative Hessian
+    determinant -(Ixx Iyy - Ixy^2) sigma^4 inside ``roi`` (H, W bool).
+    Returns xy (K, 2) pixels and response (K,), strongest first."""
+    g = cv2.GaussianBlur(grey.astype(np.float32), (0, 0), sigma)
+    ixx = cv2.Sobel(g, cv2.CV_32F, 2, 0, ksize=3)
+    iyy = cv2.Sobel(g, cv2.CV_32F, 0, 2, ksize=3)
+    ixy = cv2.Sobel(g, cv2.CV_32F, 1, 1, ksize=3)
+    D = -(ixx * iyy - ixy * ixy) * sigma**4
+    peak = (D >= cv2.dilate(D, np.ones((5, 5), np.uint8))) & (D > min_response) & roi
+    ys, xs = np.nonzero(peak)
+    r = D[ys, xs]
+    order = np.argsort(-r)[:max_candidates]
+    return np.stack([xs[order], ys[order]], 1).astype(np.float64), r[order].astype(np.float64)
+
+
+def roi_from_maps(prob: np.ndarray, shape: tuple[int, int], scale: float, threshold: float = 0.3) -> np.ndarray:
+    """Full-resolution (H, W) bool region from a 1/4-processing-resolution probability map:
+    cells above ``threshold``, grown by two cells, mapped back through the letterbox."""
+    m = cv2.dilate((prob > threshold).astype(np.uint8), np.ones((5, 5), np.uint8))
+    H, W = shape
+    ys, xs = np.mgrid[0:H, 0:W]
+    cx = np.clip(np.rint((((xs + 0.5) * scale - 0.5) - 1.5) / 4).astype(int), 0, m.shape[1] - 1)
+    cy = np.clip(np.rint((((ys + 0.5) * scale - 0.5) - 1.5) / 4).astype(int), 0, m.shape[0] - 1)
+    return m[cy, cx] > 0
+
+
+# --------------------------------------------------------------------------------------------
+# Lattice growth
+# --------------------------------------------------------------------------------------------
+@dataclass
+class Lattice:
+    xy: np.ndarray  # (K, 2) corner pixels
+    ab: np.ndarray  # (K, 2) integer lattice coordinates
+    filled: np.ndarray  # (K,) True where the corner was found by the saddle search, not the network
+
+
+def _cross(u: np.ndarray, v: np.ndarray) -> float:
+    return float(u[0] * v[1] - u[1] * v[0])
+
+
+def _diag_contrast(img: np.ndarray, p: np.ndarray, ea: np.ndarray, eb: np.ndarray) -> float:
+    """Brightness of the (+a, -b) / (-a, +b) quadrants minus the (+a, +b) / (-a, -b) ones around
+    corner ``p`` (steps ``ea``, ``eb``): its sign alternates between lattice neighbours on a checker."""
+
+    def at(q: np.ndarray) -> float:
+        return float(cv2.getRectSubPix(img, (1, 1), (float(q[0]), float(q[1])))[0, 0])
+
+    d1, d2 = 0.3 * (ea + eb), 0.3 * (ea - eb)
+    return at(p + d2) + at(p - d2) - at(p + d1) - at(p - d1)
+
+
+def grow_lattice(
+    xy: np.ndarray, axes: np.ndarray, seed: int, grey: np.ndarray, cfg: GridConfig, smoothed: dict[int, np.ndarray]
+) -> Lattice | None:
+    """Breadth-first lattice growth from candidate ``seed`` (see the module docstring).
+
+    Lattice axes are oriented so that a x b > 0 in the image (x right, y down), as the board's own
+    i, j axes are when its printed side is seen.
+    """
+    tree = cKDTree(xy)
+    p0 = xy[seed]
+    d, nb = tree.query(p0, k=min(9, len(xy)))
+    steps = []
+    for u in axes[seed]:
+        best = None
+        for sgn in (1, -1):
+            for dist, j in zip(d[1:], nb[1:]):
+                if not np.isfinite(dist) or dist < 1.0:
+                    continue
+                v = xy[j] - p0
+                if np.dot(v, sgn * u) / dist > np.cos(np.radians(20)) and (best is None or dist < best[0]):
+                    best = (dist, sgn * v)
+        if best is None:
+            return None
+        steps.append(best[1])
+    sa, sb = steps
+    if abs(_cross(sa, sb)) < 0.2 * np.linalg.norm(sa) * np.linalg.norm(sb):
+        return None
+    if _cross(sa, sb) < 0:
+        sa, sb = sb, sa
+    pts = [p0.copy()]
+    sm1 = smoothed.setdefault(2, smooth_for(grey, 2))
+    par = {(0, 0): _diag_contrast(sm1, p0, sa, sb)}
+    if abs(par[(0, 0)]) < 0.05:
+        return None
+    lab = [(0, 0)]
+    filled = [False]
+    step = {(0, 0): (sa, sb)}
+    where = {(0, 0): 0}
+    used = {seed}
+    queue = [(0, 0)]
+    H, W = grey.shape
+    while queue:
+        a, b = queue.pop(0)
+        k = where[(a, b)]
+        sa, sb = step[(a, b)]
+        for da, db in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+            t = (a + da, b + db)
+            if t in where:
+                continue
+            back = where.get((a - da, b - db))
+            v = pts[k] - pts[back] if back is not None else da * sa + db * sb
+            preds = [pts[k] + v]
+            for side in ((db, da), (-db, -da)):  # the perpendicular neighbours' own steps along (da, db)
+                m0, m1 = where.get((a + side[0], b + side[1])), where.get((t[0] + side[0], t[1] + side[1]))
+                if m0 is not None and m1 is not None:
+                    preds.append(pts[k] + pts[m1] - pts[m0])
+            pred = np.mean(preds, 0)
+            r = cfg.match_radius * np.linalg.norm(v)
+            if max(np.linalg.norm(p_ - pred) for p_ in preds) > cfg.agree_radius * np.linalg.norm(v):
+                continue  # the neighbours disagree about where this corner is
+            short = min(np.linalg.norm(v), np.linalg.norm(sb if da else sa))  # the square's smaller side here
+            if not (0 <= pred[0] < W and 0 <= pred[1] < H) or short < cfg.min_step_px:
+                continue
+            found, was_filled = None, False
+            dist, j = tree.query(pred)
+            if dist < r and j not in used:
+                found = xy[j]
+                used.add(int(j))
+            else:
+                half = window_half(short)
+                sm = smoothed.setdefault(half, smooth_for(grey, half))
+                q, ok, _ = saddle_fit(sm, pred[None], half, cfg=cfg)
+                if ok[0] and np.linalg.norm(q[0] - pred) < r:
+                    found, was_filled = q[0], True
+            if found is None:
+                continue
+            new_v = found - pts[k]
+            if np.linalg.norm(new_v) < 0.5 * np.linalg.norm(v) or np.linalg.norm(new_v) > 2.0 * np.linalg.norm(v):
+                continue
+            if min(np.linalg.norm(np.array(pts) - found, axis=1)) < 0.5 * np.linalg.norm(v):
+                continue  # would sit on top of a lattice corner already placed
+            na = new_v * da if da else sa
+            nbv = new_v * db if db else sb
+            pc = _diag_contrast(sm1, np.asarray(found), na, nbv)
+            if pc * par[(a, b)] >= 0 or abs(pc) < 0.25 * abs(par[(a, b)]):
+                continue  # checker colours do not alternate: a slipped row or column, or not this board
+            par[t] = pc
+            where[t] = len(pts)
+            pts.append(np.asarray(found, np.float64))
+            lab.append(t)
+            filled.append(was_filled)
+            step[t] = (na, nbv)
+            queue.append(t)
+    return Lattice(np.array(pts), np.array(lab, int), np.array(filled))
+
+
+def verify_lattice(lat: Lattice, grey: np.ndarray, cfg: GridConfig, smoothed: dict[int, np.ndarray]) -> Lattice:
+    """Second look at every corner with its final neighbours: the local square size (smaller
+    side) must be at least ``min_step_px``, and a saddle refit in a window sized for it must land
+    on the corner again. Corners that fail are dropped."""
+    where = {tuple(t): k for k, t in enumerate(lat.ab.tolist())}
+    keep = np.zeros(len(lat.ab), bool)
+    for (a, b), k in where.items():
+        sides = []
+        for nbrs in (((a + 1, b), (a - 1, b)), ((a, b + 1), (a, b - 1))):
+            d = [np.linalg.norm(lat.xy[where[t]] - lat.xy[k]) for t in nbrs if t in where]
+            if d:
+                sides.append(min(d))
+        if not sides or min(sides) < cfg.min_step_px:
+            continue
+        half = window_half(min(sides))
+        sm = smoothed.setdefault(half, smooth_for(grey, half))
+        q, ok, _ = saddle_fit(sm, lat.xy[k][None], half, cfg=cfg)
+        keep[k] = bool(ok[0]) and np.linalg.norm(q[0] - lat.xy[k]) < 0.15 * min(sides)
+        if keep[k]:
+            lat.xy[k] = q[0]
+    return Lattice(lat.xy[keep], lat.ab[keep], lat.filled[keep])
+
+
+# --------------------------------------------------------------------------------------------
+# Identity
+# --------------------------------------------------------------------------------------------
+ROTATIONS = [np.array([[1, 0], [0, 1]]), np.array([[0, -1], [1, 0]]), np.array([[-1, 0], [0, -1]]), np.array([[0, 1], [-1, 0]])]
+
+
+def cell_darkness(grey: np.ndarray, lat: Lattice) -> dict[tuple[int, int], float]:
+    """Per lattice cell (a, b) with all four corners known: +1 darker than its neighbour cells,
+    -1 lighter (0 when it has no neighbour cell). Cell (a, b) is spanned by (a, b) .. (a+1, b+1)."""
+    where = {tuple(t): k for k, t in enumerate(lat.ab.tolist())}
+    blur = cv2.GaussianBlur(grey.astype(np.float32), (0, 0), 1.0)
+    val = {}
+    for (a, b), k in where.items():
+        quad = [where.get(t) for t in ((a + 1, b), (a, b + 1), (a + 1, b + 1))]
+        if None in quad:
+            continue
+        c = lat.xy[[k, *quad]].mean(0)
+        val[(a, b)] = float(cv2.getRectSubPix(blur, (1, 1), (float(c[0]), float(c[1])))[0, 0])
+    out = {}
+    for (a, b), v in val.items():
+        nbs = [val[t] for t in ((a + 1, b), (a - 1, b), (a, b + 1), (a, b - 1)) if t in val]
+        out[(a, b)] = float(np.sign(np.mean(nbs) - v)) if nbs else 0.0
+    return out
+
+
+def assign_ids(
+    ab: np.ndarray, logp_col: np.ndarray, logp_row: np.ndarray, dark: dict[tuple[int, int], float], nx: int, ny: int, cfg: GridConfig
+) -> tuple[np.ndarray, float, float]:
+    """Place the lattice on the board.
+
+    Args:
+        ab: (K, 2) lattice coordinates; logp_col: (K, nx + 2) / logp_row: (K, ny + 2) the network's
+        log-probabilities of the corner column -1 .. nx / row -1 .. ny at each corner;
+        dark: cell darkness (see :func:`cell_darkness`).
+    Returns: ids (K,) (-1 where the placement puts a corner off the board), best score, margin
+    over the best placement that gives any corner another id.
+    """
+    lc = np.maximum(logp_col, cfg.logp_floor)
+    lr = np.maximum(logp_row, cfg.logp_floor)
+    cells = np.array(list(dark.keys()), int).reshape(-1, 2)
+    dsign = np.array(list(dark.values()))
+    results = []  # (score, rot, oi, oj)
+    for r, R in enumerate(ROTATIONS):
+        ij0 = ab @ R.T  # (K, 2) before the offset
+        # Column score for every offset oi: sum_k lc[k, i_k + 1], i_k = ij0[k, 0] + oi (off-board -> floor).
+        ois = np.arange(-ij0[:, 0].max() - 1, nx - ij0[:, 0].min() + 1)
+        ojs = np.arange(-ij0[:, 1].max() - 1, ny - ij0[:, 1].min() + 1)
+        ii = ij0[:, 0][:, None] + ois[None]  # (K, n_oi)
+        jj = ij0[:, 1][:, None] + ojs[None]
+        sc = np.where((ii >= 0) & (ii < nx), np.take_along_axis(lc, np.clip(ii + 1, 0, nx + 1), 1), 2 * cfg.logp_floor).sum(0)
+        sr = np.where((jj >= 0) & (jj < ny), np.take_along_axis(lr, np.clip(jj + 1, 0, ny + 1), 1), 2 * cfg.logp_floor).sum(0)
+        # Parity: the cell's min corner after rotation decides its colour; black when i + j even.
+        par = np.zeros(2)
+        if len(cells):
+            quad = np.stack([cells, cells + [1, 0], cells + [0, 1], cells + [1, 1]], 1) @ R.T  # (C, 4, 2)
+            mn = quad.min(1).sum(1)  # i0 + j0 without offset
+            for e in (0, 1):  # e = (oi + oj) mod 2
+                black = ((mn + e) % 2) == 0
+                par[e] = cfg.parity_weight * float((np.where(black, 1.0, -1.0) * dsign).sum())
+        total = sc[:, None] + sr[None, :] + par[(ois[:, None] + ojs[None, :]) % 2]
+        for a, oi in enumerate(ois):
+            for b, oj in enumerate(ojs):
+                results.append((float(total[a, b]), r, int(oi), int(oj)))
+    results.sort(key=lambda t: -t[0])
+    best = results[0]
+
+    def ids_of(res: tuple[float, int, int, int]) -> np.ndarray:
+        ij = ab @ ROTATIONS[res[1]].T + [res[2], res[3]]
+        on = (ij[:, 0] >= 0) & (ij[:, 0] < nx) & (ij[:, 1] >= 0) & (ij[:, 1] < ny)
+        return np.where(on, ij[:, 1] * nx + ij[:, 0], -1)
+
+    ids = ids_of(best)
+    runner = next((r for r in results[1:] if not np.array_equal(ids_of(r), ids)), None)
+    margin = best[0] - runner[0] if runner is not None else np.inf
+    return ids, best[0], margin
+
+
+# --------------------------------------------------------------------------------------------
+# The whole pass
+# --------------------------------------------------------------------------------------------
+@dataclass
+class GridResult:
+    ids: np.ndarray  # (K,) corner ids
+    xy: np.ndarray  # (K, 2) input-image pixels (saddle points)
+    confidence: np.ndarray  # (K,)
+    margin: float  # identity margin of the placement (nats); nan when no lattice was found
+
+
+def sample_cells(maps: np.ndarray, q_proc: np.ndarray) -> np.ndarray:
+    """Values of (C, h, w) 1/4-resolution maps at processing pixels (K, 2) (nearest cell) -> (K, C)."""
+    C, h, w = maps.shape
+    c = np.rint((q_proc - 1.5) / 4).astype(int)
+    cx, cy = np.clip(c[:, 0], 0, w - 1), np.clip(c[:, 1], 0, h - 1)
+    return maps[:, cy, cx].T
+
+
+def find_candidates(
+    grey: np.ndarray, scale: float, corner_prob: np.ndarray, mask_prob: np.ndarray, cfg: GridConfig, smoothed: dict[int, np.ndarray]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Saddle points inside the network's corner / board region, best seeds first.
+    Returns xy (K, 2) pixels and axes (K, 2, 2) (see :func:`saddle_fit`)."""
+    roi = roi_from_maps(np.maximum(corner_prob, mask_prob), grey.shape, scale, cfg.peak_threshold)
+    xy0, resp = saddle_candidates(grey, roi)
+    if len(xy0) < 2:
+        return np.zeros((0, 2)), np.zeros((0, 2, 2))
+    # Window per candidate from the spacing to its nearest other candidate.
+    d, _ = cKDTree(xy0).query(xy0, k=2)
+    halves = np.array([window_half(x) for x in d[:, 1]])
+    xy = np.zeros_like(xy0)
+    ok = np.zeros(len(xy0), bool)
+    axes = np.zeros((len(xy0), 2, 2))
+    for h in np.unique(halves):
+        m = halves == h
+        sm = smoothed.setdefault(int(h), smooth_for(grey, int(h)))
+        xy[m], ok[m], axes[m] = saddle_fit(sm, xy0[m], int(h), cfg=cfg)
+    # Seeds in order of saddle response times the network's corner score there.
+    q0 = (xy + 0.5) * scale - 0.5
+    score = resp * (sample_cells(corner_prob[None], q0)[:, 0] + 0.05)
+    keep = np.nonzero(ok)[0]
+    keep = keep[np.argsort(-score[keep])]
+    uniq: list[int] = []  # merge candidates that converged onto the same saddle
+    for k in keep:
+        if all(np.linalg.norm(xy[k] - xy[u]) > 1.0 for u in uniq):
+            uniq.append(int(k))
+    return xy[uniq], axes[uniq]
+
+
+def grid_pass(
+    grey: np.ndarray,
+    scale: float,
+    corner_prob: np.ndarray,
+    mask_prob: np.ndarray,
+    logp_col: np.ndarray,
+    logp_row: np.ndarray,
+    nx: int,
+    ny: int,
+    cfg: GridConfig,
+) -> GridResult:
+    """Corners with ids from the network's dense outputs and the full-resolution image.
+
+    Args:
+        grey: (H, W) float32 input image in [0, 1]; scale: processing pixels per input pixel.
+        corner_prob: (h, w) class-agnostic corner probability and mask_prob: (h, w) board
+        probability at 1/4 processing resolution; logp_col: (nx + 2, h, w), logp_row: (ny + 2, h, w)
+        column / row log-probabilities.
+    """
+    empty = GridResult(np.zeros(0, int), np.zeros((0, 2)), np.zeros(0), float("nan"))
+    smoothed: dict[int, np.ndarray] = {}
+    xy, axes = find_candidates(grey, scale, corner_prob, mask_prob, cfg, smoothed)
+    if len(xy) < cfg.min_corners:
+        return empty
+    # Grow from several seeds (distractors can hold the strongest saddles); a lattice must lie on
+    # what the network calls board, and the one whose identity is surest wins.
+    best: tuple[float, Lattice, np.ndarray] | None = None
+    covered = np.zeros(len(xy), bool)
+    tried = 0
+    for seed in range(len(xy)):
+        if tried >= cfg.max_seeds:
+            break
+        if covered[seed]:
+            continue
+        tried += 1
+        lat = grow_lattice(xy, axes, seed, grey, cfg, smoothed)
+        if lat is None:
+            continue
+        covered |= cKDTree(lat.xy).query(xy)[0] < 1.0
+        lat = verify_lattice(lat, grey, cfg, smoothed)
+        if len(lat.ab) < cfg.min_corners:
+            continue
+        q_lat = (lat.xy + 0.5) * scale - 0.5
+        if sample_cells(mask_prob[None], q_lat)[:, 0].mean() < cfg.min_board_prob:
+            continue
+        ids, _, margin = assign_ids(
+            lat.ab, sample_cells(logp_col, q_lat), sample_cells(logp_row, q_lat), cell_darkness(grey, lat), nx, ny, cfg
+        )
+        if best is None or margin > best[0]:
+            best = (margin, lat, ids)
+    if best is None:
+        return empty
+    margin, lat, ids = best
+    if margin < cfg.min_margin:
+        return GridResult(np.zeros(0, int), np.zeros((0, 2)), np.zeros(0), float(margin))
+    on = ids >= 0
+    conf = np.full(len(ids), 1.0 - np.exp(-margin)) * np.where(lat.filled, 0.9, 1.0)
+    order = np.argsort(ids[on])
+    return GridResult(ids[on][order], lat.xy[on][order], conf[on][order], float(margin))
