@@ -25,6 +25,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import functools
+
 import cv2
 import numpy as np
 from scipy.spatial import cKDTree
@@ -50,6 +52,7 @@ class GridConfig:
 # --------------------------------------------------------------------------------------------
 # Saddle points
 # --------------------------------------------------------------------------------------------
+@functools.lru_cache(maxsize=16)
 def _design(half: int) -> tuple[np.ndarray, np.ndarray]:
     g = np.arange(2 * half + 1) - half
     X, Y = np.meshgrid(g, g)
@@ -60,10 +63,21 @@ def _design(half: int) -> tuple[np.ndarray, np.ndarray]:
     return pinv, w
 
 
+def _patches(img: np.ndarray, p: np.ndarray, half: int) -> np.ndarray:
+    """Bilinear (2 half + 1)^2 windows of ``img`` centred on points p (K, 2) -> (K, n * n)."""
+    n = 2 * half + 1
+    g = np.arange(n, dtype=np.float32) - half
+    mx = (p[:, 0, None, None] + g[None, None, :]).astype(np.float32) + np.zeros((1, n, 1), np.float32)
+    my = (p[:, 1, None, None] + g[None, :, None]).astype(np.float32) + np.zeros((1, 1, n), np.float32)
+    out = cv2.remap(img, mx.reshape(-1, n), my.reshape(-1, n), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(len(p), n * n).astype(np.float64)
+
+
 def saddle_fit(
     smoothed: np.ndarray, xy: np.ndarray, half: int, iterations: int = 4, cfg: GridConfig | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Move points to the saddle of a quadratic fitted in a (2 half + 1)^2 window.
+    """Move points to the saddle of a quadratic fitted in a (2 half + 1)^2 window (Newton steps,
+    a fixed number of them, all points at once).
 
     Args:
         smoothed: (H, W) float32 grey image, already blurred for this window size.
@@ -75,51 +89,42 @@ def saddle_fit(
     """
     cfg = cfg or GridConfig()
     pinv, _ = _design(half)
-    n = 2 * half + 1
+    xy = np.asarray(xy, np.float64).reshape(-1, 2)
     K = len(xy)
-    out = np.asarray(xy, np.float64).copy()
-    ok = np.zeros(K, bool)
-    axes = np.zeros((K, 2, 2))
     H, W = smoothed.shape
-    for k in range(K):
-        p = out[k].copy()
-        good = False
-        for _ in range(iterations):
-            if not (half <= p[0] < W - 1 - half and half <= p[1] < H - 1 - half):
-                good = False
-                break
-            patch = cv2.getRectSubPix(smoothed, (n, n), (float(p[0]), float(p[1])))
-            a, b, c, d, e, _ = pinv @ patch.ravel().astype(np.float64)
-            Hm = np.array([[2 * a, b], [b, 2 * c]])
-            if np.linalg.det(Hm) >= 0:
-                good = False
-                break
-            step = np.linalg.solve(Hm, -np.array([d, e]))
-            if np.linalg.norm(step) > half:
-                good = False
-                break
-            p = p + step
-            good = True
-            if np.linalg.norm(step) < 1e-3:
-                break
-        if not good or np.linalg.norm(p - xy[k]) > half:
-            continue
-        patch = cv2.getRectSubPix(smoothed, (n, n), (float(p[0]), float(p[1]))).astype(np.float64)
-        z = patch - patch.mean()
-        if (z * z[::-1, ::-1]).sum() < cfg.min_symmetry * max((z * z).sum(), 1e-12):
-            continue  # an L- or T-junction or an edge, not a checker X
-        lam, vec = np.linalg.eigh(np.array([[a, b / 2], [b / 2, c]]))  # lam[0] < 0 < lam[1]
-        if lam[0] >= 0 or lam[1] <= 0:
-            continue
-        big = max(-lam[0], lam[1])
-        if big * half * half < cfg.min_saddle_contrast or min(-lam[0], lam[1]) / big < cfg.min_saddle_ratio:
-            continue
-        t = np.arctan(np.sqrt(lam[1] / -lam[0]))  # zero lines: cos t e_pos +- sin t e_neg
-        e_pos, e_neg = vec[:, 1], vec[:, 0]
-        axes[k, 0] = np.cos(t) * e_pos + np.sin(t) * e_neg
-        axes[k, 1] = np.cos(t) * e_pos - np.sin(t) * e_neg
-        out[k], ok[k] = p, True
-    return out, ok, axes
+    p = xy.copy()
+    alive = np.ones(K, bool)
+    for _ in range(iterations):
+        idx = np.nonzero(alive)[0]
+        if not len(idx):
+            break
+        a, b, c, d, e, _ = (_patches(smoothed, p[idx], half) @ pinv.T).T
+        det = 4 * a * c - b * b  # of [[2a, b], [b, 2c]]; a saddle has det < 0
+        safe = np.where(det < 0, det, -1.0)
+        step = -np.stack([2 * c * d - b * e, -b * d + 2 * a * e], 1) / safe[:, None]
+        bad = (det >= 0) | (np.linalg.norm(step, axis=1) > half)
+        p[idx[~bad]] += step[~bad]
+        alive[idx[bad]] = False
+    inside = (p[:, 0] >= half) & (p[:, 0] < W - 1 - half) & (p[:, 1] >= half) & (p[:, 1] < H - 1 - half)
+    ok = alive & inside & (np.linalg.norm(p - xy, axis=1) <= half)
+    axes = np.zeros((K, 2, 2))
+    idx = np.nonzero(ok)[0]
+    if len(idx):
+        patch = _patches(smoothed, p[idx], half)
+        a, b, c = (patch @ pinv.T).T[:3]
+        z = patch - patch.mean(1, keepdims=True)
+        sym = (z * z[:, ::-1]).sum(1) >= cfg.min_symmetry * np.maximum((z * z).sum(1), 1e-12)  # 180 deg turn = reversed ravel
+        lam, vec = np.linalg.eigh(np.stack([np.stack([a, b / 2], -1), np.stack([b / 2, c], -1)], -2))  # lam[:, 0] <= lam[:, 1]
+        neg, pos = -lam[:, 0], lam[:, 1]
+        big = np.maximum(np.maximum(neg, pos), 1e-12)
+        good = sym & (neg > 0) & (pos > 0) & (big * half * half >= cfg.min_saddle_contrast)
+        good &= np.minimum(neg, pos) / big >= cfg.min_saddle_ratio
+        t = np.arctan(np.sqrt(np.maximum(pos, 0) / np.maximum(neg, 1e-12)))  # zero lines: cos t e_pos +- sin t e_neg
+        e_pos, e_neg = vec[:, :, 1], vec[:, :, 0]
+        axes[idx, 0] = np.cos(t)[:, None] * e_pos + np.sin(t)[:, None] * e_neg
+        axes[idx, 1] = np.cos(t)[:, None] * e_pos - np.sin(t)[:, None] * e_neg
+        ok[idx] = good
+    return np.where(ok[:, None], p, xy), ok, axes
 
 
 def window_half(spacing_px: float) -> int:
@@ -154,13 +159,14 @@ def saddle_candidates(
 
 def roi_from_maps(prob: np.ndarray, shape: tuple[int, int], scale: float, threshold: float = 0.3) -> np.ndarray:
     """Full-resolution (H, W) bool region from a 1/4-processing-resolution probability map:
-    cells above ``threshold``, grown by two cells, mapped back through the letterbox."""
+    cells above ``threshold``, grown by two cells, mapped back through the letterbox
+    (input pixel x -> processing (x + 0.5) s - 0.5 -> cell (. - 1.5) / 4)."""
     m = cv2.dilate((prob > threshold).astype(np.uint8), np.ones((5, 5), np.uint8))
     H, W = shape
-    ys, xs = np.mgrid[0:H, 0:W]
-    cx = np.clip(np.rint((((xs + 0.5) * scale - 0.5) - 1.5) / 4).astype(int), 0, m.shape[1] - 1)
-    cy = np.clip(np.rint((((ys + 0.5) * scale - 0.5) - 1.5) / 4).astype(int), 0, m.shape[0] - 1)
-    return m[cy, cx] > 0
+    k, t = scale / 4, (0.5 * scale - 2.0) / 4
+    M = np.array([[k, 0, t], [0, k, t]], np.float64)
+    full = cv2.warpAffine(m, M, (W, H), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
+    return full > 0
 
 
 # --------------------------------------------------------------------------------------------
@@ -404,11 +410,18 @@ def sample_cells(maps: np.ndarray, q_proc: np.ndarray) -> np.ndarray:
 
 
 def find_candidates(
-    grey: np.ndarray, scale: float, corner_prob: np.ndarray, mask_prob: np.ndarray, cfg: GridConfig, smoothed: dict[int, np.ndarray]
+    grey: np.ndarray,
+    roi: np.ndarray,
+    offset: np.ndarray,
+    scale: float,
+    corner_prob: np.ndarray,
+    cfg: GridConfig,
+    smoothed: dict[int, np.ndarray],
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Saddle points inside the network's corner / board region, best seeds first.
-    Returns xy (K, 2) pixels and axes (K, 2, 2) (see :func:`saddle_fit`)."""
-    roi = roi_from_maps(np.maximum(corner_prob, mask_prob), grey.shape, scale, cfg.peak_threshold)
+    """Saddle points inside ``roi`` (the network's corner / board region), best seeds first.
+
+    ``grey`` and ``roi`` are a crop of the input whose top-left pixel is input pixel ``offset``.
+    Returns xy (K, 2) crop pixels and axes (K, 2, 2) (see :func:`saddle_fit`)."""
     xy0, resp = saddle_candidates(grey, roi)
     if len(xy0) < 2:
         return np.zeros((0, 2)), np.zeros((0, 2, 2))
@@ -423,7 +436,7 @@ def find_candidates(
         sm = smoothed.setdefault(int(h), smooth_for(grey, int(h)))
         xy[m], ok[m], axes[m] = saddle_fit(sm, xy0[m], int(h), cfg=cfg)
     # Seeds in order of saddle response times the network's corner score there.
-    q0 = (xy + 0.5) * scale - 0.5
+    q0 = (xy + offset + 0.5) * scale - 0.5
     score = resp * (sample_cells(corner_prob[None], q0)[:, 0] + 0.05)
     keep = np.nonzero(ok)[0]
     keep = keep[np.argsort(-score[keep])]
@@ -454,8 +467,18 @@ def grid_pass(
         column / row log-probabilities.
     """
     empty = GridResult(np.zeros(0, int), np.zeros((0, 2)), np.zeros(0), float("nan"))
+    # Work on the crop around the network's corner / board region (all full-resolution filtering
+    # scales with its area); crop pixels + offset = input pixels.
+    roi = roi_from_maps(np.maximum(corner_prob, mask_prob), grey.shape, scale, cfg.peak_threshold)
+    ys, xs = np.nonzero(roi.any(1))[0], np.nonzero(roi.any(0))[0]
+    if not len(ys):
+        return empty
+    pad = 12
+    y0, y1 = max(0, ys[0] - pad), min(grey.shape[0], ys[-1] + 1 + pad)
+    x0, x1 = max(0, xs[0] - pad), min(grey.shape[1], xs[-1] + 1 + pad)
+    grey, roi, offset = grey[y0:y1, x0:x1], roi[y0:y1, x0:x1], np.array([x0, y0], np.float64)
     smoothed: dict[int, np.ndarray] = {}
-    xy, axes = find_candidates(grey, scale, corner_prob, mask_prob, cfg, smoothed)
+    xy, axes = find_candidates(grey, roi, offset, scale, corner_prob, cfg, smoothed)
     if len(xy) < cfg.min_corners:
         return empty
     # Grow from several seeds (distractors can hold the strongest saddles); a lattice must lie on
@@ -476,7 +499,7 @@ def grid_pass(
         lat = verify_lattice(lat, grey, cfg, smoothed)
         if len(lat.ab) < cfg.min_corners:
             continue
-        q_lat = (lat.xy + 0.5) * scale - 0.5
+        q_lat = (lat.xy + offset + 0.5) * scale - 0.5
         if sample_cells(mask_prob[None], q_lat)[:, 0].mean() < cfg.min_board_prob:
             continue
         ids, _, margin = assign_ids(
@@ -492,4 +515,4 @@ def grid_pass(
     on = ids >= 0
     conf = np.full(len(ids), 1.0 - np.exp(-margin)) * np.where(lat.filled, 0.9, 1.0)
     order = np.argsort(ids[on])
-    return GridResult(ids[on][order], lat.xy[on][order], conf[on][order], float(margin))
+    return GridResult(ids[on][order], lat.xy[on][order] + offset, conf[on][order], float(margin))
