@@ -23,9 +23,8 @@ CONVENTIONS (centre of the top-left pixel at (0, 0)).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import functools
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
