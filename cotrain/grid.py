@@ -43,9 +43,11 @@ class GridConfig:
     min_saddle_ratio: float = 0.03  # smaller / larger |eigenvalue|: below this the fit is an edge, not an X
     min_symmetry: float = 0.5  # correlation of the window with itself turned 180 deg (X-junctions are point-symmetric)
     parity_weight: float = 2.0  # log-likelihood per lattice cell whose checker colour agrees with a placement
-    min_margin: float = 8.0  # the best placement must beat the runner-up by this (nats) to be reported
+    min_margin: float = 15.0  # the best placement must beat the runner-up by this (nats) to be reported
     max_seeds: int = 12  # seeds tried (best corner scores first); the lattice with the surest identity wins
-    logp_floor: float = -7.0  # network log-probabilities are clamped here (one corner cannot veto a board)
+    logp_floor: float = -3.0  # network log-probabilities are clamped here (one corner cannot veto a board)
+    offboard_penalty: float = 10.0  # per lattice corner a placement puts off the board (they are verified X-junctions)
+    edge_weight: float = 5.0  # per lattice corner whose outward neighbour is the board's white margin
 
 
 # --------------------------------------------------------------------------------------------
@@ -337,15 +339,65 @@ def cell_darkness(grey: np.ndarray, lat: Lattice) -> dict[tuple[int, int], float
     return out
 
 
+def edge_evidence(grey: np.ndarray, lat: Lattice) -> list[tuple[int, int, int, float]]:
+    """Where the lattice stops because the board does: (k, da, db, e) for boundary corner k whose
+    neighbour (a + da, b + db) is missing, e in [0, 1] the evidence that the squares end one
+    square further on and the white margin follows.
+
+    Beyond the last corner row there is one more row of squares, then the margin: the two points
+    1.25 steps out (+- half a step sideways) are both white, while the two squares 0.5 steps out
+    differ. Where the board goes on (occlusion, image edge) the outer pair differs too or is dark.
+    """
+    where = {tuple(t): k for k, t in enumerate(lat.ab.tolist())}
+    blur = cv2.GaussianBlur(grey.astype(np.float32), (0, 0), 1.0)
+    H, W = grey.shape
+    out = []
+
+    def at(q: np.ndarray) -> float | None:
+        if not (0 <= q[0] < W - 1 and 0 <= q[1] < H - 1):
+            return None
+        return float(cv2.getRectSubPix(blur, (1, 1), (float(q[0]), float(q[1])))[0, 0])
+
+    for (a, b), k in where.items():
+        for da, db in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+            if (a + da, b + db) in where:
+                continue
+            back = where.get((a - da, b - db))
+            side = [where.get((a + db, b + da)), where.get((a - db, b - da))]  # neighbours across the direction
+            if back is None or all(m is None for m in side):
+                continue
+            out_step = lat.xy[k] - lat.xy[back]
+            m = next(m for m in side if m is not None)
+            sgn = 1.0 if m == side[0] else -1.0
+            across = sgn * (lat.xy[m] - lat.xy[k])
+            p = lat.xy[k]
+            vals = [at(p + f * out_step + g * across) for f, g in ((0.5, 0.5), (0.5, -0.5), (1.25, 0.5), (1.25, -0.5))]
+            if any(v is None for v in vals):
+                continue
+            A, B, C, D = vals
+            contrast = abs(A - B)
+            if contrast < 0.1 or min(C, D) < max(A, B) - 0.5 * contrast:
+                continue
+            out.append((k, da, db, float(np.clip(1 - abs(C - D) / contrast, 0, 1))))
+    return out
+
+
 def assign_ids(
-    ab: np.ndarray, logp_col: np.ndarray, logp_row: np.ndarray, dark: dict[tuple[int, int], float], nx: int, ny: int, cfg: GridConfig
+    ab: np.ndarray,
+    logp_col: np.ndarray,
+    logp_row: np.ndarray,
+    dark: dict[tuple[int, int], float],
+    nx: int,
+    ny: int,
+    cfg: GridConfig,
+    edges: list[tuple[int, int, int, float]] | None = None,
 ) -> tuple[np.ndarray, float, float]:
     """Place the lattice on the board.
 
     Args:
         ab: (K, 2) lattice coordinates; logp_col: (K, nx + 2) / logp_row: (K, ny + 2) the network's
         log-probabilities of the corner column -1 .. nx / row -1 .. ny at each corner;
-        dark: cell darkness (see :func:`cell_darkness`).
+        dark: cell darkness (see :func:`cell_darkness`); edges: margin evidence (see :func:`edge_evidence`).
     Returns: ids (K,) (-1 where the placement puts a corner off the board), best score, margin
     over the best placement that gives any corner another id.
     """
@@ -361,8 +413,8 @@ def assign_ids(
         ojs = np.arange(-ij0[:, 1].max() - 1, ny - ij0[:, 1].min() + 1)
         ii = ij0[:, 0][:, None] + ois[None]  # (K, n_oi)
         jj = ij0[:, 1][:, None] + ojs[None]
-        sc = np.where((ii >= 0) & (ii < nx), np.take_along_axis(lc, np.clip(ii + 1, 0, nx + 1), 1), 2 * cfg.logp_floor).sum(0)
-        sr = np.where((jj >= 0) & (jj < ny), np.take_along_axis(lr, np.clip(jj + 1, 0, ny + 1), 1), 2 * cfg.logp_floor).sum(0)
+        sc = np.where((ii >= 0) & (ii < nx), np.take_along_axis(lc, np.clip(ii + 1, 0, nx + 1), 1), -cfg.offboard_penalty).sum(0)
+        sr = np.where((jj >= 0) & (jj < ny), np.take_along_axis(lr, np.clip(jj + 1, 0, ny + 1), 1), -cfg.offboard_penalty).sum(0)
         # Parity: the cell's min corner after rotation decides its colour; black when i + j even.
         par = np.zeros(2)
         if len(cells):
@@ -372,6 +424,15 @@ def assign_ids(
                 black = ((mn + e) % 2) == 0
                 par[e] = cfg.parity_weight * float((np.where(black, 1.0, -1.0) * dsign).sum())
         total = sc[:, None] + sr[None, :] + par[(ois[:, None] + ojs[None, :]) % 2]
+        if edges:
+            # Margin evidence: the missing outward neighbour must fall off the board.
+            kk = np.array([e[0] for e in edges])
+            t0 = (ab[kk] + np.array([[e[1], e[2]] for e in edges])) @ R.T  # (E, 2) before the offset
+            ev = np.array([e[3] for e in edges])
+            ti = t0[:, 0, None, None] + ois[None, :, None]
+            tj = t0[:, 1, None, None] + ojs[None, None, :]
+            off = (ti < 0) | (ti >= nx) | (tj < 0) | (tj >= ny)  # (E, n_oi, n_oj)
+            total = total + cfg.edge_weight * (ev[:, None, None] * np.where(off, 1.0, -1.0)).sum(0)
         for a, oi in enumerate(ois):
             for b, oj in enumerate(ojs):
                 results.append((float(total[a, b]), r, int(oi), int(oj)))
@@ -501,9 +562,8 @@ def grid_pass(
         q_lat = (lat.xy + offset + 0.5) * scale - 0.5
         if sample_cells(mask_prob[None], q_lat)[:, 0].mean() < cfg.min_board_prob:
             continue
-        ids, _, margin = assign_ids(
-            lat.ab, sample_cells(logp_col, q_lat), sample_cells(logp_row, q_lat), cell_darkness(grey, lat), nx, ny, cfg
-        )
+        lc, lr = sample_cells(logp_col, q_lat), sample_cells(logp_row, q_lat)
+        ids, _, margin = assign_ids(lat.ab, lc, lr, cell_darkness(grey, lat), nx, ny, cfg, edge_evidence(grey, lat))
         if best is None or margin > best[0]:
             best = (margin, lat, ids)
     if best is None:
