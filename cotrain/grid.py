@@ -37,13 +37,13 @@ class GridConfig:
     min_corners: int = 6  # smallest lattice that is reported
     match_radius: float = 0.45  # a neighbour must lie within this fraction of the grid step of its prediction
     agree_radius: float = 0.3  # predictions of one corner from different neighbours must agree within this fraction of a step
-    min_step_px: float = 4.5  # no growth into squares smaller than this (saddles of tinier squares are unreliable)
+    min_step_px: float = 7.0  # no growth into squares smaller than this (saddles of tinier squares are unreliable)
     min_board_prob: float = 0.3  # mean board probability (network mask) at a lattice's corners
     min_saddle_contrast: float = 0.04  # |eigenvalue| of the fitted quadratic * half^2 (intensity units) a saddle needs
     min_saddle_ratio: float = 0.03  # smaller / larger |eigenvalue|: below this the fit is an edge, not an X
     min_symmetry: float = 0.5  # correlation of the window with itself turned 180 deg (X-junctions are point-symmetric)
     parity_weight: float = 2.0  # log-likelihood per lattice cell whose checker colour agrees with a placement
-    min_margin: float = 15.0  # the best placement must beat the runner-up by this (nats) to be reported
+    min_margin: float = 18.0  # the best placement must beat the runner-up by this (nats) to be reported
     max_seeds: int = 12  # seeds tried (best corner scores first); the lattice with the surest identity wins
     logp_floor: float = -3.0  # network log-probabilities are clamped here (one corner cannot veto a board)
     offboard_penalty: float = 10.0  # per lattice corner a placement puts off the board (they are verified X-junctions)
@@ -158,6 +158,21 @@ def saddle_candidates(
     return np.stack([xs[order], ys[order]], 1).astype(np.float64), r[order].astype(np.float64)
 
 
+def outside_circle(grey: np.ndarray, dark: float = 0.04, grow_px: int = 4) -> np.ndarray:
+    """(H, W) bool: the black frame outside a fisheye's image circle (dark regions connected to
+    the image border, found at 1/4 resolution), grown by ``grow_px``. Corners there sit on the
+    rim, where the checker is cut and a saddle fit is pulled off the corner."""
+    H, W = grey.shape
+    small = cv2.resize(grey, (max(1, W // 4), max(1, H // 4)), interpolation=cv2.INTER_AREA)
+    low = (small < dark).astype(np.uint8)
+    n, lab = cv2.connectedComponents(low, connectivity=4)
+    border = np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]]))
+    out = np.isin(lab, border[border > 0])
+    full = cv2.resize(out.astype(np.uint8), (W, H), interpolation=cv2.INTER_NEAREST)
+    k = 2 * grow_px + 1
+    return cv2.dilate(full, np.ones((k, k), np.uint8)) > 0
+
+
 def roi_from_maps(prob: np.ndarray, shape: tuple[int, int], scale: float, threshold: float = 0.3) -> np.ndarray:
     """Full-resolution (H, W) bool region from a 1/4-processing-resolution probability map:
     cells above ``threshold``, grown by two cells, mapped back through the letterbox
@@ -196,9 +211,16 @@ def _diag_contrast(img: np.ndarray, p: np.ndarray, ea: np.ndarray, eb: np.ndarra
 
 
 def grow_lattice(
-    xy: np.ndarray, axes: np.ndarray, seed: int, grey: np.ndarray, cfg: GridConfig, smoothed: dict[int, np.ndarray]
+    xy: np.ndarray,
+    axes: np.ndarray,
+    seed: int,
+    grey: np.ndarray,
+    cfg: GridConfig,
+    smoothed: dict[int, np.ndarray],
+    allowed: np.ndarray | None = None,
 ) -> Lattice | None:
-    """Breadth-first lattice growth from candidate ``seed`` (see the module docstring).
+    """Breadth-first lattice growth from candidate ``seed`` (see the module docstring); corners
+    found by the saddle search must lie where ``allowed`` (H, W bool) is true.
 
     Lattice axes are oriented so that a x b > 0 in the image (x right, y down), as the board's own
     i, j axes are when its printed side is seen.
@@ -267,7 +289,9 @@ def grow_lattice(
                 half = window_half(short)
                 sm = smoothed.setdefault(half, smooth_for(grey, half))
                 q, ok, _ = saddle_fit(sm, pred[None], half, cfg=cfg)
-                if ok[0] and np.linalg.norm(q[0] - pred) < r:
+                qi = np.clip(np.rint(q[0]).astype(int), 0, [W - 1, H - 1])
+                inside = allowed is None or bool(allowed[qi[1], qi[0]])
+                if ok[0] and np.linalg.norm(q[0] - pred) < r and inside:
                     found, was_filled = q[0], True
             if found is None:
                 continue
@@ -291,27 +315,69 @@ def grow_lattice(
     return Lattice(np.array(pts), np.array(lab, int), np.array(filled))
 
 
-def verify_lattice(lat: Lattice, grey: np.ndarray, cfg: GridConfig, smoothed: dict[int, np.ndarray]) -> Lattice:
-    """Second look at every corner with its final neighbours: the local square size (smaller
-    side) must be at least ``min_step_px``, and a saddle refit in a window sized for it must land
-    on the corner again. Corners that fail are dropped."""
+def _largest_component(ab: np.ndarray) -> np.ndarray:
+    """(K,) bool: the largest 4-connected set of lattice coordinates."""
+    where = {tuple(t): k for k, t in enumerate(ab.tolist())}
+    comp = -np.ones(len(ab), int)
+    n = 0
+    for k0 in range(len(ab)):
+        if comp[k0] >= 0:
+            continue
+        comp[k0] = n
+        stack = [k0]
+        while stack:
+            a, b = ab[stack.pop()]
+            for t in ((a + 1, b), (a - 1, b), (a, b + 1), (a, b - 1)):
+                m = where.get(t)
+                if m is not None and comp[m] < 0:
+                    comp[m] = n
+                    stack.append(m)
+        n += 1
+    return comp == np.bincount(comp).argmax() if len(ab) else np.zeros(0, bool)
+
+
+def verify_lattice(
+    lat: Lattice, grey: np.ndarray, cfg: GridConfig, smoothed: dict[int, np.ndarray], rim_dist: np.ndarray | None = None
+) -> Lattice:
+    """Second look at every corner with its final neighbours. A corner is dropped when
+
+    - the local square (smaller side) is under ``min_step_px``, or the fit window would reach
+      the image circle's rim (``rim_dist``: distance in pixels to it, (H, W));
+    - a saddle refit in a window sized for the square does not land on it again;
+    - it breaks a lattice line: the midpoint of its two neighbours along a, or along b, misses it
+      by more than 0.4 of a step (where a group of corners slipped by a diagonal step during the
+      growth, the corners along the seam fail this).
+    Of what is left, the largest 4-connected part is kept.
+    """
     where = {tuple(t): k for k, t in enumerate(lat.ab.tolist())}
     keep = np.zeros(len(lat.ab), bool)
+    xy = lat.xy.copy()
+    H, W = grey.shape
     for (a, b), k in where.items():
         sides = []
+        straight = True
         for nbrs in (((a + 1, b), (a - 1, b)), ((a, b + 1), (a, b - 1))):
             d = [np.linalg.norm(lat.xy[where[t]] - lat.xy[k]) for t in nbrs if t in where]
             if d:
                 sides.append(min(d))
-        if not sides or min(sides) < cfg.min_step_px:
+            if len(d) == 2:
+                p1, p2 = lat.xy[where[nbrs[0]]], lat.xy[where[nbrs[1]]]
+                straight &= bool(np.linalg.norm((p1 + p2) / 2 - lat.xy[k]) < 0.4 * np.linalg.norm(p1 - p2) / 2)
+        if not sides or min(sides) < cfg.min_step_px or not straight:
             continue
+        if rim_dist is not None:
+            qi = np.clip(np.rint(lat.xy[k]).astype(int), 0, [W - 1, H - 1])
+            if rim_dist[qi[1], qi[0]] < max(4.0, 0.6 * min(sides)):
+                continue
         half = window_half(min(sides))
         sm = smoothed.setdefault(half, smooth_for(grey, half))
         q, ok, _ = saddle_fit(sm, lat.xy[k][None], half, cfg=cfg)
         keep[k] = bool(ok[0]) and np.linalg.norm(q[0] - lat.xy[k]) < 0.15 * min(sides)
         if keep[k]:
-            lat.xy[k] = q[0]
-    return Lattice(lat.xy[keep], lat.ab[keep], lat.filled[keep])
+            xy[k] = q[0]
+    lat = Lattice(xy[keep], lat.ab[keep], lat.filled[keep])
+    big = _largest_component(lat.ab)
+    return Lattice(lat.xy[big], lat.ab[big], lat.filled[big])
 
 
 # --------------------------------------------------------------------------------------------
@@ -530,13 +596,17 @@ def grid_pass(
     # Work on the crop around the network's corner / board region (all full-resolution filtering
     # scales with its area); crop pixels + offset = input pixels.
     roi = roi_from_maps(np.maximum(corner_prob, mask_prob), grey.shape, scale, cfg.peak_threshold)
+    allowed = ~outside_circle(grey, grow_px=1)
+    roi &= allowed
     ys, xs = np.nonzero(roi.any(1))[0], np.nonzero(roi.any(0))[0]
     if not len(ys):
         return empty
     pad = 12
     y0, y1 = max(0, ys[0] - pad), min(grey.shape[0], ys[-1] + 1 + pad)
     x0, x1 = max(0, xs[0] - pad), min(grey.shape[1], xs[-1] + 1 + pad)
-    grey, roi, offset = grey[y0:y1, x0:x1], roi[y0:y1, x0:x1], np.array([x0, y0], np.float64)
+    grey, roi, allowed = grey[y0:y1, x0:x1], roi[y0:y1, x0:x1], allowed[y0:y1, x0:x1]
+    offset = np.array([x0, y0], np.float64)
+    rim_dist = cv2.distanceTransform(allowed.astype(np.uint8), cv2.DIST_L2, 3)
     smoothed: dict[int, np.ndarray] = {}
     xy, axes = find_candidates(grey, roi, offset, scale, corner_prob, cfg, smoothed)
     if len(xy) < cfg.min_corners:
@@ -552,11 +622,11 @@ def grid_pass(
         if covered[seed]:
             continue
         tried += 1
-        lat = grow_lattice(xy, axes, seed, grey, cfg, smoothed)
+        lat = grow_lattice(xy, axes, seed, grey, cfg, smoothed, allowed)
         if lat is None:
             continue
         covered |= cKDTree(lat.xy).query(xy)[0] < 1.0
-        lat = verify_lattice(lat, grey, cfg, smoothed)
+        lat = verify_lattice(lat, grey, cfg, smoothed, rim_dist)
         if len(lat.ab) < cfg.min_corners:
             continue
         q_lat = (lat.xy + offset + 0.5) * scale - 0.5
