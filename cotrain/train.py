@@ -47,6 +47,7 @@ class TrainSettings:
     init_from: str = ""  # checkpoint to start from (fine-tuning); ignored on --resume
     save_rank_weights: bool = False  # debug: write each rank's final weights (DDP test)
     threads: int = 0  # torch threads per process (0 = leave torch's default)
+    select_by: str = "recall"  # validation figure that picks best.pt: "recall" (per-slot path) or "board_id_acc" (grid pass)
     stop_after: int = 0  # stop (with a checkpoint) after this step, as if interrupted (0 = run to the end)
     curriculum_steps: int = 0  # before this step, train on closer, less cropped boards (identity is learned there first)
     curriculum_distance: tuple[float, float] = (0.1, 0.45)  # render.distance_range during the curriculum
@@ -71,6 +72,8 @@ def finalize_config(cfg: TrainConfig) -> TrainConfig:
         raise ConfigError(f"model.input_size {tuple(cfg.model.input_size)} must equal (render.height, render.width)")
     if cfg.train.batch_size < 1 or cfg.train.steps < 1:
         raise ConfigError("train.batch_size and train.steps must be positive")
+    if cfg.train.select_by not in ("recall", "board_id_acc"):
+        raise ConfigError(f"train.select_by must be 'recall' or 'board_id_acc', not {cfg.train.select_by!r}")
     return cfg
 
 
@@ -115,13 +118,18 @@ def evaluate(model: CornerNet, val: dict[str, Tensor], batch_size: int = 16, tol
     recall: detectable corners (visible, learnability > 0.2) reported visible with the right id
     within ``tol_px``; error_px: mean error of those; id_acc: detectable corners whose slot lands
     within ``tol_px`` whatever the visibility head says; outlier_rate: reported corners that are
-    not visible or over ``tol_px`` off.
+    not visible or over ``tol_px`` off; board_id_acc: detectable corners whose 1/4 cell the dense
+    board head puts in the right column and row (what the detector's grid pass votes with).
     """
     model.eval()
     outs = []
     for i in range(0, val["image"].shape[0], batch_size):
         o = model(val["image"][i : i + batch_size])
-        outs.append({k: o[k] for k in ("corners", "visibility_logit", "confidence_logit")})
+        if o["board_col_logits"].shape[1] > 0:  # classify: the most likely column / row
+            uv = torch.stack([o["board_col_logits"].argmax(1), o["board_row_logits"].argmax(1)], 1).to(o["board_uv"].dtype) - 1
+        else:
+            uv = o["board_uv"]
+        outs.append({"corners": o["corners"], "visibility_logit": o["visibility_logit"], "board_uv": uv})
     model.train()
     q = torch.cat([o["corners"] for o in outs])
     rep = torch.cat([o["visibility_logit"] for o in outs]) > 0
@@ -132,11 +140,22 @@ def evaluate(model: CornerNet, val: dict[str, Tensor], batch_size: int = 16, tol
     n_det = max(1, int(det.sum()))
     n_rep = int(rep.sum())
     bad = rep & (~val["visible"] | ~close)
+    uv = torch.cat([o["board_uv"] for o in outs])  # (B, 2, h, w) column / row per 1/4 cell
+    h, w = uv.shape[-2:]
+    cell = ((val["corners"] - 1.5) / 4).round().long()
+    cx, cy = cell[..., 0].clamp(0, w - 1), cell[..., 1].clamp(0, h - 1)
+    bi = torch.arange(uv.shape[0])[:, None].expand_as(cx)
+    got = torch.stack([uv[bi, 0, cy, cx], uv[bi, 1, cy, cx]], -1).round()
+    nx = model.cfg.grid_nx
+    ids = torch.arange(val["corners"].shape[1])
+    want = torch.stack([ids % nx, ids // nx], -1).to(got.dtype)
+    board_ok = (got == want[None]).all(-1)
     return {
         "recall": float(hit.sum()) / n_det,
         "error_px": float(err[hit].mean()) if hit.any() else float("nan"),
         "id_acc": float((det & close).sum()) / n_det,
         "outlier_rate": float(bad.sum()) / max(1, n_rep),
+        "board_id_acc": float((det & board_ok).sum()) / n_det,
         "reported": float(n_rep),
     }
 
@@ -155,6 +174,8 @@ def plot_curve(curve_csv: Path, out_png: Path) -> None:
     fig, ax = plt.subplots(figsize=(6, 3.6))
     ax.plot(t, [float(r["recall"]) for r in rows], "o-", label="recall (right id, <3 px, reported)")
     ax.plot(t, [float(r["id_acc"]) for r in rows], "s--", label="identity accuracy (<3 px)")
+    if rows and "board_id_acc" in rows[0]:
+        ax.plot(t, [float(r["board_id_acc"]) for r in rows], "^-", label="board column + row at corners (grid pass votes)")
     ax.set_xlabel("wall time (min)")
     ax.set_ylabel("fraction of detectable corners")
     ax.set_ylim(0, 1)
@@ -234,7 +255,7 @@ def train(cfg: TrainConfig, resume: bool = False) -> dict:
         writer = SummaryWriter(str(out_dir / "tb"), purge_step=step if resume else None)
     curve_path = out_dir / "curve.csv"
     if rank == 0 and not curve_path.exists():
-        curve_path.write_text("step,wall_s,recall,error_px,id_acc,outlier_rate\n")
+        curve_path.write_text("step,wall_s,recall,error_px,id_acc,outlier_rate,board_id_acc\n")
 
     from tqdm import tqdm
 
@@ -294,14 +315,24 @@ def train(cfg: TrainConfig, resume: bool = False) -> dict:
             writer.add_scalar("val/recall_vs_wall_s", m["recall"], int(wall))
             with curve_path.open("a") as f:
                 csv.writer(f).writerow(
-                    [step, f"{wall:.1f}", f"{m['recall']:.4f}", f"{m['error_px']:.4f}", f"{m['id_acc']:.4f}", f"{m['outlier_rate']:.4f}"]
+                    [
+                        step,
+                        f"{wall:.1f}",
+                        f"{m['recall']:.4f}",
+                        f"{m['error_px']:.4f}",
+                        f"{m['id_acc']:.4f}",
+                        f"{m['outlier_rate']:.4f}",
+                        f"{m['board_id_acc']:.4f}",
+                    ]
                 )
             plot_curve(curve_path, out_dir / "curve.png")
             bar.write(
-                f"step {step}: recall {m['recall']:.3f} err {m['error_px']:.3f}px id_acc {m['id_acc']:.3f} outliers {m['outlier_rate']:.3f}"
+                f"step {step}: recall {m['recall']:.3f} err {m['error_px']:.3f}px id_acc {m['id_acc']:.3f} "
+                f"outliers {m['outlier_rate']:.3f} board_id_acc {m['board_id_acc']:.3f}"
             )
-            if m["recall"] > best:
-                best = m["recall"]
+            score = m[s.select_by]
+            if score > best:
+                best = score
                 save(out_dir / "best.pt")
         if step % s.image_every == 0 or step == s.steps:
             with torch.no_grad():
