@@ -47,6 +47,7 @@ class GridConfig:
     max_seeds: int = 12  # seeds tried (best corner scores first); the lattice with the surest identity wins
     logp_floor: float = -3.0  # network log-probabilities are clamped here (one corner cannot veto a board)
     offboard_penalty: float = 10.0  # per lattice corner a placement puts off the board (they are verified X-junctions)
+    max_violated_edges: float = 2.5  # margin evidence (corners' worth) a placement may contradict before the lattice is rejected
     edge_weight: float = 5.0  # per lattice corner whose outward neighbour is the board's white margin
 
 
@@ -457,7 +458,7 @@ def assign_ids(
     ny: int,
     cfg: GridConfig,
     edges: list[tuple[int, int, int, float]] | None = None,
-) -> tuple[np.ndarray, float, float]:
+) -> tuple[np.ndarray, float, float, float]:
     """Place the lattice on the board.
 
     Args:
@@ -465,7 +466,9 @@ def assign_ids(
         log-probabilities of the corner column -1 .. nx / row -1 .. ny at each corner;
         dark: cell darkness (see :func:`cell_darkness`); edges: margin evidence (see :func:`edge_evidence`).
     Returns: ids (K,) (-1 where the placement puts a corner off the board), best score, margin
-    over the best placement that gives any corner another id.
+    over the best placement that gives any corner another id, and the margin evidence the best
+    placement contradicts (sum of e over corners whose missing outward neighbour it puts on the
+    board: large when the lattice is a whole board of another size).
     """
     lc = np.maximum(logp_col, cfg.logp_floor)
     lr = np.maximum(logp_row, cfg.logp_floor)
@@ -513,7 +516,11 @@ def assign_ids(
     ids = ids_of(best)
     runner = next((r for r in results[1:] if not np.array_equal(ids_of(r), ids)), None)
     margin = best[0] - runner[0] if runner is not None else np.inf
-    return ids, best[0], margin
+    violated = 0.0
+    for k, da, db, e in edges or []:
+        i, j = (ab[k] + [da, db]) @ ROTATIONS[best[1]].T + [best[2], best[3]]
+        violated += e if (0 <= i < nx and 0 <= j < ny) else 0.0
+    return ids, best[0], margin, violated
 
 
 # --------------------------------------------------------------------------------------------
@@ -633,7 +640,10 @@ def grid_pass(
         if sample_cells(mask_prob[None], q_lat)[:, 0].mean() < cfg.min_board_prob:
             continue
         lc, lr = sample_cells(logp_col, q_lat), sample_cells(logp_row, q_lat)
-        ids, _, margin = assign_ids(lat.ab, lc, lr, cell_darkness(grey, lat), nx, ny, cfg, edge_evidence(grey, lat))
+        edges = edge_evidence(grey, lat)
+        ids, _, margin, violated = assign_ids(lat.ab, lc, lr, cell_darkness(grey, lat), nx, ny, cfg, edges)
+        if violated > max(cfg.max_violated_edges, 0.35 * sum(e[3] for e in edges)):
+            continue  # the board ends where the target goes on: another target, or a distractor
         if best is None or margin > best[0]:
             best = (margin, lat, ids)
     if best is None:

@@ -28,7 +28,7 @@ class LossConfig:
     confidence: float = 0.2  # lambda_c
     board_uv: float = 0.5  # auxiliary: dense board coordinates on board cells (regression, or column/row classification)
     board_mask: float = 0.5  # auxiliary: board mask BCE
-    corner: float = 0.0  # auxiliary: class-agnostic corner score towards max_k G_k (balanced BCE); feeds the detector's grid pass
+    corner: float = 1.0  # auxiliary: class-agnostic corner score towards max_k G_k (balanced BCE); feeds the detector's grid pass
     heat_sigma_cells: float = 0.75  # sigma of the target Gaussian G_i, in 1/4 cells
     huber_rough_px: float = 2.0  # delta of the rough stage's Huber loss (processing px)
     huber_updated_px: float = 1.0  # delta of the updated stage's Huber loss

@@ -59,7 +59,7 @@ def test_whole_board_is_identified_by_geometry_alone(rot):
         dark[tuple(quad.min(0))] = 1.0 if b else -1.0
     flat_c = np.full((len(ab), NX + 2), -np.log(NX + 2))
     flat_r = np.full((len(ab), NY + 2), -np.log(NY + 2))
-    got, _, margin = assign_ids(ab, flat_c, flat_r, dark, NX, NY, GridConfig())
+    got, _, margin, _ = assign_ids(ab, flat_c, flat_r, dark, NX, NY, GridConfig())
     np.testing.assert_array_equal(got, ids)
     assert margin > 10
 
@@ -73,7 +73,7 @@ def test_partial_lattice_follows_the_network_votes():
     lr = np.full((len(ab), NY + 2), np.log(0.05))
     lc[np.arange(len(ab)), ij[sel, 0] + 1] = np.log(0.5)
     lr[np.arange(len(ab)), ij[sel, 1] + 1] = np.log(0.5)
-    got, _, margin = assign_ids(ab, lc, lr, {}, NX, NY, GridConfig())
+    got, _, margin, _ = assign_ids(ab, lc, lr, {}, NX, NY, GridConfig())
     np.testing.assert_array_equal(got, ids[sel])
     assert margin > 5
 
