@@ -580,6 +580,23 @@ def find_candidates(
     return xy[uniq], axes[uniq]
 
 
+def corner_votes(lat: Lattice, logp: np.ndarray, offset: np.ndarray, scale: float) -> np.ndarray:
+    """Log-probabilities (K, C) of a dense column / row map for every lattice corner: the mean over
+    the corner and the four points a quarter square away along the diagonals (all of them are
+    nearest to this corner, so all share its column and row)."""
+    where = {tuple(t): k for k, t in enumerate(lat.ab.tolist())}
+    acc = np.zeros((len(lat.ab), logp.shape[0]))
+    for k, (a, b) in enumerate(lat.ab.tolist()):
+        pts = [lat.xy[k]]
+        for da, db in ((1, 1), (1, -1), (-1, 1), (-1, -1)):
+            n1, n2 = where.get((a + da, b)), where.get((a, b + db))
+            if n1 is not None and n2 is not None:
+                pts.append(lat.xy[k] + 0.25 * (lat.xy[n1] - lat.xy[k]) + 0.25 * (lat.xy[n2] - lat.xy[k]))
+        q = (np.array(pts) + offset + 0.5) * scale - 0.5
+        acc[k] = sample_cells(logp, q).mean(0)
+    return acc
+
+
 def grid_pass(
     grey: np.ndarray,
     scale: float,
@@ -639,7 +656,7 @@ def grid_pass(
         q_lat = (lat.xy + offset + 0.5) * scale - 0.5
         if sample_cells(mask_prob[None], q_lat)[:, 0].mean() < cfg.min_board_prob:
             continue
-        lc, lr = sample_cells(logp_col, q_lat), sample_cells(logp_row, q_lat)
+        lc, lr = corner_votes(lat, logp_col, offset, scale), corner_votes(lat, logp_row, offset, scale)
         edges = edge_evidence(grey, lat)
         ids, _, margin, violated = assign_ids(lat.ab, lc, lr, cell_darkness(grey, lat), nx, ny, cfg, edges)
         if violated > max(cfg.max_violated_edges, 0.35 * sum(e[3] for e in edges)):
