@@ -41,7 +41,7 @@ class GridConfig:
     min_board_prob: float = 0.3  # mean board probability (network mask) at a lattice's corners
     min_saddle_contrast: float = 0.04  # |eigenvalue| of the fitted quadratic * half^2 (intensity units) a saddle needs
     min_saddle_ratio: float = 0.03  # smaller / larger |eigenvalue|: below this the fit is an edge, not an X
-    min_symmetry: float = 0.5  # correlation of the window with itself turned 180 deg (X-junctions are point-symmetric)
+    min_symmetry: float = 0.65  # correlation of the window with itself turned 180 deg (X-junctions are point-symmetric)
     parity_weight: float = 2.0  # log-likelihood per lattice cell whose checker colour agrees with a placement
     min_margin: float = 18.0  # the best placement must beat the runner-up by this (nats) to be reported
     max_seeds: int = 12  # seeds tried (best corner scores first); the lattice with the surest identity wins
