@@ -78,7 +78,8 @@ def main(argv: list[str] | None = None) -> int:
     for r in res["table"]:
         pct = 100 * r["wrong"] / max(1, r["reported"])
         print(
-            f"  {r['threshold']:>3}: recall {r['recall']:.3f}, {r['wrong']}/{r['reported']} wrong ({pct:.2f} %), images without target with reports {r['false_images']}"
+            f"  {r['threshold']:>3}: recall {r['recall']:.3f}, {r['wrong']}/{r['reported']} wrong ({pct:.2f} %), "
+            f"images without target with reports {r['false_images']}"
         )
     print("margins of wrong placements:", " ".join(f"{m:.1f}" for m in res["wrong_placement_margins"]))
     (Path(args.set) / "margins.json").write_text(json.dumps(res, indent=1))
