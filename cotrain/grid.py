@@ -48,7 +48,7 @@ class GridConfig:
     logp_floor: float = -3.0  # network log-probabilities are clamped here (one corner cannot veto a board)
     offboard_penalty: float = 10.0  # per lattice corner a placement puts off the board (they are verified X-junctions)
     max_violated_edges: float = 2.5  # margin evidence (corners' worth) a placement may contradict before the lattice is rejected
-    edge_weight: float = 5.0  # per lattice corner whose outward neighbour is the board's white margin
+    edge_weight: float = 8.0  # per lattice corner whose outward neighbour is the board's white margin
 
 
 # --------------------------------------------------------------------------------------------
@@ -412,7 +412,7 @@ def edge_evidence(grey: np.ndarray, lat: Lattice) -> list[tuple[int, int, int, f
     square further on and the white margin follows.
 
     Beyond the last corner row there is one more row of squares, then the margin: the two points
-    1.25 steps out (+- half a step sideways) are both white, while the two squares 0.5 steps out
+    1.15 steps out (+- half a step sideways) are both white, while the two squares 0.5 steps out
     differ. Where the board goes on (occlusion, image edge) the outer pair differs too or is dark.
     """
     where = {tuple(t): k for k, t in enumerate(lat.ab.tolist())}
@@ -438,7 +438,7 @@ def edge_evidence(grey: np.ndarray, lat: Lattice) -> list[tuple[int, int, int, f
             sgn = 1.0 if m == side[0] else -1.0
             across = sgn * (lat.xy[m] - lat.xy[k])
             p = lat.xy[k]
-            vals = [at(p + f * out_step + g * across) for f, g in ((0.5, 0.5), (0.5, -0.5), (1.25, 0.5), (1.25, -0.5))]
+            vals = [at(p + f * out_step + g * across) for f, g in ((0.5, 0.5), (0.5, -0.5), (1.15, 0.5), (1.15, -0.5))]
             if any(v is None for v in vals):
                 continue
             A, B, C, D = vals
