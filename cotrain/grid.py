@@ -159,19 +159,16 @@ def saddle_candidates(
     return np.stack([xs[order], ys[order]], 1).astype(np.float64), r[order].astype(np.float64)
 
 
-def outside_circle(grey: np.ndarray, dark: float = 0.04, grow_px: int = 4) -> np.ndarray:
+def outside_circle(grey: np.ndarray, dark: float = 0.04, grow_px: int = 1) -> np.ndarray:
     """(H, W) bool: the black frame outside a fisheye's image circle (dark regions connected to
-    the image border, found at 1/4 resolution), grown by ``grow_px``. Corners there sit on the
-    rim, where the checker is cut and a saddle fit is pulled off the corner."""
-    H, W = grey.shape
-    small = cv2.resize(grey, (max(1, W // 4), max(1, H // 4)), interpolation=cv2.INTER_AREA)
-    low = (small < dark).astype(np.uint8)
+    the image border), grown by ``grow_px``. Corners there sit on the rim, where the checker is
+    cut and a saddle fit is pulled off the corner."""
+    low = (cv2.GaussianBlur(grey, (0, 0), 1.0) < dark).astype(np.uint8)
     n, lab = cv2.connectedComponents(low, connectivity=4)
     border = np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]]))
-    out = np.isin(lab, border[border > 0])
-    full = cv2.resize(out.astype(np.uint8), (W, H), interpolation=cv2.INTER_NEAREST)
+    out = np.isin(lab, border[border > 0]).astype(np.uint8)
     k = 2 * grow_px + 1
-    return cv2.dilate(full, np.ones((k, k), np.uint8)) > 0
+    return cv2.dilate(out, np.ones((k, k), np.uint8)) > 0
 
 
 def roi_from_maps(prob: np.ndarray, shape: tuple[int, int], scale: float, threshold: float = 0.3) -> np.ndarray:
@@ -368,7 +365,7 @@ def verify_lattice(
             continue
         if rim_dist is not None:
             qi = np.clip(np.rint(lat.xy[k]).astype(int), 0, [W - 1, H - 1])
-            if rim_dist[qi[1], qi[0]] < max(4.0, 0.6 * min(sides)):
+            if rim_dist[qi[1], qi[0]] < max(2.5, 0.35 * min(sides)):
                 continue
         half = window_half(min(sides))
         sm = smoothed.setdefault(half, smooth_for(grey, half))
@@ -620,7 +617,7 @@ def grid_pass(
     # Work on the crop around the network's corner / board region (all full-resolution filtering
     # scales with its area); crop pixels + offset = input pixels.
     roi = roi_from_maps(np.maximum(corner_prob, mask_prob), grey.shape, scale, cfg.peak_threshold)
-    allowed = ~outside_circle(grey, grow_px=1)
+    allowed = ~outside_circle(grey)
     roi &= allowed
     ys, xs = np.nonzero(roi.any(1))[0], np.nonzero(roi.any(0))[0]
     if not len(ys):
