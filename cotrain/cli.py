@@ -126,7 +126,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("inputs", nargs="+", metavar="IMAGES_OR_FOLDERS")
     s.add_argument("--model", help="ONNX model (default: the shipped model)")
     s.add_argument("--out", default="detections.json")
-    s.add_argument("--threshold", type=float, default=0.5, help="visibility probability to report a corner")
+    s.add_argument("--threshold", type=float, default=0.5, help="with --slots: visibility probability to report a corner")
     s.add_argument("--draw", help="folder for overlays of the detections")
     s.add_argument("--slots", action="store_true", help="report the network's per-slot corners instead of the grid pass (cotrain.grid)")
     s.add_argument("--polish", action="store_true", help="with --slots: classical saddle-point polish of the corners")
