@@ -24,7 +24,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from cotrain.grid import GridConfig, grid_pass
+from cotrain.grid import GridConfig, grid_pass, saddle_fit, smooth_for
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp"}
 MIN_SIDE = 16  # smaller images are rejected with an error entry
@@ -216,40 +216,16 @@ def local_square_px(ids: np.ndarray, xy: np.ndarray, nx: int, default: float = 1
 
 
 def polish_corners(grey: np.ndarray, xy: np.ndarray, square_px: np.ndarray, iterations: int = 3) -> np.ndarray:
-    """Classical sub-pixel polish: fit a quadratic surface to the (smoothed) image in a window
-    scaled to the local square size and move to its saddle point. Corners whose fit is not a
-    saddle, or that would move more than half the window, keep their position. (K, 2) -> (K, 2)."""
-    out = xy.astype(np.float64).copy()
-    img = grey.astype(np.float32)
+    """Classical sub-pixel polish: the saddle of a quadratic fitted to the smoothed image in a
+    window scaled to the local square size (:func:`cotrain.grid.saddle_fit`, without its
+    X-junction tests). Corners whose fit is not a saddle, or that would move more than half the
+    window, keep their position. (K, 2) -> (K, 2)."""
+    out = np.asarray(xy, np.float64).copy()
     halves = np.clip(np.round(0.3 * np.asarray(square_px)), 2, 8).astype(int)
-    smoothed = {h: cv2.GaussianBlur(img, (0, 0), max(0.7, h / 2.5)) for h in set(halves.tolist())}  # one blur per window size
-    for k in range(len(out)):
-        half = int(halves[k])
-        n = 2 * half + 1
-        sm = smoothed[half]
-        g = np.arange(n) - half
-        X, Y = np.meshgrid(g, g)
-        w = np.exp(-(X**2 + Y**2) / (2 * (0.6 * half) ** 2)).ravel()
-        A = np.stack([X.ravel() ** 2, X.ravel() * Y.ravel(), Y.ravel() ** 2, X.ravel(), Y.ravel(), np.ones(n * n)], 1)
-        Aw = A * w[:, None]
-        p = out[k].copy()
-        for _ in range(iterations):
-            patch = cv2.getRectSubPix(sm, (n, n), (float(p[0]), float(p[1])))
-            if patch is None:
-                break
-            c = np.linalg.lstsq(Aw, patch.ravel() * w, rcond=None)[0]
-            a, b, cc, d, e = c[:5]
-            det = 4 * a * cc - b * b
-            if det >= 0:  # not a saddle
-                break
-            step = np.linalg.solve(np.array([[2 * a, b], [b, 2 * cc]]), -np.array([d, e]))
-            if np.linalg.norm(step) > half / 2:
-                break
-            p = p + step
-            if np.linalg.norm(step) < 1e-3:
-                break
-        if np.linalg.norm(p - xy[k]) <= half:
-            out[k] = p
+    lenient = GridConfig(min_saddle_contrast=0.0, min_saddle_ratio=0.0, min_symmetry=-np.inf)
+    for h in np.unique(halves):
+        m = halves == h
+        out[m] = saddle_fit(smooth_for(grey.astype(np.float32), int(h)), out[m], int(h), iterations, lenient)[0]
     return out
 
 
