@@ -35,6 +35,7 @@ from scipy.spatial import cKDTree
 class GridConfig:
     peak_threshold: float = 0.3  # corner-score probability a 1/4-resolution peak needs to become a candidate
     min_corners: int = 6  # smallest lattice that is reported
+    min_cells: int = 2  # complete lattice squares (four corners) a reported lattice needs
     match_radius: float = 0.45  # a neighbour must lie within this fraction of the grid step of its prediction
     agree_radius: float = 0.3  # predictions of one corner from different neighbours must agree within this fraction of a step
     min_step_px: float = 7.0  # no growth into squares smaller than this (saddles of tinier squares are unreliable)
@@ -653,9 +654,12 @@ def grid_pass(
         q_lat = (lat.xy + offset + 0.5) * scale - 0.5
         if sample_cells(mask_prob[None], q_lat)[:, 0].mean() < cfg.min_board_prob:
             continue
+        dark = cell_darkness(grey, lat)
+        if len(dark) < cfg.min_cells:
+            continue  # a line of corners (or a diagonal) is not a checker lattice
         lc, lr = corner_votes(lat, logp_col, offset, scale), corner_votes(lat, logp_row, offset, scale)
         edges = edge_evidence(grey, lat)
-        ids, _, margin, violated = assign_ids(lat.ab, lc, lr, cell_darkness(grey, lat), nx, ny, cfg, edges)
+        ids, _, margin, violated = assign_ids(lat.ab, lc, lr, dark, nx, ny, cfg, edges)
         if violated > max(cfg.max_violated_edges, 0.35 * sum(e[3] for e in edges)):
             continue  # the board ends where the target goes on: another target, or a distractor
         if best is None or margin > best[0]:
