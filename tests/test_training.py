@@ -106,3 +106,43 @@ def test_fine_tuning_adopts_checkpoint_architecture(tmp_path):
     assert r["step"] == 1
     _, cfg = build_from_checkpoint(load_checkpoint(tmp_path / "b" / "last.pt"))
     assert cfg.model.identity == "classify"
+
+
+class _BoardOracle(torch.nn.Module):
+    """Stands in for the network in the validation metric: column / row logits made from the
+    renderer's board coordinates (shifted by ``shift`` columns), corners exactly right."""
+
+    def __init__(self, val: dict, shift: int):
+        super().__init__()
+        self.cfg = CornerNet(finalize_config(load_config(TrainConfig, TINY)).model).cfg
+        self.val, self.shift = val, shift
+
+    def forward(self, image: torch.Tensor) -> dict:
+        i = next(
+            k for k in range(0, self.val["image"].shape[0], image.shape[0]) if torch.equal(self.val["image"][k : k + image.shape[0]], image)
+        )
+        sl = slice(i, i + image.shape[0])
+        uv = torch.nn.functional.avg_pool2d(self.val["board_uv"][sl], 4).round().long()
+        col = torch.nn.functional.one_hot((uv[:, 0] + 1 + self.shift).clamp(0, 10), 11).permute(0, 3, 1, 2).float() * 20
+        row = torch.nn.functional.one_hot((uv[:, 1] + 1).clamp(0, 7), 8).permute(0, 3, 1, 2).float() * 20
+        n = self.val["corners"].shape[1]
+        return {
+            "corners": self.val["corners"][sl],
+            "visibility_logit": torch.where(self.val["visible"][sl], 10.0, -10.0),
+            "confidence_logit": torch.zeros(image.shape[0], n),
+            "board_uv": uv.float(),
+            "board_col_logits": col,
+            "board_row_logits": row,
+        }
+
+
+def test_validation_board_id_accuracy_measures_column_and_row():
+    from cotrain.train import evaluate
+
+    cfg = finalize_config(load_config(TrainConfig, TINY))
+    cfg.render.height, cfg.render.width = 216, 384
+    val = render_batch(cfg.render, list(range(8)), seed=3)
+    right = evaluate(_BoardOracle(val, 0), val, batch_size=4)
+    wrong = evaluate(_BoardOracle(val, 1), val, batch_size=4)
+    assert right["recall"] == 1.0 and right["board_id_acc"] > 0.8
+    assert wrong["board_id_acc"] < 0.2
