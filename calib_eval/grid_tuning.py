@@ -19,7 +19,7 @@ import numpy as np
 
 from calib_eval.detection_eval import BENCH_VERSION, EvalConfig, render_benchmark
 
-THRESHOLDS = (6, 8, 10, 12, 15, 18, 20, 25)
+THRESHOLDS = (6, 8, 10, 12, 15, 18, 20, 22, 25, 30)
 
 
 def margin_table(model: str | None, set_dir: Path, seed: int, progress: bool = True) -> dict:

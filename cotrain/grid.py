@@ -44,7 +44,7 @@ class GridConfig:
     min_saddle_ratio: float = 0.03  # smaller / larger |eigenvalue|: below this the fit is an edge, not an X
     min_symmetry: float = 0.65  # correlation of the window with itself turned 180 deg (X-junctions are point-symmetric)
     parity_weight: float = 2.0  # log-likelihood per lattice cell whose checker colour agrees with a placement
-    min_margin: float = 18.0  # the best placement must beat the runner-up by this (nats) to be reported
+    min_margin: float = 25.0  # the best placement must beat the runner-up by this (nats) to be reported
     max_seeds: int = 12  # seeds tried (best corner scores first); the lattice with the surest identity wins
     logp_floor: float = -3.0  # network log-probabilities are clamped here (one corner cannot veto a board)
     offboard_penalty: float = 10.0  # per lattice corner a placement puts off the board (they are verified X-junctions)
@@ -136,7 +136,16 @@ def window_half(spacing_px: float) -> int:
 
 
 def smooth_for(grey: np.ndarray, half: int) -> np.ndarray:
-    return cv2.GaussianBlur(grey.astype(np.float32), (0, 0), max(0.7, half / 2.5))
+    """The image blurred for a fit window of half-size ``half`` (sigma = half / 2.5, at least 0.7);
+    ``half = -1``: sigma 1 px, for sampling colours."""
+    return cv2.GaussianBlur(grey.astype(np.float32), (0, 0), 1.0 if half < 0 else max(0.7, half / 2.5))
+
+
+def _cached(smoothed: dict[int, np.ndarray], grey: np.ndarray, half: int) -> np.ndarray:
+    """:func:`smooth_for`, computed once per image and window size."""
+    if half not in smoothed:
+        smoothed[half] = smooth_for(grey, half)
+    return smoothed[half]
 
 
 # --------------------------------------------------------------------------------------------
@@ -162,12 +171,16 @@ def saddle_candidates(
 
 def outside_circle(grey: np.ndarray, dark: float = 0.04, grow_px: int = 1) -> np.ndarray:
     """(H, W) bool: the black frame outside a fisheye's image circle (dark regions connected to
-    the image border), grown by ``grow_px``. Corners there sit on the rim, where the checker is
-    cut and a saddle fit is pulled off the corner."""
-    low = (cv2.GaussianBlur(grey, (0, 0), 1.0) < dark).astype(np.uint8)
+    the image border, found at half resolution), grown by ``grow_px``. Corners there sit on the
+    rim, where the checker is cut and a saddle fit is pulled off the corner."""
+    H, W = grey.shape
+    small = cv2.resize(grey, (max(1, W // 2), max(1, H // 2)), interpolation=cv2.INTER_AREA)
+    low = (cv2.GaussianBlur(small, (0, 0), 0.7) < dark).astype(np.uint8)
     n, lab = cv2.connectedComponents(low, connectivity=4)
     border = np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]]))
-    out = np.isin(lab, border[border > 0]).astype(np.uint8)
+    keep = np.zeros(n, np.uint8)
+    keep[border[border > 0]] = 1
+    out = cv2.resize(keep[lab], (W, H), interpolation=cv2.INTER_NEAREST)
     k = 2 * grow_px + 1
     return cv2.dilate(out, np.ones((k, k), np.uint8)) > 0
 
@@ -246,7 +259,7 @@ def grow_lattice(
     if _cross(sa, sb) < 0:
         sa, sb = sb, sa
     pts = [p0.copy()]
-    sm1 = smoothed.setdefault(2, smooth_for(grey, 2))
+    sm1 = _cached(smoothed, grey, 2)
     par = {(0, 0): _diag_contrast(sm1, p0, sa, sb)}
     if abs(par[(0, 0)]) < 0.05:
         return None
@@ -286,7 +299,7 @@ def grow_lattice(
                 used.add(int(j))
             else:
                 half = window_half(short)
-                sm = smoothed.setdefault(half, smooth_for(grey, half))
+                sm = _cached(smoothed, grey, half)
                 q, ok, _ = saddle_fit(sm, pred[None], half, cfg=cfg)
                 qi = np.clip(np.rint(q[0]).astype(int), 0, [W - 1, H - 1])
                 inside = allowed is None or bool(allowed[qi[1], qi[0]])
@@ -369,7 +382,7 @@ def verify_lattice(
             if rim_dist[qi[1], qi[0]] < max(2.5, 0.35 * min(sides)):
                 continue
         half = window_half(min(sides))
-        sm = smoothed.setdefault(half, smooth_for(grey, half))
+        sm = _cached(smoothed, grey, half)
         q, ok, _ = saddle_fit(sm, lat.xy[k][None], half, cfg=cfg)
         keep[k] = bool(ok[0]) and np.linalg.norm(q[0] - lat.xy[k]) < 0.15 * min(sides)
         if keep[k]:
@@ -385,11 +398,11 @@ def verify_lattice(
 ROTATIONS = [np.array([[1, 0], [0, 1]]), np.array([[0, -1], [1, 0]]), np.array([[-1, 0], [0, -1]]), np.array([[0, 1], [-1, 0]])]
 
 
-def cell_darkness(grey: np.ndarray, lat: Lattice) -> dict[tuple[int, int], float]:
+def cell_darkness(grey: np.ndarray, lat: Lattice, blur: np.ndarray | None = None) -> dict[tuple[int, int], float]:
     """Per lattice cell (a, b) with all four corners known: +1 darker than its neighbour cells,
     -1 lighter (0 when it has no neighbour cell). Cell (a, b) is spanned by (a, b) .. (a+1, b+1)."""
     where = {tuple(t): k for k, t in enumerate(lat.ab.tolist())}
-    blur = cv2.GaussianBlur(grey.astype(np.float32), (0, 0), 1.0)
+    blur = cv2.GaussianBlur(grey.astype(np.float32), (0, 0), 1.0) if blur is None else blur  # sigma 1 px
     val = {}
     for (a, b), k in where.items():
         quad = [where.get(t) for t in ((a + 1, b), (a, b + 1), (a + 1, b + 1))]
@@ -404,7 +417,7 @@ def cell_darkness(grey: np.ndarray, lat: Lattice) -> dict[tuple[int, int], float
     return out
 
 
-def edge_evidence(grey: np.ndarray, lat: Lattice) -> list[tuple[int, int, int, float]]:
+def edge_evidence(grey: np.ndarray, lat: Lattice, blur: np.ndarray | None = None) -> list[tuple[int, int, int, float]]:
     """Where the lattice stops because the board does: (k, da, db, e) for boundary corner k whose
     neighbour (a + da, b + db) is missing, e in [0, 1] the evidence that the squares end one
     square further on and the white margin follows.
@@ -414,7 +427,7 @@ def edge_evidence(grey: np.ndarray, lat: Lattice) -> list[tuple[int, int, int, f
     differ. Where the board goes on (occlusion, image edge) the outer pair differs too or is dark.
     """
     where = {tuple(t): k for k, t in enumerate(lat.ab.tolist())}
-    blur = cv2.GaussianBlur(grey.astype(np.float32), (0, 0), 1.0)
+    blur = cv2.GaussianBlur(grey.astype(np.float32), (0, 0), 1.0) if blur is None else blur  # sigma 1 px
     H, W = grey.shape
     out = []
 
@@ -558,13 +571,13 @@ def find_candidates(
         return np.zeros((0, 2)), np.zeros((0, 2, 2))
     # Window per candidate from the spacing to its nearest other candidate.
     d, _ = cKDTree(xy0).query(xy0, k=2)
-    halves = np.array([window_half(x) for x in d[:, 1]])
+    halves = np.clip(np.rint(0.3 * d[:, 1]), 2, 8).astype(int)  # window_half, vectorised
     xy = np.zeros_like(xy0)
     ok = np.zeros(len(xy0), bool)
     axes = np.zeros((len(xy0), 2, 2))
     for h in np.unique(halves):
         m = halves == h
-        sm = smoothed.setdefault(int(h), smooth_for(grey, int(h)))
+        sm = _cached(smoothed, grey, int(h))
         xy[m], ok[m], axes[m] = saddle_fit(sm, xy0[m], int(h), cfg=cfg)
     # Seeds in order of saddle response times the network's corner score there.
     q0 = (xy + offset + 0.5) * scale - 0.5
@@ -654,11 +667,12 @@ def grid_pass(
         q_lat = (lat.xy + offset + 0.5) * scale - 0.5
         if sample_cells(mask_prob[None], q_lat)[:, 0].mean() < cfg.min_board_prob:
             continue
-        dark = cell_darkness(grey, lat)
+        blur1 = _cached(smoothed, grey, -1)
+        dark = cell_darkness(grey, lat, blur1)
         if len(dark) < cfg.min_cells:
             continue  # a line of corners (or a diagonal) is not a checker lattice
         lc, lr = corner_votes(lat, logp_col, offset, scale), corner_votes(lat, logp_row, offset, scale)
-        edges = edge_evidence(grey, lat)
+        edges = edge_evidence(grey, lat, blur1)
         ids, _, margin, violated = assign_ids(lat.ab, lc, lr, dark, nx, ny, cfg, edges)
         if violated > max(cfg.max_violated_edges, 0.35 * sum(e[3] for e in edges)):
             continue  # the board ends where the target goes on: another target, or a distractor

@@ -21,7 +21,8 @@ def ship(checkpoint: str | Path) -> dict:
     slim = {"model": weights, "config": ck["config"], "step": ck["step"], "best_score": ck["best_score"], "wall_time": ck["wall_time"]}
     torch.save(slim, HERE / "default.pt")
     r = export_onnx(HERE / "default.pt", HERE / "default.onnx")
-    print(f"shipped step {ck['step']} (val recall {ck['best_score']:.3f}) -> {HERE / 'default.pt'}, {HERE / 'default.onnx'}")
+    sel = ck["config"]["train"].get("select_by", "recall")
+    print(f"shipped step {ck['step']} (validation {sel} {ck['best_score']:.3f}) -> {HERE / 'default.pt'}, {HERE / 'default.onnx'}")
     return r
 
 
