@@ -1,20 +1,23 @@
 """Grid pass of the detector: corner identities from the board's topology, not from one pixel.
 
 The network's per-slot heatmaps must recognise *which* of the 54 corners a blob is from global
-context alone, and that is what trains slowest on a CPU budget. The network's class-agnostic
-corner score and its dense column / row classification (where on the board each pixel lies) train
-much faster. This pass turns them into identities the way a person would:
+context alone, and that is what trains slowest on a CPU budget. Its dense maps (board mask,
+class-agnostic corner score, column / row classification of every pixel) train much faster.
+This pass turns them into identities the way a person would (docs/detector.md has the details):
 
-1. candidates: peaks of the corner score, refined at full resolution to the saddle point of the
-   image (a quadratic fit; non-saddles are dropped), which also gives the two edge directions;
+1. candidates: X-junctions of the full-resolution image inside the network's board region,
+   moved to the saddle of a fitted quadratic (which also gives the two edge directions) and kept
+   if the window is point-symmetric;
 2. growth: from a seed, neighbours are predicted one square step along each grid axis (linear
    extrapolation, so the fisheye's slow curvature is followed) and matched to a candidate, or, when
-   the network missed it, to a saddle found at the predicted spot; the result is a lattice
-   coordinate (a, b) per corner;
+   the network missed it, to a saddle found at the predicted spot; checker colours must
+   alternate; a verification pass drops corners off their lattice lines or on the image circle's
+   rim; the result is a lattice coordinate (a, b) per corner;
 3. identity: the lattice is placed on the board by one of the four in-plane rotations and an
    integer offset; every placement is scored by the network's column / row log-probabilities at
-   the corners plus the checker colour of every lattice cell (square (i, j) of corners is black
-   when i + j is even), and the best one wins if it beats the runner-up by a margin.
+   the corners, the checker colour of every lattice cell (square (i, j) of corners is black when
+   i + j is even) and the board's white margin where the lattice stops, and the best one wins if
+   it beats the runner-up by a margin.
 
 So one identity decision is made per board from all its corners, and a corner only gets an id if
 it is connected to the board's lattice. Pure functions over numpy arrays; pixels follow
