@@ -24,7 +24,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from cotrain.grid import GridConfig, grid_pass, saddle_fit, smooth_for
+from cotrain.grid import GridConfig, grid_pass, saddle_fit, smooth_for, window_half
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp"}
 MIN_SIDE = 16  # smaller images are rejected with an error entry
@@ -157,7 +157,7 @@ class Detector:
         x, s = self.preprocess(grey)
         out = self.run(x[None, None])
         corners, vis, conf = out[:3]
-        det = self._postprocess(corners[0], vis[0], conf[0], s, w, h)
+        det = self._postprocess(corners[0], vis[0], conf[0], s, w, h, consistency=self.consistency and self.mode == "slots")
         if self.mode == "grid":
             g = grid_pass(grey, s, out[4][0, 0], out[5][0, 0], out[6][0], out[7][0], self.nx, self.ny, self.grid)
             det.ids, det.xy, det.confidence = g.ids, g.xy, g.confidence
@@ -166,12 +166,14 @@ class Detector:
             det.xy = polish_corners(grey, det.xy, local_square_px(det.ids, det.xy, self.nx))
         return det
 
-    def _postprocess(self, corners: np.ndarray, vis: np.ndarray, conf: np.ndarray, s: float, w: int, h: int) -> Detection:
+    def _postprocess(
+        self, corners: np.ndarray, vis: np.ndarray, conf: np.ndarray, s: float, w: int, h: int, consistency: bool = True
+    ) -> Detection:
         xy = (corners.astype(np.float64) + 0.5) / s - 0.5
         inside = (xy[:, 0] > -0.5) & (xy[:, 0] < w - 0.5) & (xy[:, 1] > -0.5) & (xy[:, 1] < h - 0.5)
         keep = (vis >= self.threshold) & inside & np.isfinite(xy).all(1)
         ids = np.nonzero(keep)[0]
-        if self.consistency and len(ids):
+        if consistency and len(ids):
             ids = ids[grid_consistent(ids, xy[ids], self.nx)]
         return Detection(ids, xy[ids], conf[ids].astype(np.float64), vis[ids].astype(np.float64), w, h, xy, vis)
 
@@ -221,7 +223,7 @@ def polish_corners(grey: np.ndarray, xy: np.ndarray, square_px: np.ndarray, iter
     X-junction tests). Corners whose fit is not a saddle, or that would move more than half the
     window, keep their position. (K, 2) -> (K, 2)."""
     out = np.asarray(xy, np.float64).copy()
-    halves = np.clip(np.round(0.3 * np.asarray(square_px)), 2, 8).astype(int)
+    halves = np.atleast_1d(window_half(square_px))
     lenient = GridConfig(min_saddle_contrast=0.0, min_saddle_ratio=0.0, min_symmetry=-np.inf)
     for h in np.unique(halves):
         m = halves == h

@@ -26,6 +26,7 @@ CONVENTIONS (centre of the top-left pixel at (0, 0)).
 
 from __future__ import annotations
 
+import collections
 import functools
 from dataclasses import dataclass
 
@@ -36,7 +37,7 @@ from scipy.spatial import cKDTree
 
 @dataclass
 class GridConfig:
-    peak_threshold: float = 0.3  # corner-score probability a 1/4-resolution peak needs to become a candidate
+    region_threshold: float = 0.3  # corner-score or board-mask probability of a 1/4 cell that puts it in the searched region
     min_corners: int = 6  # smallest lattice that is reported
     min_cells: int = 2  # complete lattice squares (four corners) a reported lattice needs
     match_radius: float = 0.45  # a neighbour must lie within this fraction of the grid step of its prediction
@@ -59,14 +60,15 @@ class GridConfig:
 # Saddle points
 # --------------------------------------------------------------------------------------------
 @functools.lru_cache(maxsize=16)
-def _design(half: int) -> tuple[np.ndarray, np.ndarray]:
+def _design(half: int) -> np.ndarray:
+    """Weighted least-squares solver of the quadratic a x^2 + b xy + c y^2 + d x + e y + f over a
+    (2 half + 1)^2 window: coefficients = pinv @ patch.ravel()."""
     g = np.arange(2 * half + 1) - half
     X, Y = np.meshgrid(g, g)
     x, y = X.ravel().astype(np.float64), Y.ravel().astype(np.float64)
     w = np.exp(-(x**2 + y**2) / (2 * (0.6 * half) ** 2))
     A = np.stack([x * x, x * y, y * y, x, y, np.ones_like(x)], 1)
-    pinv = np.linalg.pinv(A * w[:, None]) * w[None, :]  # c = pinv @ patch
-    return pinv, w
+    return np.linalg.pinv(A * w[:, None]) * w[None, :]
 
 
 def _patches(img: np.ndarray, p: np.ndarray, half: int) -> np.ndarray:
@@ -94,7 +96,7 @@ def saddle_fit(
         axes: (K, 2, 2) unit edge directions (the quadratic's zero lines) per point.
     """
     cfg = cfg or GridConfig()
-    pinv, _ = _design(half)
+    pinv = _design(half)
     xy = np.asarray(xy, np.float64).reshape(-1, 2)
     K = len(xy)
     H, W = smoothed.shape
@@ -133,9 +135,10 @@ def saddle_fit(
     return np.where(ok[:, None], p, xy), ok, axes
 
 
-def window_half(spacing_px: float) -> int:
-    """Fit window half-size for a local grid spacing (px): about a third of a square."""
-    return int(np.clip(round(0.3 * spacing_px), 2, 8))
+def window_half(spacing_px: float | np.ndarray) -> int | np.ndarray:
+    """Fit window half-size for a local grid spacing (px): about a third of a square, 2 .. 8."""
+    h = np.clip(np.rint(0.3 * np.asarray(spacing_px)), 2, 8).astype(int)
+    return int(h) if h.ndim == 0 else h
 
 
 def smooth_for(grey: np.ndarray, half: int) -> np.ndarray:
@@ -207,7 +210,7 @@ def roi_from_maps(prob: np.ndarray, shape: tuple[int, int], scale: float, thresh
 class Lattice:
     xy: np.ndarray  # (K, 2) corner pixels
     ab: np.ndarray  # (K, 2) integer lattice coordinates
-    filled: np.ndarray  # (K,) True where the corner was found by the saddle search, not the network
+    filled: np.ndarray  # (K,) True where the corner was found by a saddle search at its predicted spot, not among the candidates
 
 
 def _cross(u: np.ndarray, v: np.ndarray) -> float:
@@ -271,10 +274,10 @@ def grow_lattice(
     step = {(0, 0): (sa, sb)}
     where = {(0, 0): 0}
     used = {seed}
-    queue = [(0, 0)]
+    queue = collections.deque([(0, 0)])
     H, W = grey.shape
     while queue:
-        a, b = queue.pop(0)
+        a, b = queue.popleft()
         k = where[(a, b)]
         sa, sb = step[(a, b)]
         for da, db in ((1, 0), (-1, 0), (0, 1), (0, -1)):
@@ -298,6 +301,9 @@ def grow_lattice(
             found, was_filled = None, False
             dist, j = tree.query(pred)
             if dist < r and j not in used:
+                # A candidate is offered once: if the checks below refuse it here, it is doubtful
+                # and is not tried again from another corner (measured: offering it again lets
+                # wrong corners into small squares).
                 found = xy[j]
                 used.add(int(j))
             else:
@@ -401,11 +407,11 @@ def verify_lattice(
 ROTATIONS = [np.array([[1, 0], [0, 1]]), np.array([[0, -1], [1, 0]]), np.array([[-1, 0], [0, -1]]), np.array([[0, 1], [-1, 0]])]
 
 
-def cell_darkness(grey: np.ndarray, lat: Lattice, blur: np.ndarray | None = None) -> dict[tuple[int, int], float]:
+def cell_darkness(blur: np.ndarray, lat: Lattice) -> dict[tuple[int, int], float]:
     """Per lattice cell (a, b) with all four corners known: +1 darker than its neighbour cells,
-    -1 lighter (0 when it has no neighbour cell). Cell (a, b) is spanned by (a, b) .. (a+1, b+1)."""
+    -1 lighter (0 when it has no neighbour cell). Cell (a, b) is spanned by (a, b) .. (a+1, b+1).
+    ``blur``: the image blurred by 1 px."""
     where = {tuple(t): k for k, t in enumerate(lat.ab.tolist())}
-    blur = cv2.GaussianBlur(grey.astype(np.float32), (0, 0), 1.0) if blur is None else blur  # sigma 1 px
     val = {}
     for (a, b), k in where.items():
         quad = [where.get(t) for t in ((a + 1, b), (a, b + 1), (a + 1, b + 1))]
@@ -420,7 +426,7 @@ def cell_darkness(grey: np.ndarray, lat: Lattice, blur: np.ndarray | None = None
     return out
 
 
-def edge_evidence(grey: np.ndarray, lat: Lattice, blur: np.ndarray | None = None) -> list[tuple[int, int, int, float]]:
+def edge_evidence(blur: np.ndarray, lat: Lattice) -> list[tuple[int, int, int, float]]:
     """Where the lattice stops because the board does: (k, da, db, e) for boundary corner k whose
     neighbour (a + da, b + db) is missing, e in [0, 1] the evidence that the squares end one
     square further on and the white margin follows.
@@ -430,8 +436,7 @@ def edge_evidence(grey: np.ndarray, lat: Lattice, blur: np.ndarray | None = None
     differ. Where the board goes on (occlusion, image edge) the outer pair differs too or is dark.
     """
     where = {tuple(t): k for k, t in enumerate(lat.ab.tolist())}
-    blur = cv2.GaussianBlur(grey.astype(np.float32), (0, 0), 1.0) if blur is None else blur  # sigma 1 px
-    H, W = grey.shape
+    H, W = blur.shape
     out = []
 
     def at(q: np.ndarray) -> float | None:
@@ -574,7 +579,7 @@ def find_candidates(
         return np.zeros((0, 2)), np.zeros((0, 2, 2))
     # Window per candidate from the spacing to its nearest other candidate.
     d, _ = cKDTree(xy0).query(xy0, k=2)
-    halves = np.clip(np.rint(0.3 * d[:, 1]), 2, 8).astype(int)  # window_half, vectorised
+    halves = window_half(d[:, 1])
     xy = np.zeros_like(xy0)
     ok = np.zeros(len(xy0), bool)
     axes = np.zeros((len(xy0), 2, 2))
@@ -587,11 +592,13 @@ def find_candidates(
     score = resp * (sample_cells(corner_prob[None], q0)[:, 0] + 0.05)
     keep = np.nonzero(ok)[0]
     keep = keep[np.argsort(-score[keep])]
-    uniq: list[int] = []  # merge candidates that converged onto the same saddle
-    for k in keep:
-        if all(np.linalg.norm(xy[k] - xy[u]) > 1.0 for u in uniq):
-            uniq.append(int(k))
-    return xy[uniq], axes[uniq]
+    # Merge candidates that converged onto the same saddle: the better-scored one stays.
+    drop = np.zeros(len(keep), bool)
+    for i, j in sorted(cKDTree(xy[keep]).query_pairs(1.0)):
+        if not drop[i]:
+            drop[j] = True
+    keep = keep[~drop]
+    return xy[keep], axes[keep]
 
 
 def corner_votes(lat: Lattice, logp: np.ndarray, offset: np.ndarray, scale: float) -> np.ndarray:
@@ -633,7 +640,7 @@ def grid_pass(
     empty = GridResult(np.zeros(0, int), np.zeros((0, 2)), np.zeros(0), float("nan"))
     # Work on the crop around the network's corner / board region (all full-resolution filtering
     # scales with its area); crop pixels + offset = input pixels.
-    roi = roi_from_maps(np.maximum(corner_prob, mask_prob), grey.shape, scale, cfg.peak_threshold)
+    roi = roi_from_maps(np.maximum(corner_prob, mask_prob), grey.shape, scale, cfg.region_threshold)
     allowed = ~outside_circle(grey)
     roi &= allowed
     ys, xs = np.nonzero(roi.any(1))[0], np.nonzero(roi.any(0))[0]
@@ -671,11 +678,11 @@ def grid_pass(
         if sample_cells(mask_prob[None], q_lat)[:, 0].mean() < cfg.min_board_prob:
             continue
         blur1 = _cached(smoothed, grey, -1)
-        dark = cell_darkness(grey, lat, blur1)
+        dark = cell_darkness(blur1, lat)
         if len(dark) < cfg.min_cells:
             continue  # a line of corners (or a diagonal) is not a checker lattice
         lc, lr = corner_votes(lat, logp_col, offset, scale), corner_votes(lat, logp_row, offset, scale)
-        edges = edge_evidence(grey, lat, blur1)
+        edges = edge_evidence(blur1, lat)
         ids, _, margin, violated = assign_ids(lat.ab, lc, lr, dark, nx, ny, cfg, edges)
         if violated > max(cfg.max_violated_edges, 0.35 * sum(e[3] for e in edges)):
             continue  # the board ends where the target goes on: another target, or a distractor
