@@ -54,35 +54,62 @@ class GridConfig:
     offboard_penalty: float = 10.0  # per lattice corner a placement puts off the board (they are verified X-junctions)
     max_violated_edges: float = 2.5  # margin evidence (corners' worth) a placement may contradict before the lattice is rejected
     edge_weight: float = 8.0  # per lattice corner whose outward neighbour is the board's white margin
+    min_rim_px: float = 3.0  # corners closer than this to the image circle's dark rim or the image border are not reported
+    max_rim_edge_angle: float = 15.0  # deg: a corner fitted in a window cut by the rim must have its edges along the lattice lines
 
 
 # --------------------------------------------------------------------------------------------
 # Saddle points
 # --------------------------------------------------------------------------------------------
 @functools.lru_cache(maxsize=16)
-def _design(half: int) -> np.ndarray:
-    """Weighted least-squares solver of the quadratic a x^2 + b xy + c y^2 + d x + e y + f over a
-    (2 half + 1)^2 window: coefficients = pinv @ patch.ravel()."""
+def _basis(half: int) -> tuple[np.ndarray, np.ndarray]:
+    """Monomials A (n^2, 6) of the quadratic a x^2 + b xy + c y^2 + d x + e y + f over a
+    (2 half + 1)^2 window (row-major, centre at 0) and their Gaussian weights w (n^2,)."""
     g = np.arange(2 * half + 1) - half
     X, Y = np.meshgrid(g, g)
     x, y = X.ravel().astype(np.float64), Y.ravel().astype(np.float64)
     w = np.exp(-(x**2 + y**2) / (2 * (0.6 * half) ** 2))
-    A = np.stack([x * x, x * y, y * y, x, y, np.ones_like(x)], 1)
+    return np.stack([x * x, x * y, y * y, x, y, np.ones_like(x)], 1), w
+
+
+@functools.lru_cache(maxsize=16)
+def _design(half: int) -> np.ndarray:
+    """Weighted least-squares solver of the window quadratic (see :func:`_basis`):
+    coefficients = pinv @ patch.ravel()."""
+    A, w = _basis(half)
     return np.linalg.pinv(A * w[:, None]) * w[None, :]
 
 
-def _patches(img: np.ndarray, p: np.ndarray, half: int) -> np.ndarray:
+def _masked_coefficients(patch: np.ndarray, valid: np.ndarray, half: int) -> tuple[np.ndarray, np.ndarray]:
+    """Quadratic coefficients (K, 6) fitted to the valid pixels of each window only (``valid``
+    (K, n^2) in [0, 1]), and whether the fit is posed (K,): at least half the Gaussian weight valid
+    and a well-conditioned system."""
+    A, w = _basis(half)
+    wv = valid * w[None]  # (K, n^2)
+    M = np.einsum("ki,ip,iq->kpq", wv, A, A)  # A^T W A per window (K, 6, 6)
+    rhs = np.einsum("ki,ip,ki->kp", wv, A, patch)
+    posed = (wv.sum(1) >= 0.5 * w.sum()) & (np.linalg.cond(M) < 1e8)
+    M[~posed] = np.eye(6)
+    return np.linalg.solve(M, rhs[..., None])[..., 0], posed
+
+
+def _patches(img: np.ndarray, p: np.ndarray, half: int, border: int = cv2.BORDER_REPLICATE) -> np.ndarray:
     """Bilinear (2 half + 1)^2 windows of ``img`` centred on points p (K, 2) -> (K, n * n)."""
     n = 2 * half + 1
     g = np.arange(n, dtype=np.float32) - half
     mx = (p[:, 0, None, None] + g[None, None, :]).astype(np.float32) + np.zeros((1, n, 1), np.float32)
     my = (p[:, 1, None, None] + g[None, :, None]).astype(np.float32) + np.zeros((1, 1, n), np.float32)
-    out = cv2.remap(img, mx.reshape(-1, n), my.reshape(-1, n), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    out = cv2.remap(img, mx.reshape(-1, n), my.reshape(-1, n), cv2.INTER_LINEAR, borderMode=border, borderValue=0)
     return out.reshape(len(p), n * n).astype(np.float64)
 
 
 def saddle_fit(
-    smoothed: np.ndarray, xy: np.ndarray, half: int, iterations: int = 4, cfg: GridConfig | None = None
+    smoothed: np.ndarray,
+    xy: np.ndarray,
+    half: int,
+    iterations: int = 4,
+    cfg: GridConfig | None = None,
+    rim_dist: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Move points to the saddle of a quadratic fitted in a (2 half + 1)^2 window (Newton steps,
     a fixed number of them, all points at once).
@@ -90,6 +117,12 @@ def saddle_fit(
     Args:
         smoothed: (H, W) float32 grey image, already blurred for this window size.
         xy: (K, 2) start points, pixels.
+        rim_dist: optional (H, W) float32 distance in pixels to the nearest unusable pixel (outside
+            the image circle or the image). Window pixels the blur has mixed with unusable ones
+            (closer than 1 + 0.8 half) are left out of the fit and of the symmetry test, so a corner
+            next to the rim is fitted from the part of its X-junction that is seen; at least half
+            the window's weight must remain and the saddle must lie ``cfg.min_rim_px`` from the rim.
+            Without it, the window must lie inside the image.
     Returns:
         xy: (K, 2) saddle points (start point where the fit failed);
         ok: (K,) bool, a saddle with enough contrast and X shape, converged within half a window;
@@ -100,32 +133,56 @@ def saddle_fit(
     xy = np.asarray(xy, np.float64).reshape(-1, 2)
     K = len(xy)
     H, W = smoothed.shape
+    reach = 1.0 + 0.8 * half
+
+    def fit(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Coefficients (k, 6), patches (k, n^2), valid weights (k, n^2), posed (k,) at points q."""
+        patch = _patches(smoothed, q, half)
+        if rim_dist is None:
+            return patch @ pinv.T, patch, np.ones_like(patch), np.ones(len(q), bool)
+        valid = (_patches(rim_dist, q, half, cv2.BORDER_CONSTANT) > reach).astype(np.float64)
+        coef, posed = patch @ pinv.T, np.ones(len(q), bool)
+        cut = valid.min(1) < 1  # only windows that reach the rim need the masked solve
+        if cut.any():
+            coef[cut], posed[cut] = _masked_coefficients(patch[cut], valid[cut], half)
+        return coef, patch, valid, posed
+
     p = xy.copy()
     alive = np.ones(K, bool)
     for _ in range(iterations):
         idx = np.nonzero(alive)[0]
         if not len(idx):
             break
-        a, b, c, d, e, _ = (_patches(smoothed, p[idx], half) @ pinv.T).T
+        coef, _, _, posed = fit(p[idx])
+        a, b, c, d, e, _ = coef.T
         det = 4 * a * c - b * b  # of [[2a, b], [b, 2c]]; a saddle has det < 0
         safe = np.where(det < 0, det, -1.0)
         step = -np.stack([2 * c * d - b * e, -b * d + 2 * a * e], 1) / safe[:, None]
-        bad = (det >= 0) | (np.linalg.norm(step, axis=1) > half)
+        bad = (det >= 0) | (np.linalg.norm(step, axis=1) > half) | ~posed
         p[idx[~bad]] += step[~bad]
         alive[idx[bad]] = False
-    inside = (p[:, 0] >= half) & (p[:, 0] < W - 1 - half) & (p[:, 1] >= half) & (p[:, 1] < H - 1 - half)
+    if rim_dist is None:
+        inside = (p[:, 0] >= half) & (p[:, 0] < W - 1 - half) & (p[:, 1] >= half) & (p[:, 1] < H - 1 - half)
+    else:
+        pi = np.clip(np.rint(p).astype(int), 0, [W - 1, H - 1])
+        inside = (p[:, 0] >= 0) & (p[:, 0] <= W - 1) & (p[:, 1] >= 0) & (p[:, 1] <= H - 1)
+        inside &= rim_dist[pi[:, 1], pi[:, 0]] >= cfg.min_rim_px
     ok = alive & inside & (np.linalg.norm(p - xy, axis=1) <= half)
     axes = np.zeros((K, 2, 2))
     idx = np.nonzero(ok)[0]
     if len(idx):
-        patch = _patches(smoothed, p[idx], half)
-        a, b, c = (patch @ pinv.T).T[:3]
-        z = patch - patch.mean(1, keepdims=True)
-        sym = (z * z[:, ::-1]).sum(1) >= cfg.min_symmetry * np.maximum((z * z).sum(1), 1e-12)  # 180 deg turn = reversed ravel
+        coef, patch, valid, posed = fit(p[idx])
+        a, b, c = coef.T[:3]
+        # Point symmetry over the pixel pairs seen on both sides (a 180 deg turn = reversed ravel).
+        pair = valid * valid[:, ::-1]
+        mean = (patch * valid).sum(1, keepdims=True) / np.maximum(valid.sum(1, keepdims=True), 1)
+        z = patch - mean
+        sym = (z * z[:, ::-1] * pair).sum(1) >= cfg.min_symmetry * np.maximum((z * z * pair).sum(1), 1e-12)
+        sym &= pair.sum(1) >= 0.3 * pair.shape[1]
         lam, vec = np.linalg.eigh(np.stack([np.stack([a, b / 2], -1), np.stack([b / 2, c], -1)], -2))  # lam[:, 0] <= lam[:, 1]
         neg, pos = -lam[:, 0], lam[:, 1]
         big = np.maximum(np.maximum(neg, pos), 1e-12)
-        good = sym & (neg > 0) & (pos > 0) & (big * half * half >= cfg.min_saddle_contrast)
+        good = posed & sym & (neg > 0) & (pos > 0) & (big * half * half >= cfg.min_saddle_contrast)
         good &= np.minimum(neg, pos) / big >= cfg.min_saddle_ratio
         t = np.arctan(np.sqrt(np.maximum(pos, 0) / np.maximum(neg, 1e-12)))  # zero lines: cos t e_pos +- sin t e_neg
         e_pos, e_neg = vec[:, :, 1], vec[:, :, 0]
@@ -133,6 +190,32 @@ def saddle_fit(
         axes[idx, 1] = np.cos(t)[:, None] * e_pos - np.sin(t)[:, None] * e_neg
         ok[idx] = good
     return np.where(ok[:, None], p, xy), ok, axes
+
+
+def fit_saddles(
+    grey: np.ndarray,
+    smoothed: dict[int, np.ndarray],
+    xy: np.ndarray,
+    half: int,
+    cfg: GridConfig,
+    rim_dist: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`saddle_fit` on the image blurred for ``half`` (cached in ``smoothed``); where that
+    fails within reach of the rim (``rim_dist``), again with smaller windows (half // 2, then 2),
+    whose lighter blur reaches less far: a corner cut by the image circle keeps enough of its
+    X-junction only in a small window."""
+    q, ok, axes = saddle_fit(_cached(smoothed, grey, half), xy, half, cfg=cfg, rim_dist=rim_dist)
+    if rim_dist is None:
+        return q, ok, axes
+    H, W = rim_dist.shape
+    xi = np.clip(np.rint(xy).astype(int), 0, [W - 1, H - 1])
+    near = rim_dist[xi[:, 1], xi[:, 0]] < 1 + 1.8 * half  # the window (and its blur) reaches the rim
+    for h in sorted({max(2, half // 2), 2}, reverse=True):
+        retry = np.nonzero(~ok & near)[0]
+        if h >= half or not len(retry):
+            continue
+        q[retry], ok[retry], axes[retry] = saddle_fit(_cached(smoothed, grey, h), xy[retry], h, cfg=cfg, rim_dist=rim_dist)
+    return q, ok, axes
 
 
 def window_half(spacing_px: float | np.ndarray) -> int | np.ndarray:
@@ -235,10 +318,10 @@ def grow_lattice(
     grey: np.ndarray,
     cfg: GridConfig,
     smoothed: dict[int, np.ndarray],
-    allowed: np.ndarray | None = None,
+    rim_dist: np.ndarray | None = None,
 ) -> Lattice | None:
     """Breadth-first lattice growth from candidate ``seed`` (see the module docstring); corners
-    found by the saddle search must lie where ``allowed`` (H, W bool) is true.
+    found by the saddle search are fitted with ``rim_dist`` (see :func:`saddle_fit`).
 
     Lattice axes are oriented so that a x b > 0 in the image (x right, y down), as the board's own
     i, j axes are when its printed side is seen.
@@ -307,12 +390,8 @@ def grow_lattice(
                 found = xy[j]
                 used.add(int(j))
             else:
-                half = window_half(short)
-                sm = _cached(smoothed, grey, half)
-                q, ok, _ = saddle_fit(sm, pred[None], half, cfg=cfg)
-                qi = np.clip(np.rint(q[0]).astype(int), 0, [W - 1, H - 1])
-                inside = allowed is None or bool(allowed[qi[1], qi[0]])
-                if ok[0] and np.linalg.norm(q[0] - pred) < r and inside:
+                q, ok, _ = fit_saddles(grey, smoothed, pred[None], window_half(short), cfg, rim_dist)
+                if ok[0] and np.linalg.norm(q[0] - pred) < r:
                     found, was_filled = q[0], True
             if found is None:
                 continue
@@ -362,9 +441,11 @@ def verify_lattice(
 ) -> Lattice:
     """Second look at every corner with its final neighbours. A corner is dropped when
 
-    - the local square (smaller side) is under ``min_step_px``, or the fit window would reach
-      the image circle's rim (``rim_dist``: distance in pixels to it, (H, W));
-    - a saddle refit in a window sized for the square does not land on it again;
+    - the local square (smaller side) is under ``min_step_px``;
+    - a saddle refit in a window sized for the square (with ``rim_dist``, see :func:`saddle_fit`:
+      near the image circle's rim from the part of the window that is seen) does not land on it again,
+      or, where the window is cut by the rim, its edge directions do not follow the lattice lines
+      (within ``max_rim_edge_angle``);
     - it breaks a lattice line: the midpoint of its two neighbours along a, or along b, misses it
       by more than 0.4 of a step (where a group of corners slipped by a diagonal step during the
       growth, the corners along the seam fail this).
@@ -386,14 +467,18 @@ def verify_lattice(
                 straight &= bool(np.linalg.norm((p1 + p2) / 2 - lat.xy[k]) < 0.4 * np.linalg.norm(p1 - p2) / 2)
         if not sides or min(sides) < cfg.min_step_px or not straight:
             continue
-        if rim_dist is not None:
-            qi = np.clip(np.rint(lat.xy[k]).astype(int), 0, [W - 1, H - 1])
-            if rim_dist[qi[1], qi[0]] < max(2.5, 0.35 * min(sides)):
-                continue
         half = window_half(min(sides))
-        sm = _cached(smoothed, grey, half)
-        q, ok, _ = saddle_fit(sm, lat.xy[k][None], half, cfg=cfg)
+        q, ok, axes = fit_saddles(grey, smoothed, lat.xy[k][None], half, cfg, rim_dist)
         keep[k] = bool(ok[0]) and np.linalg.norm(q[0] - lat.xy[k]) < 0.15 * min(sides)
+        qi = np.clip(np.rint(q[0]).astype(int), 0, [W - 1, H - 1])
+        if keep[k] and rim_dist is not None and rim_dist[qi[1], qi[0]] < 1 + 1.8 * half:
+            # Cut by the rim, a square's corner against the margin or the rim can pass for half an
+            # X-junction: the fitted edges must run along the lattice lines to the neighbours.
+            for t in ((a + 1, b), (a - 1, b), (a, b + 1), (a, b - 1)):
+                if t in where:
+                    u = lat.xy[where[t]] - q[0]
+                    u = u / max(np.linalg.norm(u), 1e-9)
+                    keep[k] &= bool(np.abs(axes[0] @ u).max() >= np.cos(np.radians(cfg.max_rim_edge_angle)))
         if keep[k]:
             xy[k] = q[0]
     lat = Lattice(xy[keep], lat.ab[keep], lat.filled[keep])
@@ -569,6 +654,7 @@ def find_candidates(
     corner_prob: np.ndarray,
     cfg: GridConfig,
     smoothed: dict[int, np.ndarray],
+    rim_dist: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Saddle points inside ``roi`` (the network's corner / board region), best seeds first.
 
@@ -585,8 +671,7 @@ def find_candidates(
     axes = np.zeros((len(xy0), 2, 2))
     for h in np.unique(halves):
         m = halves == h
-        sm = _cached(smoothed, grey, int(h))
-        xy[m], ok[m], axes[m] = saddle_fit(sm, xy0[m], int(h), cfg=cfg)
+        xy[m], ok[m], axes[m] = fit_saddles(grey, smoothed, xy0[m], int(h), cfg, rim_dist)
     # Seeds in order of saddle response times the network's corner score there.
     q0 = (xy + offset + 0.5) * scale - 0.5
     score = resp * (sample_cells(corner_prob[None], q0)[:, 0] + 0.05)
@@ -642,6 +727,8 @@ def grid_pass(
     # scales with its area); crop pixels + offset = input pixels.
     roi = roi_from_maps(np.maximum(corner_prob, mask_prob), grey.shape, scale, cfg.region_threshold)
     allowed = ~outside_circle(grey)
+    allowed[[0, -1], :] = False  # the image's own border is a rim too
+    allowed[:, [0, -1]] = False
     roi &= allowed
     ys, xs = np.nonzero(roi.any(1))[0], np.nonzero(roi.any(0))[0]
     if not len(ys):
@@ -653,7 +740,7 @@ def grid_pass(
     offset = np.array([x0, y0], np.float64)
     rim_dist = cv2.distanceTransform(allowed.astype(np.uint8), cv2.DIST_L2, 3)
     smoothed: dict[int, np.ndarray] = {}
-    xy, axes = find_candidates(grey, roi, offset, scale, corner_prob, cfg, smoothed)
+    xy, axes = find_candidates(grey, roi, offset, scale, corner_prob, cfg, smoothed, rim_dist)
     if len(xy) < cfg.min_corners:
         return empty
     # Grow from several seeds (distractors can hold the strongest saddles); a lattice must lie on
@@ -667,7 +754,7 @@ def grid_pass(
         if covered[seed]:
             continue
         tried += 1
-        lat = grow_lattice(xy, axes, seed, grey, cfg, smoothed, allowed)
+        lat = grow_lattice(xy, axes, seed, grey, cfg, smoothed, rim_dist)
         if lat is None:
             continue
         covered |= cKDTree(lat.xy).query(xy)[0] < 1.0
