@@ -8,6 +8,7 @@ import sys
 import time
 from pathlib import Path
 
+from calib_eval.detection_eval import DETECTORS
 from cotrain.config import build, load_yaml
 from cotrain.targets import TargetConfig
 
@@ -204,8 +205,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--detectors",
         nargs="+",
         default=["learned", "learned_slots", "opencv_sb", "opencv_classic"],
-        choices=["learned", "learned_slots", "learned_slots_polish", "opencv_sb", "opencv_classic"],
-        help="learned: the default detector (grid pass); learned_slots: the network's per-slot corners",
+        choices=DETECTORS,
+        help="detectors to run (learned: the default detector, grid pass; learned_slots: the network's per-slot "
+        "corners); others whose predictions on this set are saved in --out stay in the table",
     )
     s.add_argument("--out", default="report/detection")
     s.set_defaults(func=cmd_detection)

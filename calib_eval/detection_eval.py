@@ -37,6 +37,7 @@ PAPER = {  # Table: detection recall / mean error (px) of the paper
     240: {"learned": (0.9263, 0.8277), "geometry": (0.6838, 0.8553)},
 }
 TOL_PX = 3.0
+DETECTORS = ["learned", "learned_slots", "learned_slots_polish", "opencv_sb", "opencv_classic"]  # table order
 
 
 @dataclass
@@ -330,9 +331,13 @@ def evaluate_detection(model: str | None, cfg: EvalConfig, out: Path, progress: 
         if meta.get("version") != BENCH_VERSION or meta.get("config") != cfg.__dict__:
             meta = None
     if meta is None:
+        for stale in out.glob("predictions_*.json"):
+            stale.unlink()  # from another set
         meta = render_benchmark(cfg, out, progress)
     images = [out / "images" / lab["image"] for lab in meta["labels"]]
     detectors = detectors or ["learned", "learned_slots", "opencv_sb", "opencv_classic"]
+    # Detectors not run this time keep their saved predictions on this set in the table.
+    kept = [n for n in DETECTORS if n not in detectors and (out / f"predictions_{n}.json").is_file()]
     preds = {}
     for name in detectors:
         if name.startswith("learned"):
@@ -343,7 +348,8 @@ def evaluate_detection(model: str | None, cfg: EvalConfig, out: Path, progress: 
             preds[name] = run_geometry(name, images, progress=progress)
         (out / f"predictions_{name}.json").write_text(json.dumps(preds[name]))
     # Second pass: scores from the saved predictions.
-    results = {name: score(json.loads((out / f"predictions_{name}.json").read_text()), meta["labels"]) for name in detectors}
+    order = [n for n in DETECTORS if n in detectors or n in kept]
+    results = {name: score(json.loads((out / f"predictions_{name}.json").read_text()), meta["labels"]) for name in order}
     table = _table(results, cfg.fovs)
     elapsed = time.time() - t0
     plots = _plots(results, cfg.fovs, out)

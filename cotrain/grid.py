@@ -511,45 +511,74 @@ def cell_darkness(blur: np.ndarray, lat: Lattice) -> dict[tuple[int, int], float
     return out
 
 
+def _sample(img: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Bilinear values of ``img`` at points (..., 2); NaN outside the image."""
+    flat = pts.reshape(-1, 2).astype(np.float32)
+    v = cv2.remap(img, flat[:, :1], flat[:, 1:], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
+    return v.reshape(pts.shape[:-1])
+
+
+EDGE_T = np.arange(0.3, 2.0, 0.05)  # outward profile positions, in lattice steps
+
+
 def edge_evidence(blur: np.ndarray, lat: Lattice) -> list[tuple[int, int, int, float]]:
     """Where the lattice stops because the board does: (k, da, db, e) for boundary corner k whose
     neighbour (a + da, b + db) is missing, e in [0, 1] the evidence that the squares end one
     square further on and the white margin follows.
 
-    Beyond the last corner row there is one more row of squares, then the margin: the two points
-    1.15 steps out (+- half a step sideways) are both white, while the two squares 0.5 steps out
-    differ. Where the board goes on (occlusion, image edge) the outer pair differs too or is dark.
+    Beyond the last corner row there is one more row of squares, then the margin. Two profiles run
+    outwards from the corner, half a square to either side: they differ across the last squares
+    (one black, one white), and where the squares end (0.7 .. 1.6 steps out: perspective and the
+    fisheye change the step) both turn white. Where the board goes on (occlusion, image edge, rim)
+    the profiles keep differing, or turn dark, and there is no evidence. The outward step comes
+    from the corner behind, or, on a lattice one corner deep, from the sideways step turned by
+    90 degrees (lattice axes have a x b > 0 in the image).
     """
     where = {tuple(t): k for k, t in enumerate(lat.ab.tolist())}
-    H, W = blur.shape
-    out = []
-
-    def at(q: np.ndarray) -> float | None:
-        if not (0 <= q[0] < W - 1 and 0 <= q[1] < H - 1):
-            return None
-        return float(cv2.getRectSubPix(blur, (1, 1), (float(q[0]), float(q[1])))[0, 0])
-
+    jobs = []  # (k, da, db, p, out_step, across)
     for (a, b), k in where.items():
         for da, db in ((1, 0), (-1, 0), (0, 1), (0, -1)):
             if (a + da, b + db) in where:
                 continue
-            back = where.get((a - da, b - db))
             side = [where.get((a + db, b + da)), where.get((a - db, b - da))]  # neighbours across the direction
-            if back is None or all(m is None for m in side):
+            if all(m is None for m in side):
                 continue
-            out_step = lat.xy[k] - lat.xy[back]
             m = next(m for m in side if m is not None)
             sgn = 1.0 if m == side[0] else -1.0
-            across = sgn * (lat.xy[m] - lat.xy[k])
-            p = lat.xy[k]
-            vals = [at(p + f * out_step + g * across) for f, g in ((0.5, 0.5), (0.5, -0.5), (1.15, 0.5), (1.15, -0.5))]
-            if any(v is None for v in vals):
-                continue
-            A, B, C, D = vals
-            contrast = abs(A - B)
-            if contrast < 0.1 or min(C, D) < max(A, B) - 0.5 * contrast:
-                continue
-            out.append((k, da, db, float(np.clip(1 - abs(C - D) / contrast, 0, 1))))
+            across = sgn * (lat.xy[m] - lat.xy[k])  # image step along lattice direction (db, da)
+            back = where.get((a - da, b - db))
+            if back is not None:
+                out_step = lat.xy[k] - lat.xy[back]
+            else:
+                turned = np.array([-across[1], across[0]])  # rot90: b = rot90(a) in the image
+                out_step = -turned if da else turned
+            jobs.append((k, da, db, lat.xy[k], out_step, across))
+    if not jobs:
+        return []
+    p = np.array([j[3] for j in jobs])[:, None, None, :]
+    o = np.array([j[4] for j in jobs])[:, None, None, :]
+    c = np.array([j[5] for j in jobs])[:, None, None, :]
+    g = np.array([0.5, -0.5])[None, None, :, None]
+    prof = _sample(blur, p + EDGE_T[None, :, None, None] * o + g * c)  # (J, T, 2)
+    out = []
+    i_half = int(np.argmin(np.abs(EDGE_T - 0.5)))
+    for n, (k, da, db, *_rest) in enumerate(jobs):
+        A, B = prof[n, :, 0], prof[n, :, 1]
+        if np.isnan(A).any() or np.isnan(B).any():
+            continue
+        diff = (A - B) * np.sign(A[i_half] - B[i_half])
+        contrast = diff[i_half]
+        if contrast < 0.1:
+            continue
+        ended = np.nonzero((EDGE_T > 0.5) & (diff < 0.5 * contrast))[0]
+        if not len(ended) or not 0.7 <= EDGE_T[ended[0]] <= 1.6:
+            continue
+        t_end = EDGE_T[ended[0]]
+        band = (EDGE_T >= t_end + 0.1) & (EDGE_T <= t_end + 0.25)  # inside the margin
+        white = max(A[i_half], B[i_half]) - 0.5 * contrast
+        if not band.any() or min(A[band].min(), B[band].min()) < white:
+            continue
+        out.append((k, da, db, float(np.clip(1 - np.abs(A[band] - B[band]).mean() / contrast, 0, 1))))
     return out
 
 

@@ -6,7 +6,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from cotrain.grid import ROTATIONS, GridConfig, assign_ids, fit_saddles, grid_pass, saddle_fit, smooth_for
+from cotrain.grid import ROTATIONS, GridConfig, Lattice, assign_ids, edge_evidence, fit_saddles, grid_pass, saddle_fit, smooth_for
 from cotrain.renderer import RenderConfig, render_batch
 
 NX, NY = 9, 6
@@ -202,3 +202,16 @@ def test_board_margin_pins_a_partial_view():
     assert cut.any() and err[cut].max() < 0.3 and err[~cut].max() < 0.1
     no_edges = grid_pass(img, scale, ones, ones, np.log(lc), np.log(lr), NX, NY, GridConfig(edge_weight=0.0, min_margin=-np.inf))
     assert with_edges.margin > no_edges.margin + 10
+
+
+def test_margin_evidence_on_a_lattice_one_row_deep():
+    """A lattice of only the top corner row: the outward step is the sideways step turned by 90
+    degrees, the white margin is found above every corner, and nothing is claimed below (the
+    squares go on there)."""
+    img, q = _board_image()
+    ids = np.arange(NX)[q[:NX, 0] < img.shape[1] - 12]  # row 0, inside the image
+    lat = Lattice(q[ids], np.stack([ids, np.zeros_like(ids)], 1), np.zeros(len(ids), bool))
+    ev = edge_evidence(smooth_for(img, -1), lat)
+    up = {k for k, da, db, e in ev if (da, db) == (0, -1) and e > 0.8}
+    assert up == set(range(len(ids)))
+    assert not [e for e in ev if (e[1], e[2]) == (0, 1)]
