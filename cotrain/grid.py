@@ -375,10 +375,10 @@ def grow_lattice(
                 if m0 is not None and m1 is not None:
                     preds.append(pts[k] + pts[m1] - pts[m0])
             pred = np.mean(preds, 0)
-            r = cfg.match_radius * np.linalg.norm(v)
             if max(np.linalg.norm(p_ - pred) for p_ in preds) > cfg.agree_radius * np.linalg.norm(v):
                 continue  # the neighbours disagree about where this corner is
             short = min(np.linalg.norm(v), np.linalg.norm(sb if da else sa))  # the square's smaller side here
+            r = cfg.match_radius * np.linalg.norm(v)
             if not (0 <= pred[0] < W and 0 <= pred[1] < H) or short < cfg.min_step_px:
                 continue
             found, was_filled = None, False
@@ -398,8 +398,10 @@ def grow_lattice(
             new_v = found - pts[k]
             if np.linalg.norm(new_v) < 0.5 * np.linalg.norm(v) or np.linalg.norm(new_v) > 2.0 * np.linalg.norm(v):
                 continue
-            if min(np.linalg.norm(np.array(pts) - found, axis=1)) < 0.5 * np.linalg.norm(v):
-                continue  # would sit on top of a lattice corner already placed
+            if min(np.linalg.norm(np.array(pts) - found, axis=1)) < 0.5 * short:
+                # Would sit on top of a lattice corner already placed (measured against the smaller
+                # side: on a board seen obliquely the next corner across is much nearer than the step).
+                continue
             na = new_v * da if da else sa
             nbv = new_v * db if db else sb
             pc = _diag_contrast(sm1, np.asarray(found), na, nbv)
