@@ -398,9 +398,11 @@ def grow_lattice(
             new_v = found - pts[k]
             if np.linalg.norm(new_v) < 0.5 * np.linalg.norm(v) or np.linalg.norm(new_v) > 2.0 * np.linalg.norm(v):
                 continue
-            if min(np.linalg.norm(np.array(pts) - found, axis=1)) < 0.5 * short:
-                # Would sit on top of a lattice corner already placed (measured against the smaller
-                # side: on a board seen obliquely the next corner across is much nearer than the step).
+            crowd = short if short >= 1.5 * cfg.min_step_px else np.linalg.norm(v)
+            if min(np.linalg.norm(np.array(pts) - found, axis=1)) < 0.5 * crowd:
+                # Would sit on top of a lattice corner already placed. Measured against the smaller
+                # side (on a board seen obliquely the next corner across is much nearer than the
+                # step), except in small squares, where a diagonal slip is then let through.
                 continue
             na = new_v * da if da else sa
             nbv = new_v * db if db else sb
