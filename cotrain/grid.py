@@ -54,6 +54,7 @@ class GridConfig:
     offboard_penalty: float = 10.0  # per lattice corner a placement puts off the board (they are verified X-junctions)
     max_violated_edges: float = 2.5  # margin evidence (corners' worth) a placement may contradict before the lattice is rejected
     edge_weight: float = 8.0  # per lattice corner whose outward neighbour is the board's white margin
+    max_skipped: float = 0.3  # share of lattice steps with an X-junction at their midpoint above which a lattice is dropped
     min_rim_px: float = 3.0  # corners closer than this to the image circle's dark rim or the image border are not reported
     max_rim_edge_angle: float = 15.0  # deg: a corner fitted in a window cut by the rim must have its edges along the lattice lines
 
@@ -240,17 +241,22 @@ def _cached(smoothed: dict[int, np.ndarray], grey: np.ndarray, half: int) -> np.
 # --------------------------------------------------------------------------------------------
 # Candidates
 # --------------------------------------------------------------------------------------------
-def saddle_candidates(
-    grey: np.ndarray, roi: np.ndarray, sigma: float = 1.5, max_candidates: int = 600, min_response: float = 0.002
-) -> tuple[np.ndarray, np.ndarray]:
-    """X-junction candidates: local maxima (5x5) of the scale-normalised negative Hessian
-    determinant -(Ixx Iyy - Ixy^2) sigma^4 inside ``roi`` (H, W bool).
-    Returns xy (K, 2) pixels and response (K,), strongest first."""
+def saddle_response(grey: np.ndarray, sigma: float = 1.5) -> np.ndarray:
+    """(H, W) scale-normalised negative Hessian determinant -(Ixx Iyy - Ixy^2) sigma^4: large at
+    X-junctions, near zero along edges."""
     g = cv2.GaussianBlur(grey.astype(np.float32), (0, 0), sigma)
     ixx = cv2.Sobel(g, cv2.CV_32F, 2, 0, ksize=3)
     iyy = cv2.Sobel(g, cv2.CV_32F, 0, 2, ksize=3)
     ixy = cv2.Sobel(g, cv2.CV_32F, 1, 1, ksize=3)
-    D = -(ixx * iyy - ixy * ixy) * sigma**4
+    return -(ixx * iyy - ixy * ixy) * sigma**4
+
+
+def saddle_candidates(
+    grey: np.ndarray, roi: np.ndarray, max_candidates: int = 600, min_response: float = 0.002, response: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """X-junction candidates: local maxima (5x5) of :func:`saddle_response` (or the given
+    ``response``) inside ``roi`` (H, W bool). Returns xy (K, 2) pixels and response (K,), strongest first."""
+    D = saddle_response(grey) if response is None else response
     peak = (D >= cv2.dilate(D, np.ones((5, 5), np.uint8))) & (D > min_response) & roi
     ys, xs = np.nonzero(peak)
     r = D[ys, xs]
@@ -490,6 +496,38 @@ def verify_lattice(
     return Lattice(lat.xy[big], lat.ab[big], lat.filled[big])
 
 
+def _sample(img: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Bilinear values of ``img`` at points (..., 2); NaN outside the image."""
+    flat = pts.reshape(-1, 2).astype(np.float32)
+    v = cv2.remap(img, flat[:, :1], flat[:, 1:], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
+    return v.reshape(pts.shape[:-1])
+
+
+def skipped_corners(lat: Lattice, response: np.ndarray) -> float:
+    """Share of lattice steps (along a, along b) or cells whose midpoint is itself an X-junction
+    (:func:`saddle_response` there over half that of the weakest end), the worst of the three.
+
+    On the board, a step's midpoint lies on an edge between two squares and a cell's centre inside
+    a square, where the response is near zero. A lattice grown with double steps, or with knight's
+    moves (two along, one across: the colours still alternate), has corners at the one or the
+    other; in small blurred squares the colour test alone lets them through."""
+    where = {tuple(t): k for k, t in enumerate(lat.ab.tolist())}
+    groups = []
+    for da, db in ((1, 0), (0, 1)):
+        groups.append([(k, where[(a + da, b + db)]) for (a, b), k in where.items() if (a + da, b + db) in where])
+    cells = [(k, *(where.get(t) for t in ((a + 1, b), (a, b + 1), (a + 1, b + 1)))) for (a, b), k in where.items()]
+    groups.append([c for c in cells if None not in c])
+    worst = 0.0
+    for g in groups:
+        if len(g) < 3:
+            continue
+        idx = np.array(g)
+        ends = _sample(response, lat.xy[idx])  # (P, 2 or 4)
+        mid = _sample(response, lat.xy[idx].mean(1))
+        worst = max(worst, float(np.mean(mid > 0.5 * ends.min(1))))
+    return worst
+
+
 # --------------------------------------------------------------------------------------------
 # Identity
 # --------------------------------------------------------------------------------------------
@@ -513,13 +551,6 @@ def cell_darkness(blur: np.ndarray, lat: Lattice) -> dict[tuple[int, int], float
         nbs = [val[t] for t in ((a + 1, b), (a - 1, b), (a, b + 1), (a, b - 1)) if t in val]
         out[(a, b)] = float(np.sign(np.mean(nbs) - v)) if nbs else 0.0
     return out
-
-
-def _sample(img: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """Bilinear values of ``img`` at points (..., 2); NaN outside the image."""
-    flat = pts.reshape(-1, 2).astype(np.float32)
-    v = cv2.remap(img, flat[:, :1], flat[:, 1:], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
-    return v.reshape(pts.shape[:-1])
 
 
 EDGE_T = np.arange(0.3, 2.0, 0.05)  # outward profile positions, in lattice steps
@@ -688,12 +719,13 @@ def find_candidates(
     cfg: GridConfig,
     smoothed: dict[int, np.ndarray],
     rim_dist: np.ndarray | None = None,
+    response: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Saddle points inside ``roi`` (the network's corner / board region), best seeds first.
 
     ``grey`` and ``roi`` are a crop of the input whose top-left pixel is input pixel ``offset``.
     Returns xy (K, 2) crop pixels and axes (K, 2, 2) (see :func:`saddle_fit`)."""
-    xy0, resp = saddle_candidates(grey, roi)
+    xy0, resp = saddle_candidates(grey, roi, response=response)
     if len(xy0) < 2:
         return np.zeros((0, 2)), np.zeros((0, 2, 2))
     # Window per candidate from the spacing to its nearest other candidate.
@@ -773,7 +805,8 @@ def grid_pass(
     offset = np.array([x0, y0], np.float64)
     rim_dist = cv2.distanceTransform(allowed.astype(np.uint8), cv2.DIST_L2, 3)
     smoothed: dict[int, np.ndarray] = {}
-    xy, axes = find_candidates(grey, roi, offset, scale, corner_prob, cfg, smoothed, rim_dist)
+    response = saddle_response(grey)
+    xy, axes = find_candidates(grey, roi, offset, scale, corner_prob, cfg, smoothed, rim_dist, response)
     if len(xy) < cfg.min_corners:
         return empty
     # Grow from several seeds (distractors can hold the strongest saddles); a lattice must lie on
@@ -792,7 +825,7 @@ def grid_pass(
             continue
         covered |= cKDTree(lat.xy).query(xy)[0] < 1.0
         lat = verify_lattice(lat, grey, cfg, smoothed, rim_dist)
-        if len(lat.ab) < cfg.min_corners:
+        if len(lat.ab) < cfg.min_corners or skipped_corners(lat, response) > cfg.max_skipped:
             continue
         q_lat = (lat.xy + offset + 0.5) * scale - 0.5
         if sample_cells(mask_prob[None], q_lat)[:, 0].mean() < cfg.min_board_prob:

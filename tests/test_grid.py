@@ -6,7 +6,19 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from cotrain.grid import ROTATIONS, GridConfig, Lattice, assign_ids, edge_evidence, fit_saddles, grid_pass, saddle_fit, smooth_for
+from cotrain.grid import (
+    ROTATIONS,
+    GridConfig,
+    Lattice,
+    assign_ids,
+    edge_evidence,
+    fit_saddles,
+    grid_pass,
+    saddle_fit,
+    saddle_response,
+    skipped_corners,
+    smooth_for,
+)
 from cotrain.renderer import RenderConfig, render_batch
 
 NX, NY = 9, 6
@@ -215,3 +227,24 @@ def test_margin_evidence_on_a_lattice_one_row_deep():
     up = {k for k, da, db, e in ev if (da, db) == (0, -1) and e > 0.8}
     assert up == set(range(len(ids)))
     assert not [e for e in ev if (e[1], e[2]) == (0, 1)]
+
+
+def test_lattices_with_skipped_corners_are_recognised():
+    """The true lattice has no X-junction at its step midpoints or cell centres; one grown with
+    double steps along a, or with knight's moves (two along, one across: colours still
+    alternate), has them at most of its steps or cells."""
+    img, q = _board_image(size=(360, 260))
+    response = saddle_response(img)
+
+    def lattice(ij: list[tuple[int, int]], ab: list[tuple[int, int]]) -> Lattice:
+        ids = [j * NX + i for i, j in ij]
+        return Lattice(q[ids], np.array(ab), np.zeros(len(ab), bool))
+
+    true = [(i, j) for i in range(NX) for j in range(NY)]
+    assert skipped_corners(lattice(true, true), response) == 0.0
+    double = [(2 * a, b) for a in range(4) for b in range(NY)]
+    assert skipped_corners(lattice(double, [(a, b) for a in range(4) for b in range(NY)]), response) > 0.8
+    knight = [(2 * a + 1, b - a + 3) for a in range(4) for b in range(3)]
+    knight_ab = [(a, b) for a in range(4) for b in range(3)]
+    assert all(0 <= i < NX and 0 <= j < NY for i, j in knight)
+    assert skipped_corners(lattice(knight, knight_ab), response) > 0.8
