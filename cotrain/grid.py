@@ -479,6 +479,12 @@ def verify_lattice(
             continue
         half = window_half(min(sides))
         q, ok, axes = fit_saddles(grey, smoothed, lat.xy[k][None], half, cfg, rim_dist)
+        if not ok[0] and half > 2 and len(sides) == 2 and max(sides) > 2 * min(sides):
+            # Squares seen very obliquely (sides over 2:1) and blurred: at every other corner the two
+            # black squares meet along the short diagonal and merge in a large window; a smaller
+            # one still sees the X. (Not elsewhere: next to occluders it lets false junctions in.)
+            half = max(2, half // 2)
+            q, ok, axes = fit_saddles(grey, smoothed, lat.xy[k][None], half, cfg, rim_dist)
         keep[k] = bool(ok[0]) and np.linalg.norm(q[0] - lat.xy[k]) < 0.15 * min(sides)
         qi = np.clip(np.rint(q[0]).astype(int), 0, [W - 1, H - 1])
         if keep[k] and rim_dist is not None and rim_dist[qi[1], qi[0]] < 1 + 1.8 * half:
