@@ -83,14 +83,14 @@ def _design(half: int) -> np.ndarray:
 
 def _masked_coefficients(patch: np.ndarray, valid: np.ndarray, half: int) -> tuple[np.ndarray, np.ndarray]:
     """Quadratic coefficients (K, 6) fitted to the valid pixels of each window only (``valid``
-    (K, n^2) in [0, 1]), and whether the fit is posed (K,): at least half the Gaussian weight valid
-    and a well-conditioned system."""
+    (K, n^2) in [0, 1]), and whether the fit is posed (K,): at least half the Gaussian weight valid."""
     A, w = _basis(half)
     wv = valid * w[None]  # (K, n^2)
     M = np.einsum("ki,ip,iq->kpq", wv, A, A)  # A^T W A per window (K, 6, 6)
     rhs = np.einsum("ki,ip,ki->kp", wv, A, patch)
-    posed = (wv.sum(1) >= 0.5 * w.sum()) & (np.linalg.cond(M) < 1e8)
+    posed = wv.sum(1) >= 0.5 * w.sum()
     M[~posed] = np.eye(6)
+    M += 1e-9 * np.eye(6)  # half a window of a quadratic is well posed; this only guards the solve
     return np.linalg.solve(M, rhs[..., None])[..., 0], posed
 
 
@@ -141,11 +141,14 @@ def saddle_fit(
         patch = _patches(smoothed, q, half)
         if rim_dist is None:
             return patch @ pinv.T, patch, np.ones_like(patch), np.ones(len(q), bool)
-        valid = (_patches(rim_dist, q, half, cv2.BORDER_CONSTANT) > reach).astype(np.float64)
-        coef, posed = patch @ pinv.T, np.ones(len(q), bool)
-        cut = valid.min(1) < 1  # only windows that reach the rim need the masked solve
-        if cut.any():
-            coef[cut], posed[cut] = _masked_coefficients(patch[cut], valid[cut], half)
+        coef, valid, posed = patch @ pinv.T, np.ones_like(patch), np.ones(len(q), bool)
+        qi = np.clip(np.rint(q).astype(int), 0, [W - 1, H - 1])
+        near = rim_dist[qi[:, 1], qi[:, 0]] < reach + 1.5 * half + 1  # the window may reach the rim
+        if near.any():
+            valid[near] = (_patches(rim_dist, q[near], half, cv2.BORDER_CONSTANT) > reach).astype(np.float64)
+            cut = near & (valid.min(1) < 1)  # only windows that reach the rim need the masked solve
+            if cut.any():
+                coef[cut], posed[cut] = _masked_coefficients(patch[cut], valid[cut], half)
         return coef, patch, valid, posed
 
     p = xy.copy()
@@ -462,9 +465,10 @@ def verify_lattice(
     Of what is left, the largest 4-connected part is kept.
     """
     where = {tuple(t): k for k, t in enumerate(lat.ab.tolist())}
-    keep = np.zeros(len(lat.ab), bool)
-    xy = lat.xy.copy()
+    K = len(lat.ab)
     H, W = grey.shape
+    short, oblique = np.zeros(K), np.zeros(K, bool)
+    todo = np.zeros(K, bool)
     for (a, b), k in where.items():
         sides = []
         straight = True
@@ -475,28 +479,39 @@ def verify_lattice(
             if len(d) == 2:
                 p1, p2 = lat.xy[where[nbrs[0]]], lat.xy[where[nbrs[1]]]
                 straight &= bool(np.linalg.norm((p1 + p2) / 2 - lat.xy[k]) < 0.4 * np.linalg.norm(p1 - p2) / 2)
-        if not sides or min(sides) < cfg.min_step_px or not straight:
-            continue
-        half = window_half(min(sides))
-        q, ok, axes = fit_saddles(grey, smoothed, lat.xy[k][None], half, cfg, rim_dist)
-        if not ok[0] and half > 2 and len(sides) == 2 and max(sides) > 2 * min(sides):
-            # Squares seen very obliquely (sides over 2:1) and blurred: at every other corner the two
-            # black squares meet along the short diagonal and merge in a large window; a smaller
-            # one still sees the X. (Not elsewhere: next to occluders it lets false junctions in.)
-            half = max(2, half // 2)
-            q, ok, axes = fit_saddles(grey, smoothed, lat.xy[k][None], half, cfg, rim_dist)
-        keep[k] = bool(ok[0]) and np.linalg.norm(q[0] - lat.xy[k]) < 0.15 * min(sides)
-        qi = np.clip(np.rint(q[0]).astype(int), 0, [W - 1, H - 1])
-        if keep[k] and rim_dist is not None and rim_dist[qi[1], qi[0]] < 1 + 1.8 * half:
+        if sides and min(sides) >= cfg.min_step_px and straight:
+            todo[k] = True
+            short[k] = min(sides)
+            oblique[k] = len(sides) == 2 and max(sides) > 2 * min(sides)
+    # Refit all corners at once, per window size.
+    halves = np.where(todo, window_half(np.maximum(short, 1.0)), 0)
+    q, ok, axes = lat.xy.copy(), np.zeros(K, bool), np.zeros((K, 2, 2))
+    for h in np.unique(halves[todo]):
+        m = todo & (halves == h)
+        q[m], ok[m], axes[m] = fit_saddles(grey, smoothed, lat.xy[m], int(h), cfg, rim_dist)
+    # Squares seen very obliquely (sides over 2:1) and blurred: at every other corner the two black
+    # squares meet along the short diagonal and merge in a large window; a smaller one still sees
+    # the X. (Not elsewhere: next to occluders it lets false junctions in.)
+    retry = todo & ~ok & oblique & (halves > 2)
+    for h in np.unique(halves[retry]):
+        m = retry & (halves == h)
+        halves[m] = max(2, int(h) // 2)
+        q[m], ok[m], axes[m] = fit_saddles(grey, smoothed, lat.xy[m], int(halves[m][0]), cfg, rim_dist)
+    keep = todo & ok & (np.linalg.norm(q - lat.xy, axis=1) < 0.15 * short)
+    if rim_dist is not None:
+        qi = np.clip(np.rint(q).astype(int), 0, [W - 1, H - 1])
+        cut = keep & (rim_dist[qi[:, 1], qi[:, 0]] < 1 + 1.8 * halves)
+        cos_max = np.cos(np.radians(cfg.max_rim_edge_angle))
+        for k in np.nonzero(cut)[0]:
             # Cut by the rim, a square's corner against the margin or the rim can pass for half an
             # X-junction: the fitted edges must run along the lattice lines to the neighbours.
+            a, b = lat.ab[k]
             for t in ((a + 1, b), (a - 1, b), (a, b + 1), (a, b - 1)):
                 if t in where:
-                    u = lat.xy[where[t]] - q[0]
+                    u = lat.xy[where[t]] - q[k]
                     u = u / max(np.linalg.norm(u), 1e-9)
-                    keep[k] &= bool(np.abs(axes[0] @ u).max() >= np.cos(np.radians(cfg.max_rim_edge_angle)))
-        if keep[k]:
-            xy[k] = q[0]
+                    keep[k] &= bool(np.abs(axes[k] @ u).max() >= cos_max)
+    xy = np.where(keep[:, None], q, lat.xy)
     lat = Lattice(xy[keep], lat.ab[keep], lat.filled[keep])
     big = _largest_component(lat.ab)
     return Lattice(lat.xy[big], lat.ab[big], lat.filled[big])
