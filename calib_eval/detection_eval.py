@@ -357,7 +357,8 @@ def evaluate_detection(model: str | None, cfg: EvalConfig, out: Path, progress: 
         f"# Detection evaluation (benchmark v{BENCH_VERSION}, seed {cfg.seed})",
         "",
         f"{cfg.per_fov} images per FoV at {cfg.width}x{cfg.height} (half f-theta, half ucm/eucm/ds), {cfg.n_empty} without a target. "
-        f"Model: {model or 'shipped default'}. Whole evaluation: {elapsed:.0f} s.",
+        f"Model: {model or 'shipped default'}. Run this time: {', '.join(detectors)} ({elapsed:.0f} s)"
+        + (f"; {', '.join(kept)}: saved predictions of an earlier run on the same set." if kept else "."),
         "",
         table,
         "",
