@@ -620,19 +620,20 @@ def edge_evidence(blur: np.ndarray, lat: Lattice) -> list[tuple[int, int, int, f
     i_half = int(np.argmin(np.abs(EDGE_T - 0.5)))
     for n, (k, da, db, *_rest) in enumerate(jobs):
         A, B = prof[n, :, 0], prof[n, :, 1]
-        if np.isnan(A).any() or np.isnan(B).any():
+        seen = np.cumprod(~(np.isnan(A) | np.isnan(B))).astype(bool)  # the profiles up to the image's edge
+        if not seen[i_half]:
             continue
         diff = (A - B) * np.sign(A[i_half] - B[i_half])
         contrast = diff[i_half]
         if contrast < 0.1:
             continue
-        ended = np.nonzero((EDGE_T > 0.5) & (diff < 0.5 * contrast))[0]
+        ended = np.nonzero(seen & (EDGE_T > 0.5) & (diff < 0.5 * contrast))[0]
         if not len(ended) or not 0.7 <= EDGE_T[ended[0]] <= 1.6:
             continue
         t_end = EDGE_T[ended[0]]
         band = (EDGE_T >= t_end + 0.1) & (EDGE_T <= t_end + 0.25)  # inside the margin
         white = max(A[i_half], B[i_half]) - 0.5 * contrast
-        if not band.any() or min(A[band].min(), B[band].min()) < white:
+        if not seen[band].all() or not band.any() or min(A[band].min(), B[band].min()) < white:
             continue
         out.append((k, da, db, float(np.clip(1 - np.abs(A[band] - B[band]).mean() / contrast, 0, 1))))
     return out
