@@ -493,10 +493,11 @@ def verify_lattice(
     # squares meet along the short diagonal and merge in a large window; a smaller one still sees
     # the X. (Not elsewhere: next to occluders it lets false junctions in.)
     retry = todo & ~ok & oblique & (halves > 2)
-    for h in np.unique(halves[retry]):
-        m = retry & (halves == h)
+    first = halves.copy()
+    for h in np.unique(first[retry]):
+        m = retry & (first == h)
         halves[m] = max(2, int(h) // 2)
-        q[m], ok[m], axes[m] = fit_saddles(grey, smoothed, lat.xy[m], int(halves[m][0]), cfg, rim_dist)
+        q[m], ok[m], axes[m] = fit_saddles(grey, smoothed, lat.xy[m], max(2, int(h) // 2), cfg, rim_dist)
     keep = todo & ok & (np.linalg.norm(q - lat.xy, axis=1) < 0.15 * short)
     if rim_dist is not None:
         qi = np.clip(np.rint(q).astype(int), 0, [W - 1, H - 1])
