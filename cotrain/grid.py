@@ -54,7 +54,7 @@ class GridConfig:
     offboard_penalty: float = 10.0  # per lattice corner a placement puts off the board (they are verified X-junctions)
     max_violated_edges: float = 2.5  # margin evidence (corners' worth) a placement may contradict before the lattice is rejected
     edge_weight: float = 8.0  # per lattice corner whose outward neighbour is the board's white margin
-    max_skipped: float = 0.3  # share of lattice steps with an X-junction at their midpoint above which a lattice is dropped
+    max_skipped: float = 0.3  # share of lattice steps (cells) with an X-junction at the midpoint (centre) that drops a lattice
     min_rim_px: float = 3.0  # corners closer than this to the image circle's dark rim or the image border are not reported
     max_rim_edge_angle: float = 15.0  # deg: a corner fitted in a window cut by the rim must have its edges along the lattice lines
 
