@@ -7,12 +7,13 @@ This pass turns them into identities the way a person would (docs/detector.md ha
 
 1. candidates: X-junctions of the full-resolution image inside the network's board region,
    moved to the saddle of a fitted quadratic (which also gives the two edge directions) and kept
-   if the window is point-symmetric;
+   if the window is point-symmetric; next to the image circle's rim or the image border, from
+   the part of the window that is seen;
 2. growth: from a seed, neighbours are predicted one square step along each grid axis (linear
    extrapolation, so the fisheye's slow curvature is followed) and matched to a candidate, or, when
    the network missed it, to a saddle found at the predicted spot; checker colours must
-   alternate; a verification pass drops corners off their lattice lines or on the image circle's
-   rim; the result is a lattice coordinate (a, b) per corner;
+   alternate; a verification pass drops corners off their lattice lines, and lattices grown with
+   skipped corners; the result is a lattice coordinate (a, b) per corner;
 3. identity: the lattice is placed on the board by one of the four in-plane rotations and an
    integer offset; every placement is scored by the network's column / row log-probabilities at
    the corners, the checker colour of every lattice cell (square (i, j) of corners is black when
