@@ -31,7 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-ROTATIONS = [np.array([[1, 0], [0, 1]]), np.array([[0, -1], [1, 0]]), np.array([[-1, 0], [0, -1]]), np.array([[0, 1], [-1, 0]])]
+from cotrain.grid import ROTATIONS  # the board's in-plane turns, as the detector's placements use them
+
 STEPS = ((1, 0), (-1, 0), (0, 1), (0, -1))
 
 
