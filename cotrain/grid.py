@@ -589,8 +589,9 @@ def edge_evidence(blur: np.ndarray, lat: Lattice) -> list[tuple[int, int, int, f
     (one black, one white), and where the squares end (0.7 .. 1.6 steps out: perspective and the
     fisheye change the step) both turn white. Where the board goes on (occlusion, image edge, rim)
     the profiles keep differing, or turn dark, and there is no evidence. The outward step comes
-    from the corner behind, or, on a lattice one corner deep, from the sideways step turned by
-    90 degrees (lattice axes have a x b > 0 in the image).
+    from the corner behind and the sideways step from a neighbour across; where one of them is
+    missing (a lattice one corner deep, a corner at a tip) it is the other turned by 90 degrees
+    (lattice axes have a x b > 0 in the image).
     """
     where = {tuple(t): k for k, t in enumerate(lat.ab.tolist())}
     jobs = []  # (k, da, db, p, out_step, across)
@@ -599,17 +600,22 @@ def edge_evidence(blur: np.ndarray, lat: Lattice) -> list[tuple[int, int, int, f
             if (a + da, b + db) in where:
                 continue
             side = [where.get((a + db, b + da)), where.get((a - db, b - da))]  # neighbours across the direction
-            if all(m is None for m in side):
-                continue
-            m = next(m for m in side if m is not None)
-            sgn = 1.0 if m == side[0] else -1.0
-            across = sgn * (lat.xy[m] - lat.xy[k])  # image step along lattice direction (db, da)
             back = where.get((a - da, b - db))
+            if all(m is None for m in side) and back is None:
+                continue
+            # Image steps outwards and sideways (along lattice direction (db, da)); one of them may
+            # come from the other turned by 90 degrees (rot90: b = rot90(a) in the image).
+            rot90 = lambda v: np.array([-v[1], v[0]])  # noqa: E731
             if back is not None:
                 out_step = lat.xy[k] - lat.xy[back]
+            if any(m is not None for m in side):
+                m = next(m for m in side if m is not None)
+                sgn = 1.0 if m == side[0] else -1.0
+                across = sgn * (lat.xy[m] - lat.xy[k])
+                if back is None:
+                    out_step = -rot90(across) if da else rot90(across)
             else:
-                turned = np.array([-across[1], across[0]])  # rot90: b = rot90(a) in the image
-                out_step = -turned if da else turned
+                across = rot90(out_step) if da else -rot90(out_step)
             jobs.append((k, da, db, lat.xy[k], out_step, across))
     if not jobs:
         return []

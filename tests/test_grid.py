@@ -227,6 +227,9 @@ def test_margin_evidence_on_a_lattice_one_row_deep():
     up = {k for k, da, db, e in ev if (da, db) == (0, -1) and e > 0.8}
     assert up == set(range(len(ids)))
     assert not [e for e in ev if (e[1], e[2]) == (0, 1)]
+    # The row's first corner has no neighbour across the left direction: the sideways step is the
+    # step behind it turned by 90 degrees, and the left margin is found too.
+    assert {k for k, da, db, e in ev if (da, db) == (-1, 0) and e > 0.8} == {0}
 
 
 def test_lattices_with_skipped_corners_are_recognised():
