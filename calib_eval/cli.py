@@ -8,7 +8,7 @@ import sys
 import time
 from pathlib import Path
 
-from calib_eval.detection_eval import DETECTORS
+from calib_eval.detection_eval import DEFAULT_DETECTORS, DETECTORS
 from cotrain.config import build, load_yaml
 from cotrain.targets import TargetConfig
 
@@ -204,7 +204,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument(
         "--detectors",
         nargs="+",
-        default=["learned", "learned_slots", "opencv_sb", "opencv_classic"],
+        default=DEFAULT_DETECTORS,
         choices=DETECTORS,
         help="detectors to run (learned: the default detector, grid pass; learned_slots: the network's per-slot "
         "corners); others whose predictions on this set are saved in --out stay in the table",

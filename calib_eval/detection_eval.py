@@ -38,6 +38,7 @@ PAPER = {  # Table: detection recall / mean error (px) of the paper
 }
 TOL_PX = 3.0
 DETECTORS = ["learned", "learned_slots", "learned_slots_polish", "opencv_sb", "opencv_classic"]  # table order
+DEFAULT_DETECTORS = ["learned", "learned_slots", "opencv_sb", "opencv_classic"]  # run when none are named
 
 
 @dataclass
@@ -335,7 +336,7 @@ def evaluate_detection(model: str | None, cfg: EvalConfig, out: Path, progress: 
             stale.unlink()  # from another set
         meta = render_benchmark(cfg, out, progress)
     images = [out / "images" / lab["image"] for lab in meta["labels"]]
-    detectors = detectors or ["learned", "learned_slots", "opencv_sb", "opencv_classic"]
+    detectors = detectors or DEFAULT_DETECTORS
     # Detectors not run this time keep their saved predictions on this set in the table.
     kept = [n for n in DETECTORS if n not in detectors and (out / f"predictions_{n}.json").is_file()]
     preds = {}

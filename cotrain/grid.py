@@ -310,15 +310,16 @@ def _cross(u: np.ndarray, v: np.ndarray) -> float:
     return float(u[0] * v[1] - u[1] * v[0])
 
 
+def _value(img: np.ndarray, q: np.ndarray) -> float:
+    """Bilinear value of ``img`` at one point (exact sub-pixel position, border replicated)."""
+    return float(cv2.getRectSubPix(img, (1, 1), (float(q[0]), float(q[1])))[0, 0])
+
+
 def _diag_contrast(img: np.ndarray, p: np.ndarray, ea: np.ndarray, eb: np.ndarray) -> float:
     """Brightness of the (+a, -b) / (-a, +b) quadrants minus the (+a, +b) / (-a, -b) ones around
     corner ``p`` (steps ``ea``, ``eb``): its sign alternates between lattice neighbours on a checker."""
-
-    def at(q: np.ndarray) -> float:
-        return float(cv2.getRectSubPix(img, (1, 1), (float(q[0]), float(q[1])))[0, 0])
-
     d1, d2 = 0.3 * (ea + eb), 0.3 * (ea - eb)
-    return at(p + d2) + at(p - d2) - at(p + d1) - at(p - d1)
+    return _value(img, p + d2) + _value(img, p - d2) - _value(img, p + d1) - _value(img, p - d1)
 
 
 def grow_lattice(
@@ -568,7 +569,7 @@ def cell_darkness(blur: np.ndarray, lat: Lattice) -> dict[tuple[int, int], float
         if None in quad:
             continue
         c = lat.xy[[k, *quad]].mean(0)
-        val[(a, b)] = float(cv2.getRectSubPix(blur, (1, 1), (float(c[0]), float(c[1])))[0, 0])
+        val[(a, b)] = _value(blur, c)
     out = {}
     for (a, b), v in val.items():
         nbs = [val[t] for t in ((a + 1, b), (a - 1, b), (a, b + 1), (a, b - 1)) if t in val]
