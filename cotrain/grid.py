@@ -9,8 +9,8 @@ This pass turns them into identities the way a person would (docs/detector.md ha
    moved to the saddle of a fitted quadratic (which also gives the two edge directions) and kept
    if the window is point-symmetric; next to the image circle's rim or the image border, from
    the part of the window that is seen;
-2. growth: from a seed, neighbours are predicted one square step along each grid axis (linear
-   extrapolation, so the fisheye's slow curvature is followed) and matched to a candidate, or, when
+2. growth: from a seed, neighbours are predicted one square step along each grid axis (from the
+   last two steps: perspective's cross-ratio and the fisheye's bend) and matched to a candidate, or, when
    the network missed it, to a saddle found at the predicted spot; checker colours must
    alternate; a verification pass drops corners off their lattice lines, and lattices grown with
    skipped corners; the result is a lattice coordinate (a, b) per corner;
@@ -322,6 +322,20 @@ def _diag_contrast(img: np.ndarray, p: np.ndarray, ea: np.ndarray, eb: np.ndarra
     return _value(img, p + d2) + _value(img, p - d2) - _value(img, p + d1) - _value(img, p - d1)
 
 
+def next_step(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """The image step after steps ``u`` then ``v`` (2,) along one lattice line.
+
+    Equal steps on the board seen in perspective keep their cross-ratio: with step lengths
+    d0 = |u|, d1 = |v| the next one is d1 (d0 + d1) / (3 d0 - d1) (clamped to 0.5 .. 2 d1), and
+    the fisheye bends the line by about the same angle again (clamped to 30 deg)."""
+    d0, d1 = float(np.linalg.norm(u)), float(np.linalg.norm(v))
+    den = 3 * d0 - d1
+    ratio = float(np.clip((d0 + d1) / den, 0.5, 2.0)) if den > 0 else 2.0
+    turn = float(np.clip(np.arctan2(_cross(u, v), float(np.dot(u, v))), -np.pi / 6, np.pi / 6))
+    c, s = np.cos(turn), np.sin(turn)
+    return ratio * np.array([c * v[0] - s * v[1], s * v[0] + c * v[1]])
+
+
 def grow_lattice(
     xy: np.ndarray,
     axes: np.ndarray,
@@ -380,6 +394,9 @@ def grow_lattice(
                 continue
             back = where.get((a - da, b - db))
             v = pts[k] - pts[back] if back is not None else da * sa + db * sb
+            back2 = where.get((a - 2 * da, b - 2 * db))
+            if back is not None and back2 is not None:
+                v = next_step(pts[back] - pts[back2], v)
             preds = [pts[k] + v]
             for side in ((db, da), (-db, -da)):  # the perpendicular neighbours' own steps along (da, db)
                 m0, m1 = where.get((a + side[0], b + side[1])), where.get((t[0] + side[0], t[1] + side[1]))
