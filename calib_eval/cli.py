@@ -149,7 +149,9 @@ def cmd_opencv_detect(a: argparse.Namespace) -> int:
     if not Path(a.images).is_dir():
         raise NotADirectoryError(f"{a.images}: not a folder of images")
     tgt = TargetConfig(squares_x=a.squares_x, squares_y=a.squares_y, square_size=a.square_size, margin=0.0)
-    seq = folder_to_sequence(Path(a.images), Path(a.out), tgt, sb=a.sb)
+    if a.model and not a.learned:
+        raise ValueError("--model goes with --learned")
+    seq = folder_to_sequence(Path(a.images), Path(a.out), tgt, sb=a.sb, learned=a.learned, model=a.model)
     print(
         f"wrote {seq}/cam0 (images, timestamps.csv, detections.json); calibrate it with "
         f"calib-eval calibrate {seq} --fov F --target <yaml with squares_x: {a.squares_x}, squares_y: {a.squares_y}>"
@@ -230,12 +232,14 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", default="report/benchmark")
     s.set_defaults(func=cmd_benchmark)
 
-    s = sub.add_parser("opencv-detect", help="one-camera sequence folder from images, with OpenCV chessboard detections")
+    s = sub.add_parser("opencv-detect", help="one-camera sequence folder from images, with OpenCV's (--learned: our) chessboard detections")
     s.add_argument("images", help="folder of images")
     s.add_argument("--squares-x", type=int, required=True, help="squares along the board's x axis")
     s.add_argument("--squares-y", type=int, required=True)
     s.add_argument("--square-size", type=float, default=1.0, help="metres (any unit: it only scales the poses)")
     s.add_argument("--sb", action="store_true", help="findChessboardCornersSB instead of findChessboardCorners + cornerSubPix")
+    s.add_argument("--learned", action="store_true", help="our detector (network + grid pass) instead of OpenCV's")
+    s.add_argument("--model", help="with --learned: ONNX model (default: the shipped model)")
     s.add_argument("--out", required=True, help="sequence folder to write")
     s.set_defaults(func=cmd_opencv_detect)
 

@@ -1,5 +1,5 @@
-"""Geometry-based detections in the JSON of CONVENTIONS (``calib-eval opencv-detect``), so real
-sequences can be calibrated with OpenCV's detector as well as with ours.
+"""Detections of a folder of images in the JSON of CONVENTIONS (``calib-eval opencv-detect``), so
+real sequences can be calibrated with OpenCV's geometry-based detector or with ours (``--learned``).
 
 OpenCV orders a symmetric board's corners arbitrarily up to a 180-degree turn; for a board that is
 symmetric under that turn (both square counts odd) the geometry is identical either way, so
@@ -43,8 +43,20 @@ def opencv_detect(paths: list[Path], target: TargetConfig, sb: bool = False, pro
     return {"model": "opencv_sb" if sb else "opencv_classic", "target": t, "images": images}
 
 
-def folder_to_sequence(images_dir: Path, seq_dir: Path, target: TargetConfig, sb: bool = False) -> Path:
-    """Make a one-camera sequence folder (cam0) from a folder of images, with OpenCV detections."""
+def learned_detect(paths: list[Path], target: TargetConfig, model: str | None = None, progress: bool = True) -> dict:
+    """Our detector (network + grid pass) on another board than the model's if need be: the
+    lattice is then placed from the geometry alone (see :class:`cotrain.detect.Detector`)."""
+    from cotrain.detect import Detector, detect_files
+
+    det = Detector(model, target={"squares_x": target.squares_x, "squares_y": target.squares_y, "square_size": target.square_size})
+    return detect_files(paths, det, progress=progress)
+
+
+def folder_to_sequence(
+    images_dir: Path, seq_dir: Path, target: TargetConfig, sb: bool = False, learned: bool = False, model: str | None = None
+) -> Path:
+    """Make a one-camera sequence folder (cam0) from a folder of images, with OpenCV detections
+    (``sb``: findChessboardCornersSB) or ours (``learned``, ``model``: default the shipped one)."""
     import json
 
     from cotrain.detect import expand_inputs
@@ -61,7 +73,8 @@ def folder_to_sequence(images_dir: Path, seq_dir: Path, target: TargetConfig, sb
             dst.write_bytes(p.read_bytes())
         lines.append(f"{k},{k * 100_000_000},{p.name}")
     (cam / "timestamps.csv").write_text("\n".join(lines) + "\n")
-    det = opencv_detect([cam / "images" / p.name for p in paths], target, sb)
+    files = [cam / "images" / p.name for p in paths]
+    det = learned_detect(files, target, model) if learned else opencv_detect(files, target, sb)
     for e in det["images"]:
         e["path"] = f"cam0/images/{Path(e['path']).name}"
     (cam / "detections.json").write_text(json.dumps(det))

@@ -64,12 +64,22 @@ def cmd_detect(args: argparse.Namespace) -> int:
     paths = expand_inputs(args.inputs)
     if not paths:
         raise FileNotFoundError("no images found in the given paths")
+    if (args.squares_x is None) != (args.squares_y is None):
+        raise ValueError("give both --squares-x and --squares-y")
+    target = {}
+    if args.squares_x is not None:
+        target.update(squares_x=args.squares_x, squares_y=args.squares_y)
+    if args.square_size is not None:
+        if args.square_size <= 0:
+            raise ValueError("--square-size must be positive")
+        target["square_size"] = args.square_size
     det = Detector(
         args.model,
         threshold=args.threshold,
         consistency=not args.no_consistency,
         polish=args.polish,
         mode="slots" if args.slots else "grid",
+        target=target,
     )
     data = detect_files(paths, det, Path(args.draw) if args.draw else None)
     out = Path(args.out)
@@ -131,6 +141,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--slots", action="store_true", help="report the network's per-slot corners instead of the grid pass (cotrain.grid)")
     s.add_argument("--polish", action="store_true", help="with --slots: classical saddle-point polish of the corners")
     s.add_argument("--no-consistency", action="store_true", help="with --slots: keep corners that fail the grid-consistency check")
+    s.add_argument("--squares-x", type=int, help="another checkerboard than the model's: squares along x (ids from geometry alone)")
+    s.add_argument("--squares-y", type=int, help="... and along its y axis")
+    s.add_argument("--square-size", type=float, help="side of a square, metres (written to the JSON's target)")
     s.set_defaults(func=cmd_detect)
 
     s = sub.add_parser("pipeline", help="the main job: train, export, evaluate, calibrate; writes a report folder")

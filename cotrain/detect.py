@@ -101,6 +101,7 @@ class Detector:
         polish: bool = False,
         mode: str = "grid",
         grid: GridConfig | None = None,
+        target: dict | None = None,
     ):
         import onnxruntime as ort
 
@@ -121,15 +122,26 @@ class Detector:
         self.path = path
         self.input_size = tuple(json.loads(meta["cotrain.input_size"]))  # (H, W)
         self.target = json.loads(meta.get("cotrain.target", "{}"))
+        trained = (int(self.target.get("squares_x", 10)), int(self.target.get("squares_y", 7)))
+        if target:
+            self.target = {**self.target, **target}
+        # Another checkerboard than the model was trained on: its class-agnostic corner and board
+        # maps still find the squares, but its column / row votes are for the other board, so the
+        # grid pass places the lattice from the geometry alone (colours, extent, margin).
+        self.board_votes = (int(self.target.get("squares_x", 10)), int(self.target.get("squares_y", 7))) == trained
         self.threshold = threshold
         self.consistency = consistency  # drop corners that sit in no consistent grid triple (see grid_consistent)
         self.polish = polish  # classical saddle-point polish of the final corners (see polish_corners)
         self.nx = int(self.target.get("squares_x", 10)) - 1
         self.ny = int(self.target.get("squares_y", 7)) - 1
+        if self.nx < 2 or self.ny < 2:
+            raise ValueError(f"target: a checkerboard needs at least 3 x 3 squares, not {self.nx + 1} x {self.ny + 1}")
         if mode not in ("grid", "slots"):
             raise ValueError(f"mode must be 'grid' or 'slots', not {mode!r}")
         if mode == "grid" and len(self.session.get_outputs()) < 8:
             mode = "slots"  # a model exported before the grid pass: no dense outputs
+        if mode == "slots" and not self.board_votes:
+            raise ValueError("slot mode reads the model's own corner ids: it needs the board the model was trained on")
         self.mode = mode
         self.grid = grid or GridConfig()
 
@@ -159,7 +171,11 @@ class Detector:
         corners, vis, conf = out[:3]
         det = self._postprocess(corners[0], vis[0], conf[0], s, w, h, consistency=self.consistency and self.mode == "slots")
         if self.mode == "grid":
-            g = grid_pass(grey, s, out[4][0, 0], out[5][0, 0], out[6][0], out[7][0], self.nx, self.ny, self.grid)
+            logp_col, logp_row = out[6][0], out[7][0]
+            if not self.board_votes:
+                logp_col = np.zeros((self.nx + 2, *logp_col.shape[1:]), np.float32)
+                logp_row = np.zeros((self.ny + 2, *logp_row.shape[1:]), np.float32)
+            g = grid_pass(grey, s, out[4][0, 0], out[5][0, 0], logp_col, logp_row, self.nx, self.ny, self.grid)
             det.ids, det.xy, det.confidence = g.ids, g.xy, g.confidence
             det.visibility = np.ones(len(g.ids))
         elif self.polish and len(det.ids):

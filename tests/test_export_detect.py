@@ -166,3 +166,25 @@ def test_polish_moves_noisy_corners_to_the_saddle():
     before, after = np.concatenate(before), np.concatenate(after)
     assert len(before) > 50
     assert np.median(after) < 0.2 < np.median(before)
+
+
+def test_detect_another_board(tmp_path, tiny_onnx, capsys):
+    """--squares-x / --squares-y name another checkerboard: the JSON's target says it, the
+    network's column / row votes are not used, slot mode (the model's own ids) is refused, and
+    half a board size or a bad square size is a one-line error."""
+    img = tmp_path / "a.png"
+    cv2.imwrite(str(img), np.full((120, 200), 128, np.uint8))
+    out = tmp_path / "d.json"
+    args = ["detect", "--model", str(tiny_onnx), str(img), "--out", str(out)]
+    assert cotrain_cli([*args, "--squares-x", "7", "--squares-y", "5", "--square-size", "0.03"]) == 0
+    assert json.loads(out.read_text())["target"].items() >= {"squares_x": 7, "squares_y": 5, "square_size": 0.03}.items()
+    det = Detector(tiny_onnx, target={"squares_x": 7, "squares_y": 5})
+    assert (det.nx, det.ny, det.board_votes) == (6, 4, False)
+    assert Detector(tiny_onnx).board_votes
+    capsys.readouterr()
+    assert cotrain_cli([*args, "--squares-x", "7"]) == 2
+    assert cotrain_cli([*args, "--squares-x", "7", "--squares-y", "5", "--slots"]) == 2
+    assert cotrain_cli([*args, "--squares-x", "2", "--squares-y", "5"]) == 2
+    assert cotrain_cli([*args, "--square-size", "-1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 4 and all(line.startswith("cotrain detect: error:") for line in err)

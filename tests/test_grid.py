@@ -11,6 +11,8 @@ from cotrain.grid import (
     GridConfig,
     Lattice,
     assign_ids,
+    board_symmetries,
+    canonical_ids,
     edge_evidence,
     fit_saddles,
     grid_pass,
@@ -271,3 +273,48 @@ def test_next_step_continues_a_perspective_line_and_an_arc():
     np.testing.assert_allclose(np.linalg.norm(next_step(np.array([10.0, 0]), np.array([40.0, 0]))), 80)
     w = next_step(np.array([10.0, 0]), np.array([0.0, 10]))
     assert np.degrees(np.arctan2(w[1], w[0])) == pytest.approx(120)
+
+
+def test_board_symmetries_of_known_boards():
+    """Turns that map a board onto itself, colours included: none for 10 x 7 squares, the half
+    turn for 7 x 5 and 6 x 6, all three turns for 5 x 5 (squares; inner corners are one less)."""
+    assert board_symmetries(9, 6) == ()
+    for nx, ny, n in ((6, 4, 1), (5, 5, 1), (4, 4, 3), (7, 5, 1)):
+        perms = board_symmetries(nx, ny)
+        assert len(perms) == n
+        ids = np.arange(nx * ny)
+        for perm in perms:
+            assert sorted(perm) == list(ids) and (perm != ids).any()
+            # Which diagonal of a corner is black ((i + j) mod 2 in board axes) is kept by the half
+            # turn and swapped by a quarter turn, which swaps the diagonals themselves.
+            half = np.array_equal(perm[perm], ids)
+            kept = (perm % nx + perm // nx) % 2 == (ids % nx + ids // nx) % 2
+            assert kept.all() if half else not kept.any()
+    half = board_symmetries(6, 4)[0]
+    np.testing.assert_array_equal(half[[0, 5, 18, 23]], [23, 18, 5, 0])
+
+
+@pytest.mark.parametrize("rot", [0, 1, 2, 3])
+def test_symmetric_board_is_placed_up_to_its_half_turn(rot):
+    """A whole 7 x 5 board (symmetric under a half turn) with uninformative votes: the half-turned
+    placement is the same view, not a competitor, so the margin is large; the reported ids are the
+    ones that put id 0 towards the image's top left."""
+    nx, ny = 6, 4
+    ids = np.arange(nx * ny)
+    ij = np.stack([ids % nx, ids // nx], 1)
+    ab = ij @ ROTATIONS[rot]
+    dark = {}
+    for i in range(nx - 1):
+        for j in range(ny - 1):
+            quad = np.array([[i, j], [i + 1, j], [i, j + 1], [i + 1, j + 1]]) @ ROTATIONS[rot]
+            dark[tuple(quad.min(0))] = 1.0 if (i + j) % 2 == 0 else -1.0
+    got, _, margin, _ = assign_ids(ab, np.zeros((len(ab), nx + 2)), np.zeros((len(ab), ny + 2)), dark, nx, ny, GridConfig())
+    assert margin > 10
+    assert np.array_equal(got, ids) or np.array_equal(got, board_symmetries(nx, ny)[0][ids])
+    xy = 40.0 * ab  # the lattice as the image shows it (a x b > 0, x right, y down)
+    canon = canonical_ids(got, xy, nx, ny)
+    assert np.array_equal(np.sort(canon), ids)
+    k0, k1 = int(np.nonzero(canon == 0)[0][0]), int(np.nonzero(canon == nx * ny - 1)[0][0])
+    assert xy[k0].sum() < xy[k1].sum()  # id 0 is the end of the board nearer the top left
+    # An asymmetric board keeps its ids.
+    np.testing.assert_array_equal(canonical_ids(np.array([0, 1, -1]), np.zeros((3, 2)), 9, 6), [0, 1, -1])
