@@ -13,6 +13,16 @@ REAL = Path(__file__).resolve().parents[2] / "shared" / "real" / "boofcv_fisheye
 pytestmark = pytest.mark.skipif(not REAL.is_dir(), reason="../shared/real is not beside the checkout")
 
 
+def _calibrate_ucm(seq: Path, tmp_path: Path) -> tuple[dict, dict]:
+    """``calib-eval calibrate`` of a one-camera sequence of the 5 x 7 board with the UCM model:
+    (report.json, camchain cam0)."""
+    target = tmp_path / "target.yaml"
+    target.write_text("squares_x: 5\nsquares_y: 7\nsquare_size: 1.0\nmargin: 0.0\n")
+    out = tmp_path / f"out_{seq.name}"
+    assert calib_cli(["calibrate", str(seq), "--fov", "190", "--model", "ucm", "--target", str(target), "--out", str(out)]) == 0
+    return json.loads((out / "report.json").read_text()), yaml.safe_load((out / "camchain.yaml").read_text())["cam0"]
+
+
 def test_calibrate_real_fisheye_against_boofcv(tmp_path):
     """OpenCV detections -> our sequence layout -> UCM calibration. BoofCV's own calibration of the
     same images (Mei model with radial distortion) puts the principal point at (319.18, 319.72)."""
@@ -20,13 +30,8 @@ def test_calibrate_real_fisheye_against_boofcv(tmp_path):
     assert calib_cli(["opencv-detect", str(REAL / "images"), "--squares-x", "5", "--squares-y", "7", "--out", str(seq)]) == 0
     det = json.loads((seq / "cam0" / "detections.json").read_text())
     assert sum(1 for e in det["images"] if len(e["corners"]) == 24) >= 24
-    target = tmp_path / "target.yaml"
-    target.write_text("squares_x: 5\nsquares_y: 7\nsquare_size: 1.0\nmargin: 0.0\n")
-    out = tmp_path / "out"
-    assert calib_cli(["calibrate", str(seq), "--fov", "190", "--model", "ucm", "--target", str(target), "--out", str(out)]) == 0
-    report = json.loads((out / "report.json").read_text())
+    report, cam = _calibrate_ucm(seq, tmp_path)
     assert report["success"] and report["rms_px"]["cam0"] < 0.5
-    cam = yaml.safe_load((out / "camchain.yaml").read_text())["cam0"]
     xi, fx, fy, cx, cy = cam["intrinsics"]
     assert cam["camera_model"] == "omni" and xi > 1.0  # over 180 degrees
     assert abs(cx - 319.18) < 2.0 and abs(cy - 319.72) < 2.0
@@ -64,11 +69,7 @@ def test_learned_detector_on_real_frames_of_another_board(tmp_path):
         d = np.array(d).reshape(-1, 2)
         d = d[:, np.argmin(np.median(d, 0))]  # OpenCV's order or its half turn
         assert np.median(d) < 0.3 and d.max() < 3.0, e["path"]
-    target = tmp_path / "target.yaml"
-    target.write_text("squares_x: 5\nsquares_y: 7\nsquare_size: 1.0\nmargin: 0.0\n")
-    out = tmp_path / "out"
-    assert calib_cli(["calibrate", str(seq), "--fov", "190", "--model", "ucm", "--target", str(target), "--out", str(out)]) == 0
-    report = json.loads((out / "report.json").read_text())
+    report, cam = _calibrate_ucm(seq, tmp_path)
     assert report["success"] and report["rms_px"]["cam0"] < 0.35
-    cx, cy = yaml.safe_load((out / "camchain.yaml").read_text())["cam0"]["intrinsics"][3:5]
+    cx, cy = cam["intrinsics"][3:5]
     assert abs(cx - 319.18) < 2.0 and abs(cy - 319.72) < 2.0
