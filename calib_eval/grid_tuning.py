@@ -1,6 +1,6 @@
 """Recall and wrong ids of the grid pass against its identity-margin threshold.
 
-    python -m calib_eval.grid_tuning [--model M.onnx] [--seed 7] [--set DIR]
+    python -m calib_eval.grid_tuning [--model M.onnx] [--seed 7] [--set DIR] [--degrade jpeg|blur]
 
 Renders (or reuses) a detection set with its own seed (the evaluation uses 2026: tune on another
 one), runs the network once per image, runs the grid pass with no margin threshold, and prints,
@@ -20,9 +20,27 @@ import numpy as np
 from calib_eval.detection_eval import BENCH_VERSION, EvalConfig, render_benchmark
 
 THRESHOLDS = (6, 8, 10, 12, 15, 18, 20, 22, 25, 30)
+DEGRADATIONS = ("none", "jpeg", "blur")
 
 
-def margin_table(model: str | None, set_dir: Path, seed: int, progress: bool = True) -> dict:
+def degrade(grey: np.ndarray, how: str, seed: int = 0) -> np.ndarray:
+    """A rendered frame as another camera or renderer might give it: ``jpeg``: gamma 0.8 and JPEG
+    quality 70; ``blur``: Gaussian blur of sigma 1.5 px and noise of 4 / 255; ``none``: as is."""
+    import cv2
+
+    if how == "none":
+        return grey
+    if how == "jpeg":
+        g8 = np.clip(255 * np.clip(grey, 0, 1) ** 0.8, 0, 255).astype(np.uint8)
+        ok, buf = cv2.imencode(".jpg", g8, [cv2.IMWRITE_JPEG_QUALITY, 70])
+        return cv2.imdecode(buf, cv2.IMREAD_UNCHANGED).astype(np.float32) / 255
+    if how == "blur":
+        noise = np.random.default_rng(seed).normal(0, 4 / 255, grey.shape)
+        return np.clip(cv2.GaussianBlur(grey, (0, 0), 1.5) + noise, 0, 1).astype(np.float32)
+    raise ValueError(f"degradation must be one of {DEGRADATIONS}, not {how!r}")
+
+
+def margin_table(model: str | None, set_dir: Path, seed: int, progress: bool = True, how: str = "none") -> dict:
     from tqdm import tqdm
 
     from cotrain.detect import Detector, load_image
@@ -36,8 +54,8 @@ def margin_table(model: str | None, set_dir: Path, seed: int, progress: bool = T
     det = Detector(model)
     gcfg = dataclasses.replace(det.grid, min_margin=-np.inf)
     rows, total = [], 0
-    for lab in tqdm(meta["labels"], desc="grid pass", disable=not progress):
-        grey = load_image(set_dir / "images" / lab["image"])
+    for n, lab in enumerate(tqdm(meta["labels"], desc="grid pass", disable=not progress)):
+        grey = degrade(load_image(set_dir / "images" / lab["image"]), how, seed=n)
         x, s = det.preprocess(grey)
         out = det.run(x[None, None])
         r = grid_pass(grey, s, out[4][0, 0], out[5][0, 0], out[6][0], out[7][0], det.nx, det.ny, gcfg)
@@ -64,7 +82,7 @@ def margin_table(model: str | None, set_dir: Path, seed: int, progress: bool = T
             }
         )
     wrong_margins = sorted(float(m) for m, n, w, _, _ in rows if n > 0 and w > 0.5 * n)
-    return {"seed": seed, "table": table, "wrong_placement_margins": wrong_margins}
+    return {"seed": seed, "degradation": how, "table": table, "wrong_placement_margins": wrong_margins}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -72,9 +90,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--model", help="ONNX model (default: the shipped model)")
     ap.add_argument("--seed", type=int, default=7, help="set seed (the evaluation's is 2026)")
     ap.add_argument("--set", default="report/grid_tuning", help="folder of the rendered set (reused when it matches)")
+    ap.add_argument("--degrade", choices=DEGRADATIONS, default="none", help="degrade the frames first (see degrade())")
     args = ap.parse_args(argv)
-    res = margin_table(args.model, Path(args.set), args.seed)
-    print(f"grid pass on the seed-{args.seed} set: margin threshold -> recall, wrong among reported")
+    res = margin_table(args.model, Path(args.set), args.seed, how=args.degrade)
+    extra = "" if args.degrade == "none" else f", degraded ({args.degrade})"
+    print(f"grid pass on the seed-{args.seed} set{extra}: margin threshold -> recall, wrong among reported")
     for r in res["table"]:
         pct = 100 * r["wrong"] / max(1, r["reported"])
         print(
@@ -82,7 +102,7 @@ def main(argv: list[str] | None = None) -> int:
             f"images without target with reports {r['false_images']}"
         )
     print("margins of wrong placements:", " ".join(f"{m:.1f}" for m in res["wrong_placement_margins"]))
-    (Path(args.set) / "margins.json").write_text(json.dumps(res, indent=1))
+    (Path(args.set) / ("margins.json" if args.degrade == "none" else f"margins_{args.degrade}.json")).write_text(json.dumps(res, indent=1))
     return 0
 
 
