@@ -151,6 +151,8 @@ def cmd_opencv_detect(a: argparse.Namespace) -> int:
     tgt = TargetConfig(squares_x=a.squares_x, squares_y=a.squares_y, square_size=a.square_size, margin=0.0)
     if a.model and not a.learned:
         raise ValueError("--model goes with --learned")
+    if a.sb and a.learned:
+        raise ValueError("--sb chooses an OpenCV detector; it does not go with --learned")
     seq = folder_to_sequence(Path(a.images), Path(a.out), tgt, sb=a.sb, learned=a.learned, model=a.model)
     print(
         f"wrote {seq}/cam0 (images, timestamps.csv, detections.json); calibrate it with "

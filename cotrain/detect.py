@@ -90,7 +90,11 @@ class Detection:
 
 
 class Detector:
-    """onnxruntime inference on the CPU, pre- and post-processing as the model's metadata says."""
+    """onnxruntime inference on the CPU, pre- and post-processing as the model's metadata says.
+
+    ``target`` ({"squares_x", "squares_y", "square_size"}, any of them) names another checkerboard
+    than the model's: the grid pass then places the lattice from geometry alone (docs/detector.md).
+    """
 
     def __init__(
         self,

@@ -18,7 +18,10 @@ This pass turns them into identities the way a person would (docs/detector.md ha
    integer offset; every placement is scored by the network's column / row log-probabilities at
    the corners, the checker colour of every lattice cell (square (i, j) of corners is black when
    i + j is even) and the board's white margin where the lattice stops, and the best one wins if
-   it beats the runner-up by a margin.
+   it beats the runner-up by a margin (a board that looks the same turned, like 7 x 5 squares, is
+   identified up to that turn: corner 0 goes nearest the image's top left);
+4. positions: the reported corners are fitted once more in a small window (at most 3 px
+   half-size), close to the junction, where bent edges and the blooming of real prints pull least.
 
 So one identity decision is made per board from all its corners, and a corner only gets an id if
 it is connected to the board's lattice. Pure functions over numpy arrays; pixels follow
