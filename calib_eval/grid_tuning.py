@@ -15,6 +15,7 @@ import dataclasses
 import json
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from calib_eval.detection_eval import BENCH_VERSION, EvalConfig, render_benchmark
@@ -26,8 +27,6 @@ DEGRADATIONS = ("none", "jpeg", "blur")
 def degrade(grey: np.ndarray, how: str, seed: int = 0) -> np.ndarray:
     """A rendered frame as another camera or renderer might give it: ``jpeg``: gamma 0.8 and JPEG
     quality 70; ``blur``: Gaussian blur of sigma 1.5 px and noise of 4 / 255; ``none``: as is."""
-    import cv2
-
     if how == "none":
         return grey
     if how == "jpeg":

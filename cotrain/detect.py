@@ -125,19 +125,17 @@ class Detector:
             raise ValueError(f"{path}: not a cotrain model (no cotrain.input_size metadata)")
         self.path = path
         self.input_size = tuple(json.loads(meta["cotrain.input_size"]))  # (H, W)
-        self.target = json.loads(meta.get("cotrain.target", "{}"))
-        trained = (int(self.target.get("squares_x", 10)), int(self.target.get("squares_y", 7)))
-        if target:
-            self.target = {**self.target, **target}
-        # Another checkerboard than the model was trained on: its class-agnostic corner and board
-        # maps still find the squares, but its column / row votes are for the other board, so the
-        # grid pass places the lattice from the geometry alone (colours, extent, margin).
-        self.board_votes = (int(self.target.get("squares_x", 10)), int(self.target.get("squares_y", 7))) == trained
+        trained = json.loads(meta.get("cotrain.target", "{}"))
+        self.target = {**trained, **(target or {})}
         self.threshold = threshold
         self.consistency = consistency  # drop corners that sit in no consistent grid triple (see grid_consistent)
         self.polish = polish  # classical saddle-point polish of the final corners (see polish_corners)
         self.nx = int(self.target.get("squares_x", 10)) - 1
         self.ny = int(self.target.get("squares_y", 7)) - 1
+        # Another checkerboard than the model was trained on: its class-agnostic corner and board
+        # maps still find the squares, but its column / row votes are for the other board, so the
+        # grid pass places the lattice from the geometry alone (colours, extent, margin).
+        self.board_votes = (self.nx + 1, self.ny + 1) == (int(trained.get("squares_x", 10)), int(trained.get("squares_y", 7)))
         if self.nx < 2 or self.ny < 2:
             raise ValueError(f"target: a checkerboard needs at least 3 x 3 squares, not {self.nx + 1} x {self.ny + 1}")
         if mode not in ("grid", "slots"):
