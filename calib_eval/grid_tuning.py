@@ -1,11 +1,13 @@
 """Recall and wrong ids of the grid pass against its identity-margin threshold.
 
     python -m calib_eval.grid_tuning [--model M.onnx] [--seed 7] [--set DIR] [--degrade jpeg|blur]
+                                     [--grid KEY=VALUE ...]
 
 Renders (or reuses) a detection set with its own seed (the evaluation uses 2026: tune on another
 one), runs the network once per image, runs the grid pass with no margin threshold, and prints,
 per threshold, the recall of detectable corners and the share of reported corners that are wrong
-(wrong id or over 3 px off), plus the margins of the placements that were wrong.
+(wrong id or over 3 px off), plus the margins of the placements that were wrong. ``--grid`` overrides fields of the grid
+pass's ``GridConfig`` (``--grid offboard_penalty=20``) to try a change before making it.
 """
 
 from __future__ import annotations
@@ -39,7 +41,24 @@ def degrade(grey: np.ndarray, how: str, seed: int = 0) -> np.ndarray:
     raise ValueError(f"degradation must be one of {DEGRADATIONS}, not {how!r}")
 
 
-def margin_table(model: str | None, set_dir: Path, seed: int, progress: bool = True, how: str = "none") -> dict:
+def grid_overrides(pairs: list[str]) -> dict[str, float | int]:
+    """``["key=value", ...]`` -> GridConfig field overrides; unknown keys and non-numbers are errors."""
+    from cotrain.grid import GridConfig
+
+    fields = {f.name: type(f.default) for f in dataclasses.fields(GridConfig)}
+    out = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or key not in fields:
+            raise ValueError(f"--grid wants KEY=VALUE with KEY one of {sorted(fields)}, not {pair!r}")
+        try:
+            out[key] = fields[key](value)
+        except ValueError:
+            raise ValueError(f"--grid {key}: {value!r} is not a number") from None
+    return out
+
+
+def margin_table(model: str | None, set_dir: Path, seed: int, progress: bool = True, how: str = "none", grid: dict | None = None) -> dict:
     from tqdm import tqdm
 
     from cotrain.detect import Detector, load_image
@@ -51,7 +70,7 @@ def margin_table(model: str | None, set_dir: Path, seed: int, progress: bool = T
     if meta is None or meta.get("version") != BENCH_VERSION or meta.get("config") != cfg.__dict__:
         meta = render_benchmark(cfg, set_dir, progress)
     det = Detector(model)
-    gcfg = dataclasses.replace(det.grid, min_margin=-np.inf)
+    gcfg = dataclasses.replace(det.grid, **(grid or {}), min_margin=-np.inf)
     rows, total = [], 0
     for n, lab in enumerate(tqdm(meta["labels"], desc="grid pass", disable=not progress)):
         grey = degrade(load_image(set_dir / "images" / lab["image"]), how, seed=n)
@@ -81,7 +100,7 @@ def margin_table(model: str | None, set_dir: Path, seed: int, progress: bool = T
             }
         )
     wrong_margins = sorted(float(m) for m, n, w, _, _ in rows if n > 0 and w > 0.5 * n)
-    return {"seed": seed, "degradation": how, "table": table, "wrong_placement_margins": wrong_margins}
+    return {"seed": seed, "degradation": how, "grid": grid or {}, "table": table, "wrong_placement_margins": wrong_margins}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -90,9 +109,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=7, help="set seed (the evaluation's is 2026)")
     ap.add_argument("--set", default="report/grid_tuning", help="folder of the rendered set (reused when it matches)")
     ap.add_argument("--degrade", choices=DEGRADATIONS, default="none", help="degrade the frames first (see degrade())")
+    ap.add_argument("--grid", action="append", default=[], metavar="KEY=VALUE", help="override a GridConfig field")
     args = ap.parse_args(argv)
-    res = margin_table(args.model, Path(args.set), args.seed, how=args.degrade)
+    try:
+        grid = grid_overrides(args.grid)
+    except ValueError as e:
+        ap.error(str(e))
+    res = margin_table(args.model, Path(args.set), args.seed, how=args.degrade, grid=grid)
     extra = "" if args.degrade == "none" else f", degraded ({args.degrade})"
+    extra += "".join(f", {k}={v:g}" for k, v in grid.items())
     print(f"grid pass on the seed-{args.seed} set{extra}: margin threshold -> recall, wrong among reported")
     for r in res["table"]:
         pct = 100 * r["wrong"] / max(1, r["reported"])

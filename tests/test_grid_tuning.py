@@ -26,3 +26,17 @@ def test_degradations_keep_the_frame_and_change_it_as_stated():
     np.testing.assert_array_equal(blur, degrade(img, "blur", seed=3))
     with pytest.raises(ValueError, match="degradation"):
         degrade(img, "fog")
+
+
+def test_grid_overrides_take_the_fields_type_and_refuse_unknown_keys():
+    from calib_eval.grid_tuning import grid_overrides
+
+    got = grid_overrides(["offboard_penalty=15", "max_seeds=20"])
+    assert got == {"offboard_penalty": 15.0, "max_seeds": 20}
+    assert isinstance(got["max_seeds"], int) and isinstance(got["offboard_penalty"], float)
+    with pytest.raises(ValueError, match="KEY=VALUE"):
+        grid_overrides(["no_such_field=1"])
+    with pytest.raises(ValueError, match="KEY=VALUE"):
+        grid_overrides(["offboard_penalty"])
+    with pytest.raises(ValueError, match="not a number"):
+        grid_overrides(["offboard_penalty=high"])

@@ -1,0 +1,24 @@
+"""`calib-eval detection` on frames of another size than 1280x720 (another rig)."""
+
+import json
+
+import cv2
+
+from calib_eval.cli import run as calib_cli
+
+
+def test_detection_eval_renders_and_scores_another_image_size(tmp_path, capsys):
+    out = tmp_path / "det"
+    args = ["detection", "--size", "480x400", "--seed", "5", "--fov", "200", "--per-fov", "2", "--empty", "1"]
+    assert calib_cli([*args, "--detectors", "learned", "--out", str(out)]) == 0
+    labels = json.loads((out / "labels.json").read_text())
+    assert labels["config"]["width"] == 480 and labels["config"]["height"] == 400 and labels["config"]["seed"] == 5
+    for lab in labels["labels"]:
+        assert cv2.imread(str(out / "images" / lab["image"]), cv2.IMREAD_UNCHANGED).shape == (400, 480)
+    assert "| 200 | learned |" in (out / "results.md").read_text()
+
+
+def test_detection_eval_refuses_a_bad_size(tmp_path, capsys):
+    assert calib_cli(["detection", "--size", "480by400", "--out", str(tmp_path / "d")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--size" in err[0]
