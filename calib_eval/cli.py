@@ -109,16 +109,14 @@ def cmd_calibrate(a: argparse.Namespace) -> int:
 
 
 def cmd_detection(a: argparse.Namespace) -> int:
-    from calib_eval.detection_eval import EvalConfig, evaluate_detection
+    from calib_eval.detection_eval import EvalConfig, evaluate_detection, parse_size
 
     if a.per_fov < 1:
         raise ValueError("--per-fov must be at least 1")
     if a.model and not Path(a.model).is_file():
         raise FileNotFoundError(f"{a.model}: model not found")
-    w, sep, h = a.size.lower().partition("x")
-    if not (sep and w.isdigit() and h.isdigit() and int(w) >= 64 and int(h) >= 64):
-        raise ValueError(f"--size wants WIDTHxHEIGHT (at least 64x64), not {a.size!r}")
-    cfg = EvalConfig(fovs=a.fov, per_fov=a.per_fov, n_empty=a.empty, seed=a.seed, width=int(w), height=int(h))
+    w, h = parse_size(a.size)
+    cfg = EvalConfig(fovs=a.fov, per_fov=a.per_fov, n_empty=a.empty, seed=a.seed, width=w, height=h)
     evaluate_detection(a.model, cfg, Path(a.out), detectors=a.detectors)
     return 0
 

@@ -52,6 +52,14 @@ class EvalConfig:
     height: int = 720
 
 
+def parse_size(text: str) -> tuple[int, int]:
+    """``"1280x720"`` -> (1280, 720); a clear ValueError otherwise."""
+    w, sep, h = text.lower().partition("x")
+    if not (sep and w.isdigit() and h.isdigit() and int(w) >= 64 and int(h) >= 64):
+        raise ValueError(f"--size wants WIDTHxHEIGHT (at least 64x64), not {text!r}")
+    return int(w), int(h)
+
+
 def _render_cfg(fov: float, cfg: EvalConfig, models: list[str], no_target: bool = False):
     from cotrain.renderer import RenderConfig
 

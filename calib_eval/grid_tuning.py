@@ -1,7 +1,7 @@
 """Recall and wrong ids of the grid pass against its identity-margin threshold.
 
     python -m calib_eval.grid_tuning [--model M.onnx] [--seed 7] [--set DIR] [--degrade jpeg|blur]
-                                     [--grid KEY=VALUE ...]
+                                     [--size 1280x720] [--grid KEY=VALUE ...]
 
 Renders (or reuses) a detection set with its own seed (the evaluation uses 2026: tune on another
 one), runs the network once per image, runs the grid pass with no margin threshold, and prints,
@@ -20,7 +20,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from calib_eval.detection_eval import BENCH_VERSION, EvalConfig, render_benchmark
+from calib_eval.detection_eval import BENCH_VERSION, EvalConfig, parse_size, render_benchmark
 
 THRESHOLDS = (6, 8, 10, 12, 15, 18, 20, 22, 25, 30)
 DEGRADATIONS = ("none", "jpeg", "blur")
@@ -58,13 +58,21 @@ def grid_overrides(pairs: list[str]) -> dict[str, float | int]:
     return out
 
 
-def margin_table(model: str | None, set_dir: Path, seed: int, progress: bool = True, how: str = "none", grid: dict | None = None) -> dict:
+def margin_table(
+    model: str | None,
+    set_dir: Path,
+    seed: int,
+    progress: bool = True,
+    how: str = "none",
+    grid: dict | None = None,
+    size: tuple[int, int] = (1280, 720),
+) -> dict:
     from tqdm import tqdm
 
     from cotrain.detect import Detector, load_image
     from cotrain.grid import grid_pass
 
-    cfg = EvalConfig(seed=seed)
+    cfg = EvalConfig(seed=seed, width=size[0], height=size[1])
     meta_path = set_dir / "labels.json"
     meta = json.loads(meta_path.read_text()) if meta_path.is_file() else None
     if meta is None or meta.get("version") != BENCH_VERSION or meta.get("config") != cfg.__dict__:
@@ -109,15 +117,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=7, help="set seed (the evaluation's is 2026)")
     ap.add_argument("--set", default="report/grid_tuning", help="folder of the rendered set (reused when it matches)")
     ap.add_argument("--degrade", choices=DEGRADATIONS, default="none", help="degrade the frames first (see degrade())")
+    ap.add_argument("--size", default="1280x720", help="image size WIDTHxHEIGHT of the rendered set")
     ap.add_argument("--grid", action="append", default=[], metavar="KEY=VALUE", help="override a GridConfig field")
     args = ap.parse_args(argv)
     try:
         grid = grid_overrides(args.grid)
+        size = parse_size(args.size)
     except ValueError as e:
         ap.error(str(e))
-    res = margin_table(args.model, Path(args.set), args.seed, how=args.degrade, grid=grid)
+    res = margin_table(args.model, Path(args.set), args.seed, how=args.degrade, grid=grid, size=size)
     extra = "" if args.degrade == "none" else f", degraded ({args.degrade})"
-    extra += "".join(f", {k}={v:g}" for k, v in grid.items())
+    extra += "".join(f", {k}={v:g}" for k, v in grid.items()) + ("" if size == (1280, 720) else f", {args.size}")
     print(f"grid pass on the seed-{args.seed} set{extra}: margin threshold -> recall, wrong among reported")
     for r in res["table"]:
         pct = 100 * r["wrong"] / max(1, r["reported"])
