@@ -1,6 +1,6 @@
-"""Per-FoV detection evaluation: ``calib-eval detection [--model M.onnx] [--fov ...] [--per-fov N] [--out DIR]``.
+"""Per-FoV detection evaluation: ``calib-eval detection [--model M.onnx] [--fov ...] [--per-fov N] [--seed N] [--size WxH] [--out DIR]``.
 
-1. Render a fixed, versioned benchmark set (seeded) of 1280x720 images per FoV: half with the
+1. Render a fixed, versioned benchmark set (seeded; 1280x720 unless ``--size``) per FoV: half with the
    paper's f-theta model, half with the other families (ucm, eucm, ds), plus images without a target.
 2. Run the learned detector and the geometry-based detectors (OpenCV ``findChessboardCornersSB``
    and ``findChessboardCorners`` + ``cornerSubPix``) on the same images; save their predictions.
@@ -47,7 +47,7 @@ class EvalConfig:
     per_fov: int = 50  # images per FoV
     n_empty: int = 20  # images without a target
     seed: int = 2026  # benchmark seed (with BENCH_VERSION: the set)
-    min_square_px: float = 10.0  # detectable: local square at least this many pixels at 1280x720
+    min_square_px: float = 10.0  # detectable: local square at least this many pixels in the rendered frame
     width: int = 1280
     height: int = 720
 

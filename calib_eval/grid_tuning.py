@@ -6,8 +6,9 @@
 Renders (or reuses) a detection set with its own seed (the evaluation uses 2026: tune on another
 one), runs the network once per image, runs the grid pass with no margin threshold, and prints,
 per threshold, the recall of detectable corners and the share of reported corners that are wrong
-(wrong id or over 3 px off), plus the margins of the placements that were wrong. ``--grid`` overrides fields of the grid
-pass's ``GridConfig`` (``--grid offboard_penalty=20``) to try a change before making it.
+(wrong id or over 3 px off), plus the margins of the placements that were wrong. ``--grid``
+overrides fields of the grid pass's ``GridConfig`` (``--grid offboard_penalty=20``) to try a
+change before making it; ``--size`` renders frames of another size (another rig).
 """
 
 from __future__ import annotations
@@ -42,10 +43,11 @@ def degrade(grey: np.ndarray, how: str, seed: int = 0) -> np.ndarray:
 
 
 def grid_overrides(pairs: list[str]) -> dict[str, float | int]:
-    """``["key=value", ...]`` -> GridConfig field overrides; unknown keys and non-numbers are errors."""
+    """``["key=value", ...]`` -> GridConfig field overrides, each of its field's type. Unknown keys,
+    ``min_margin`` (the table sweeps it) and values of the wrong type are errors."""
     from cotrain.grid import GridConfig
 
-    fields = {f.name: type(f.default) for f in dataclasses.fields(GridConfig)}
+    fields = {f.name: type(f.default) for f in dataclasses.fields(GridConfig) if f.name != "min_margin"}
     out = {}
     for pair in pairs:
         key, sep, value = pair.partition("=")
@@ -54,7 +56,7 @@ def grid_overrides(pairs: list[str]) -> dict[str, float | int]:
         try:
             out[key] = fields[key](value)
         except ValueError:
-            raise ValueError(f"--grid {key}: {value!r} is not a number") from None
+            raise ValueError(f"--grid {key}: {value!r} is not a valid {fields[key].__name__}") from None
     return out
 
 

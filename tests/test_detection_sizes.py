@@ -7,7 +7,7 @@ import cv2
 from calib_eval.cli import run as calib_cli
 
 
-def test_detection_eval_renders_and_scores_another_image_size(tmp_path, capsys):
+def test_detection_eval_renders_and_scores_another_image_size(tmp_path):
     out = tmp_path / "det"
     args = ["detection", "--size", "480x400", "--seed", "5", "--fov", "200", "--per-fov", "2", "--empty", "1"]
     assert calib_cli([*args, "--detectors", "learned", "--out", str(out)]) == 0

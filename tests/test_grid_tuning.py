@@ -38,5 +38,9 @@ def test_grid_overrides_take_the_fields_type_and_refuse_unknown_keys():
         grid_overrides(["no_such_field=1"])
     with pytest.raises(ValueError, match="KEY=VALUE"):
         grid_overrides(["offboard_penalty"])
-    with pytest.raises(ValueError, match="not a number"):
+    with pytest.raises(ValueError, match="not a valid float"):
         grid_overrides(["offboard_penalty=high"])
+    with pytest.raises(ValueError, match="not a valid int"):
+        grid_overrides(["max_seeds=2.5"])
+    with pytest.raises(ValueError, match="KEY=VALUE"):
+        grid_overrides(["min_margin=10"])  # the table sweeps it
