@@ -329,20 +329,24 @@ def _plots(results: dict[str, dict], fovs: list[int], out: Path) -> list[Path]:
     return paths
 
 
+def load_or_render(cfg: EvalConfig, out: Path, progress: bool = True) -> dict:
+    """The set's labels from ``out/labels.json`` when they were rendered with this version and
+    config; otherwise the set is rendered again and predictions saved for another set are removed."""
+    out.mkdir(parents=True, exist_ok=True)
+    labels_path = out / "labels.json"
+    if labels_path.is_file():
+        meta = json.loads(labels_path.read_text())
+        if meta.get("version") == BENCH_VERSION and meta.get("config") == cfg.__dict__:
+            return meta
+    for stale in out.glob("predictions_*.json"):
+        stale.unlink()  # from another set
+    return render_benchmark(cfg, out, progress)
+
+
 def evaluate_detection(model: str | None, cfg: EvalConfig, out: Path, progress: bool = True, detectors: list[str] | None = None) -> dict:
     """The whole evaluation; writes results.md, results.json and the plots into ``out``."""
     t0 = time.time()
-    out.mkdir(parents=True, exist_ok=True)
-    labels_path = out / "labels.json"
-    meta = None
-    if labels_path.is_file():
-        meta = json.loads(labels_path.read_text())
-        if meta.get("version") != BENCH_VERSION or meta.get("config") != cfg.__dict__:
-            meta = None
-    if meta is None:
-        for stale in out.glob("predictions_*.json"):
-            stale.unlink()  # from another set
-        meta = render_benchmark(cfg, out, progress)
+    meta = load_or_render(cfg, out, progress)
     images = [out / "images" / lab["image"] for lab in meta["labels"]]
     detectors = detectors or DEFAULT_DETECTORS
     # Detectors not run this time keep their saved predictions on this set in the table.

@@ -21,7 +21,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from calib_eval.detection_eval import BENCH_VERSION, EvalConfig, parse_size, render_benchmark
+from calib_eval.detection_eval import EvalConfig, load_or_render, parse_size, score_image
 
 THRESHOLDS = (6, 8, 10, 12, 15, 18, 20, 22, 25, 30)
 DEGRADATIONS = ("none", "jpeg", "blur")
@@ -74,11 +74,7 @@ def margin_table(
     from cotrain.detect import Detector, load_image
     from cotrain.grid import grid_pass
 
-    cfg = EvalConfig(seed=seed, width=size[0], height=size[1])
-    meta_path = set_dir / "labels.json"
-    meta = json.loads(meta_path.read_text()) if meta_path.is_file() else None
-    if meta is None or meta.get("version") != BENCH_VERSION or meta.get("config") != cfg.__dict__:
-        meta = render_benchmark(cfg, set_dir, progress)
+    meta = load_or_render(EvalConfig(seed=seed, width=size[0], height=size[1]), set_dir, progress)
     det = Detector(model)
     gcfg = dataclasses.replace(det.grid, **(grid or {}), min_margin=-np.inf)
     rows, total = [], 0
@@ -90,11 +86,10 @@ def margin_table(
         if not lab["has_target"]:
             rows.append((r.margin, len(r.ids), len(r.ids), 0, 1))
             continue
-        q, vis, dt = np.array(lab["corners"]), np.array(lab["visible"]), np.array(lab["detectable"])
-        total += int(dt.sum())
-        good = np.array([bool(vis[i]) and np.linalg.norm(q[i] - p) < 3 for i, p in zip(r.ids, r.xy)], bool)
-        hit = int(sum(good[n] and dt[i] for n, i in enumerate(r.ids)))
-        rows.append((r.margin, len(r.ids), int((~good).sum()), hit, 0))
+        pred = [[int(i), float(x), float(y)] for i, (x, y) in zip(r.ids, r.xy)]
+        sc = score_image(pred, True, np.array(lab["corners"]), np.array(lab["visible"]), np.array(lab["detectable"]))
+        total += sc["n_detectable"]
+        rows.append((r.margin, len(r.ids), sc["n_outliers"], len(sc["hits"]), 0))
     a = np.array(rows, float)
     found = ~np.isnan(a[:, 0])
     table = []

@@ -22,3 +22,18 @@ def test_detection_eval_refuses_a_bad_size(tmp_path, capsys):
     assert calib_cli(["detection", "--size", "480by400", "--out", str(tmp_path / "d")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--size" in err[0]
+
+
+def test_a_set_is_reused_for_its_config_and_rendered_again_for_another(tmp_path):
+    from calib_eval.detection_eval import EvalConfig, load_or_render
+
+    cfg = EvalConfig(fovs=[200], per_fov=1, n_empty=0, seed=3, width=160, height=120)
+    meta = load_or_render(cfg, tmp_path, progress=False)
+    img = tmp_path / "images" / meta["labels"][0]["image"]
+    (tmp_path / "predictions_learned.json").write_text("{}")
+    stamp = img.stat().st_mtime_ns
+    assert load_or_render(cfg, tmp_path, progress=False) == meta  # same config: reused as is
+    assert img.stat().st_mtime_ns == stamp and (tmp_path / "predictions_learned.json").is_file()
+    other = load_or_render(EvalConfig(fovs=[200], per_fov=1, n_empty=0, seed=4, width=160, height=120), tmp_path, progress=False)
+    assert other["config"]["seed"] == 4
+    assert not (tmp_path / "predictions_learned.json").exists()  # predictions of the old set are gone
