@@ -23,7 +23,7 @@ run: $(STAMP)
 	$(BIN)/python -m cotrain.main_job
 
 bench: $(STAMP)
-	$(BIN)/python -m cotrain.bench_all
+	$(BIN)/python -m calib_eval.benchmark.timing
 
 lint: $(STAMP)
 	$(BIN)/ruff check . && $(BIN)/ruff format --check .

@@ -8,7 +8,7 @@ import sys
 import time
 from pathlib import Path
 
-from calib_eval.detection_eval import DEFAULT_DETECTORS, DETECTORS
+from calib_eval.detection.evaluation import DEFAULT_DETECTORS, DETECTORS
 from cotrain.config import build, load_yaml
 from cotrain.targets import TargetConfig
 
@@ -21,8 +21,8 @@ def _target(path: str | None) -> TargetConfig:
 
 
 def cmd_synth(a: argparse.Namespace) -> int:
-    from calib_eval.sequence import write_sequence
-    from calib_eval.synth import SynthSpec, make_sequence, paper_config
+    from calib_eval.benchmark.rigs import SynthSpec, make_sequence, paper_config
+    from cotrain.io.sequence import write_sequence
 
     rig = paper_config(a.config)
     rig.model = a.model
@@ -43,7 +43,7 @@ def cmd_synth(a: argparse.Namespace) -> int:
 
 
 def _selector_cfg(a: argparse.Namespace):
-    from calib_eval.selector import SelectorConfig
+    from calib_eval.calibration.selector import SelectorConfig
 
     return SelectorConfig(
         fov=a.fov,
@@ -58,8 +58,8 @@ def _selector_cfg(a: argparse.Namespace):
 
 
 def cmd_select(a: argparse.Namespace) -> int:
-    from calib_eval.selector import select
-    from calib_eval.sequence import load_sequence
+    from calib_eval.calibration.selector import select
+    from cotrain.io.sequence import load_sequence
 
     seq = load_sequence(a.seq, a.tolerance_ms)
     sel = select(seq, _selector_cfg(a))
@@ -84,10 +84,10 @@ def cmd_select(a: argparse.Namespace) -> int:
 
 
 def cmd_calibrate(a: argparse.Namespace) -> int:
-    from calib_eval.calibrator import CalibConfig, calibrate
-    from calib_eval.outputs import write_outputs
-    from calib_eval.selector import select
-    from calib_eval.sequence import load_sequence
+    from calib_eval.calibration.calibrator import CalibConfig, calibrate
+    from calib_eval.calibration.camchain import write_outputs
+    from calib_eval.calibration.selector import select
+    from cotrain.io.sequence import load_sequence
 
     t0 = time.time()
     seq = load_sequence(a.seq, a.tolerance_ms)
@@ -109,7 +109,7 @@ def cmd_calibrate(a: argparse.Namespace) -> int:
 
 
 def cmd_detection(a: argparse.Namespace) -> int:
-    from calib_eval.detection_eval import EvalConfig, evaluate_detection, parse_size
+    from calib_eval.detection.evaluation import EvalConfig, evaluate_detection, parse_size
 
     if a.per_fov < 1:
         raise ValueError("--per-fov must be at least 1")
@@ -122,7 +122,7 @@ def cmd_detection(a: argparse.Namespace) -> int:
 
 
 def cmd_benchmark(a: argparse.Namespace) -> int:
-    from calib_eval.benchmark import ALL_CONFIGS, merge, run_benchmark
+    from calib_eval.benchmark.benchmark import ALL_CONFIGS, merge, run_benchmark
 
     configs = ALL_CONFIGS if a.configs == ["all"] else a.configs
     if a.trials < 1:
@@ -135,7 +135,7 @@ def cmd_benchmark(a: argparse.Namespace) -> int:
 
 
 def cmd_analysis(a: argparse.Namespace) -> int:
-    from calib_eval.analysis import run_analysis
+    from calib_eval.benchmark.analysis import run_analysis
 
     bdir = Path(a.benchmark) if a.benchmark else None
     if bdir is not None and not (bdir / "trials.json").is_file():
@@ -145,7 +145,7 @@ def cmd_analysis(a: argparse.Namespace) -> int:
 
 
 def cmd_opencv_detect(a: argparse.Namespace) -> int:
-    from calib_eval.opencv_detect import folder_to_sequence
+    from calib_eval.detection.opencv_baseline import folder_to_sequence
 
     if not Path(a.images).is_dir():
         raise NotADirectoryError(f"{a.images}: not a folder of images")

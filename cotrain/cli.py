@@ -10,7 +10,7 @@ from cotrain.config import ConfigError, build, load_yaml, parse_overrides, set_d
 
 
 def _render_config(path: str | None, overrides: list[str]):
-    from cotrain.renderer import RenderConfig
+    from cotrain.render.renderer import RenderConfig
 
     data = load_yaml(path) if path else {}
     if "render" in data:  # a full training config: take its render section
@@ -21,7 +21,7 @@ def _render_config(path: str | None, overrides: list[str]):
 
 
 def cmd_render_preview(args: argparse.Namespace) -> int:
-    from cotrain.preview import render_preview
+    from cotrain.render.preview import render_preview
 
     cfg = _render_config(args.config, args.overrides)
     if args.n < 1:
@@ -32,7 +32,7 @@ def cmd_render_preview(args: argparse.Namespace) -> int:
 
 
 def cmd_bench_render(args: argparse.Namespace) -> int:
-    from cotrain.bench import bench_render
+    from calib_eval.benchmark.timing import bench_render
 
     cfg = _render_config(args.config, args.overrides)
     bench_render(cfg, batch=args.batch, repeats=args.repeats)
@@ -40,7 +40,7 @@ def cmd_bench_render(args: argparse.Namespace) -> int:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from cotrain.train import main_train
+    from cotrain.model.train import main_train
 
     return main_train(args.config, args.overrides, resume=args.resume)
 
@@ -57,7 +57,7 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_detect(args: argparse.Namespace) -> int:
-    from cotrain.detect import Detector, detect_files, expand_inputs, write_json_atomic
+    from cotrain.detect.detector import Detector, detect_files, expand_inputs, write_json_atomic
 
     if not (0.0 <= args.threshold <= 1.0):
         raise ValueError("--threshold must be in [0, 1]")
@@ -94,8 +94,8 @@ def cmd_detect(args: argparse.Namespace) -> int:
 
 
 def cmd_pipeline(args: argparse.Namespace) -> int:
+    from calib_eval.pipeline import PipelineConfig, run_pipeline
     from cotrain.config import load_config
-    from cotrain.pipeline import PipelineConfig, run_pipeline
 
     cfg = load_config(PipelineConfig, args.config, args.overrides)
     return run_pipeline(cfg, from_scratch=args.from_scratch)
@@ -138,7 +138,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", default="detections.json")
     s.add_argument("--threshold", type=float, default=0.5, help="with --slots: visibility probability to report a corner")
     s.add_argument("--draw", help="folder for overlays of the detections")
-    s.add_argument("--slots", action="store_true", help="report the network's per-slot corners instead of the grid pass (cotrain.grid)")
+    s.add_argument(
+        "--slots", action="store_true", help="report the network's per-slot corners instead of the grid pass (cotrain.detect.grid)"
+    )
     s.add_argument("--polish", action="store_true", help="with --slots: classical saddle-point polish of the corners")
     s.add_argument("--no-consistency", action="store_true", help="with --slots: keep corners that fail the grid-consistency check")
     s.add_argument("--squares-x", type=int, help="another checkerboard than the model's: squares along x (ids from geometry alone)")

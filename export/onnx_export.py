@@ -3,9 +3,9 @@
 The graph takes ``image`` (B, 1, H, W) float32 grey in [0, 1] at the processing size and returns
 ``corners`` (B, N, 2) in processing pixels, ``visibility`` (B, N), ``confidence`` (B, N) and
 ``learnability`` (B, N) as probabilities, and the dense maps the detector's grid pass reads
-(:mod:`cotrain.grid`) at 1/4 of the processing size: ``corner_prob`` (B, 1, h, w), ``mask_prob``
+(:mod:`cotrain.detect.grid`) at 1/4 of the processing size: ``corner_prob`` (B, 1, h, w), ``mask_prob``
 (B, 1, h, w), ``col_logp`` (B, nx + 2, h, w) and ``row_logp`` (B, ny + 2, h, w). Resizing (letterbox, top-left) happens outside the graph
-in :mod:`cotrain.detect`, as the metadata says. After export, onnxruntime is compared with PyTorch
+in :mod:`cotrain.detect.detector`, as the metadata says. After export, onnxruntime is compared with PyTorch
 on rendered images; the export fails if any corner differs by more than ``tol_px``.
 """
 
@@ -21,9 +21,9 @@ import numpy as np
 import torch
 
 from cotrain.config import to_dict
-from cotrain.network import CornerNet
-from cotrain.renderer import render_batch
-from cotrain.train import TrainConfig, build_from_checkpoint, load_checkpoint
+from cotrain.model.network import CornerNet
+from cotrain.model.train import TrainConfig, build_from_checkpoint, load_checkpoint
+from cotrain.render.renderer import render_batch
 
 OPSET = 18  # the dynamo exporter's native opset (>= 17 as required; down-conversion to 17 fails)
 OUTPUTS = ["corners", "visibility", "confidence", "learnability", "corner_prob", "mask_prob", "col_logp", "row_logp"]

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import torch
 
-from cotrain.train import load_checkpoint
+from cotrain.model.train import load_checkpoint
 from export.onnx_export import export_onnx
 
 HERE = Path(__file__).resolve().parent

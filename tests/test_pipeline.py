@@ -3,8 +3,7 @@
 import json
 
 from cotrain.cli import run as cotrain_cli
-
-from .test_training import ROOT, TINY
+from tests.paths import ROOT, TINY
 
 
 def test_pipeline_tiny_end_to_end(tmp_path):

@@ -1,0 +1,399 @@
+"""Per-FoV detection evaluation: ``calib-eval detection [--model M.onnx] [--fov ...] [--per-fov N] [--seed N] [--size WxH] [--out DIR]``.
+
+1. Render a fixed, versioned benchmark set (seeded; 1280x720 unless ``--size``) per FoV: half with the
+   paper's f-theta model, half with the other families (ucm, eucm, ds), plus images without a target.
+2. Run the learned detector and the geometry-based detectors (OpenCV ``findChessboardCornersSB``
+   and ``findChessboardCorners`` + ``cornerSubPix``) on the same images; save their predictions.
+3. Score in a second pass from the saved predictions.
+
+Metrics (printed with the table):
+- recall: detectable ground-truth corners (visible, local square >= ``min_square_px`` at full
+  resolution, learnability > 0) found within 3 px; the learned detector must give the right id,
+  geometry-based detectors (no identity) are matched by position (each prediction used once).
+- error: mean and median pixel error of the recalled corners.
+- outlier rate: reported corners with a wrong id or more than 3 px from their ground truth
+  (for position-matched detectors: more than 3 px from every visible corner).
+- false images: images without a target on which anything was reported.
+- ms/image: wall time per image of each detector, including decoding the PNG.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import statistics
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+BENCH_VERSION = 1  # bump when the benchmark set changes: results are only comparable within a version
+PAPER = {  # Table: detection recall / mean error (px) of the paper
+    180: {"learned": (0.9330, 0.7841), "geometry": (0.7085, 0.8377)},
+    200: {"learned": (0.9344, 0.7944), "geometry": (0.7049, 0.8380)},
+    220: {"learned": (0.9255, 0.7941), "geometry": (0.7077, 0.8304)},
+    240: {"learned": (0.9263, 0.8277), "geometry": (0.6838, 0.8553)},
+}
+TOL_PX = 3.0
+DETECTORS = ["learned", "learned_slots", "learned_slots_polish", "opencv_sb", "opencv_classic"]  # table order
+DEFAULT_DETECTORS = ["learned", "learned_slots", "opencv_sb", "opencv_classic"]  # run when none are named
+
+
+@dataclass
+class EvalConfig:
+    fovs: list[int] = field(default_factory=lambda: [180, 200, 220, 240])  # FoVs (deg)
+    per_fov: int = 50  # images per FoV
+    n_empty: int = 20  # images without a target
+    seed: int = 2026  # benchmark seed (with BENCH_VERSION: the set)
+    min_square_px: float = 10.0  # detectable: local square at least this many pixels in the rendered frame
+    width: int = 1280
+    height: int = 720
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """``"1280x720"`` -> (1280, 720); a clear ValueError otherwise."""
+    w, sep, h = text.lower().partition("x")
+    if not (sep and w.isdigit() and h.isdigit() and int(w) >= 64 and int(h) >= 64):
+        raise ValueError(f"--size wants WIDTHxHEIGHT (at least 64x64), not {text!r}")
+    return int(w), int(h)
+
+
+def _render_cfg(fov: float, cfg: EvalConfig, models: list[str], no_target: bool = False):
+    from cotrain.render.renderer import RenderConfig
+
+    return RenderConfig(
+        height=cfg.height,
+        width=cfg.width,
+        models=models,
+        model_weights=[1.0] * len(models),
+        fov_range=(fov, fov),
+        kb4_k_scale=0.0,
+        p_no_target=1.0 if no_target else 0.0,
+        distance_range=(0.15, 1.2),
+    )
+
+
+def render_benchmark(cfg: EvalConfig, out: Path, progress: bool = True) -> dict:
+    """Render the benchmark set into ``out/images`` and its labels into ``out/labels.json``."""
+    from tqdm import tqdm
+
+    from cotrain.geometry import cameras
+    from cotrain.render.renderer import render_batch
+
+    img_dir = out / "images"
+    img_dir.mkdir(parents=True, exist_ok=True)
+    jobs = []
+    for fov in cfg.fovs:
+        half = cfg.per_fov // 2
+        jobs += [(fov, "kb4", i) for i in range(half)] + [(fov, "other", i) for i in range(half, cfg.per_fov)]
+    jobs += [(0, "empty", i) for i in range(cfg.n_empty)]
+    labels = []
+    for fov, kind, i in tqdm(jobs, desc="render benchmark", disable=not progress):
+        if kind == "empty":
+            rc = _render_cfg(200, cfg, ["kb4", "ucm", "eucm", "ds"], no_target=True)
+        else:
+            rc = _render_cfg(fov, cfg, ["kb4"] if kind == "kb4" else ["ucm", "eucm", "ds"])
+        seed = cfg.seed * 1000 + BENCH_VERSION * 100 + (fov // 10)
+        b = render_batch(rc, [i], seed=seed)
+        name = f"{'empty' if kind == 'empty' else f'fov{fov}'}_{i:03d}.png"
+        cv2.imwrite(str(img_dir / name), (b["image"][0, 0].numpy() * 255).round().astype(np.uint8))
+        p = b["params"][0]
+        model = rc.models[int(b["model_index"][0])]
+        m = cameras.get_model(model)
+        centre = [float(p[m.index("cx")]), float(p[m.index("cy")])]
+        det = (b["visible"][0] & (b["square_px"][0] >= cfg.min_square_px) & (b["learnability"][0] > 0)).tolist()
+        labels.append(
+            {
+                "image": name,
+                "fov": fov if kind != "empty" else None,
+                "model": model,
+                "has_target": kind != "empty",
+                "corners": b["corners_raw"][0].tolist(),
+                "visible": b["visible"][0].tolist(),
+                "detectable": det,
+                "centre": centre,
+                "radius": float(b["radius"][0]),
+            }
+        )
+    meta = {"version": BENCH_VERSION, "config": cfg.__dict__, "labels": labels}
+    (out / "labels.json").write_text(json.dumps(meta))
+    return meta
+
+
+# --------------------------------------------------------------------------------------------
+# Detectors
+# --------------------------------------------------------------------------------------------
+def run_learned(model: str | None, images: list[Path], progress: bool = True, mode: str = "grid", polish: bool = False) -> dict:
+    from tqdm import tqdm
+
+    from cotrain.detect.detector import Detector, ImageError, load_image
+
+    det = Detector(model, polish=polish, mode=mode)
+    out = {}
+    for p in tqdm(images, desc=f"learned ({det.mode}{' + polish' if polish else ''})", disable=not progress):
+        t0 = time.perf_counter()
+        try:
+            d = det.detect(load_image(p))
+            corners = [[int(i), float(x), float(y)] for i, (x, y) in zip(d.ids, d.xy)]
+            err = None
+        except ImageError as e:
+            corners, err = [], str(e)
+        out[p.name] = {"corners": corners, "ms": 1000 * (time.perf_counter() - t0), "error": err, "has_id": True}
+    return out
+
+
+def run_geometry(kind: str, images: list[Path], pattern: tuple[int, int] = (9, 6), progress: bool = True) -> dict:
+    """OpenCV detectors; corners carry no identity we trust (id -1)."""
+    from tqdm import tqdm
+
+    out = {}
+    for p in tqdm(images, desc=kind, disable=not progress):
+        t0 = time.perf_counter()
+        img = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
+        if kind == "opencv_sb":
+            ok, c = cv2.findChessboardCornersSB(img, pattern, flags=cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY)
+        else:
+            ok, c = cv2.findChessboardCorners(img, pattern, flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
+            if ok:
+                c = cv2.cornerSubPix(img, c, (5, 5), (-1, -1), (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.01))
+        corners = [[-1, float(x), float(y)] for x, y in c.reshape(-1, 2)] if ok else []
+        out[p.name] = {"corners": corners, "ms": 1000 * (time.perf_counter() - t0), "error": None, "has_id": False}
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# Scoring
+# --------------------------------------------------------------------------------------------
+def score_image(
+    pred: list[list[float]], has_id: bool, gt: np.ndarray, visible: np.ndarray, detectable: np.ndarray, tol: float = TOL_PX
+) -> dict:
+    """Match one image's predictions to ground truth.
+
+    pred: [[id, x, y], ...] (id -1 when the detector gives none); gt (N, 2); visible, detectable (N,).
+    Returns hits (list of (gt id, error)), n_detectable, n_reported, n_outliers.
+    """
+    hits: list[tuple[int, float]] = []
+    outliers = 0
+    if has_id:
+        for i, x, y in pred:
+            i = int(i)
+            e = math.hypot(x - gt[i, 0], y - gt[i, 1]) if 0 <= i < len(gt) and visible[i] else math.inf
+            if e <= tol:
+                if detectable[i]:
+                    hits.append((i, e))
+            else:
+                outliers += 1
+    else:
+        vis_idx = np.nonzero(visible)[0]
+        used: set[int] = set()
+        pairs = []
+        for k, (_, x, y) in enumerate(pred):
+            if len(vis_idx):
+                d = np.hypot(gt[vis_idx, 0] - x, gt[vis_idx, 1] - y)
+                for j in np.argsort(d):
+                    if d[j] > tol:
+                        break
+                    pairs.append((float(d[j]), k, int(vis_idx[j])))
+        pairs.sort()
+        matched_pred: set[int] = set()
+        for e, k, i in pairs:
+            if k in matched_pred or i in used:
+                continue
+            matched_pred.add(k)
+            used.add(i)
+            if detectable[i]:
+                hits.append((i, e))
+        outliers = len(pred) - len(matched_pred)
+    return {"hits": hits, "n_detectable": int(np.sum(detectable)), "n_reported": len(pred), "n_outliers": outliers}
+
+
+def score(preds: dict[str, dict], labels: list[dict]) -> dict:
+    """Per-FoV and overall metrics of one detector from its saved predictions."""
+    groups: dict[str, dict] = {}
+    errors_by_fov: dict[str, list[float]] = {}
+    radial: dict[str, list[tuple[float, bool]]] = {}
+    empty_flagged, n_empty = 0, 0
+    ms = []
+    for lab in labels:
+        p = preds.get(lab["image"])
+        if p is None:
+            continue
+        ms.append(p["ms"])
+        if not lab["has_target"]:
+            n_empty += 1
+            empty_flagged += int(len(p["corners"]) > 0)
+            continue
+        gt = np.asarray(lab["corners"])
+        s = score_image(p["corners"], p["has_id"], gt, np.asarray(lab["visible"]), np.asarray(lab["detectable"]))
+        key = str(lab["fov"])
+        g = groups.setdefault(key, {"det": 0, "hit": 0, "rep": 0, "out": 0})
+        g["det"] += s["n_detectable"]
+        g["hit"] += len(s["hits"])
+        g["rep"] += s["n_reported"]
+        g["out"] += s["n_outliers"]
+        errors_by_fov.setdefault(key, []).extend(e for _, e in s["hits"])
+        hit_ids = {i for i, _ in s["hits"]}
+        c = np.asarray(lab["centre"])
+        for i in np.nonzero(lab["detectable"])[0]:
+            radial.setdefault(key, []).append((float(np.hypot(*(gt[i] - c)) / lab["radius"]), i in hit_ids))
+    rows = {}
+    for key, g in groups.items():
+        e = errors_by_fov[key]
+        rows[key] = {
+            "recall": g["hit"] / max(1, g["det"]),
+            "mean_error_px": float(np.mean(e)) if e else float("nan"),
+            "median_error_px": float(np.median(e)) if e else float("nan"),
+            "outlier_rate": g["out"] / max(1, g["rep"]),
+            "n_detectable": g["det"],
+            "n_reported": g["rep"],
+        }
+    return {
+        "per_fov": rows,
+        "false_images": empty_flagged,
+        "n_empty": n_empty,
+        "ms_per_image": statistics.median(ms) if ms else float("nan"),
+        "errors": errors_by_fov,
+        "radial": radial,
+    }
+
+
+# --------------------------------------------------------------------------------------------
+# Report
+# --------------------------------------------------------------------------------------------
+def _table(results: dict[str, dict], fovs: list[int]) -> str:
+    lines = ["| FoV | detector | recall | mean err px | median err px | outliers | paper recall / err |", "|---|---|---|---|---|---|---|"]
+    for fov in fovs:
+        for name, r in results.items():
+            row = r["per_fov"].get(str(fov))
+            if row is None:
+                continue
+            paper = PAPER.get(fov, {}).get("learned" if name.startswith("learned") else "geometry")
+            ptxt = f"{paper[0]:.3f} / {paper[1]:.3f}" if paper and name in ("learned", "opencv_sb") else ""
+            lines.append(
+                f"| {fov} | {name} | {row['recall']:.3f} | {row['mean_error_px']:.3f} | {row['median_error_px']:.3f} | "
+                f"{100 * row['outlier_rate']:.2f}% | {ptxt} |"
+            )
+    lines.append("")
+    lines.append("| detector | images without target with reports | ms / image (median) |")
+    lines.append("|---|---|---|")
+    for name, r in results.items():
+        lines.append(f"| {name} | {r['false_images']} / {r['n_empty']} | {r['ms_per_image']:.1f} |")
+    return "\n".join(lines)
+
+
+def _plots(results: dict[str, dict], fovs: list[int], out: Path) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    paths = []
+    fig, axes = plt.subplots(1, len(fovs), figsize=(4 * len(fovs), 3.4), sharey=True, squeeze=False)
+    bins = np.linspace(0, 1.0, 11)
+    for ax, fov in zip(axes[0], fovs):
+        for name, r in results.items():
+            pts = r["radial"].get(str(fov), [])
+            if not pts:
+                continue
+            rr = np.array([p[0] for p in pts])
+            hit = np.array([p[1] for p in pts], dtype=float)
+            idx = np.clip(np.digitize(rr, bins) - 1, 0, len(bins) - 2)
+            rec = [hit[idx == b].mean() if np.any(idx == b) else np.nan for b in range(len(bins) - 1)]
+            ax.plot((bins[:-1] + bins[1:]) / 2, rec, marker="o", label=name)
+        ax.set_title(f"FoV {fov}")
+        ax.set_xlabel("radius / image-circle radius")
+        ax.set_ylim(0, 1.02)
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel("recall")
+    if axes[0][-1].get_legend_handles_labels()[0]:
+        axes[0][-1].legend(fontsize=8)
+    fig.tight_layout()
+    p = out / "recall_vs_radius.png"
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    paths.append(p)
+    fig, ax = plt.subplots(figsize=(5, 3.4))
+    for name, r in results.items():
+        e = [x for v in r["errors"].values() for x in v]
+        if e:
+            ax.hist(e, bins=np.linspace(0, TOL_PX, 31), histtype="step", density=True, label=f"{name} (median {np.median(e):.2f})")
+    ax.set_xlabel("error of recalled corners (px)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    p = out / "error_distribution.png"
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    paths.append(p)
+    return paths
+
+
+def load_or_render(cfg: EvalConfig, out: Path, progress: bool = True) -> dict:
+    """The set's labels from ``out/labels.json`` when they were rendered with this version and
+    config; otherwise the set is rendered again and predictions saved for another set are removed."""
+    out.mkdir(parents=True, exist_ok=True)
+    labels_path = out / "labels.json"
+    if labels_path.is_file():
+        meta = json.loads(labels_path.read_text())
+        if meta.get("version") == BENCH_VERSION and meta.get("config") == cfg.__dict__:
+            return meta
+    for stale in out.glob("predictions_*.json"):
+        stale.unlink()  # from another set
+    return render_benchmark(cfg, out, progress)
+
+
+def evaluate_detection(model: str | None, cfg: EvalConfig, out: Path, progress: bool = True, detectors: list[str] | None = None) -> dict:
+    """The whole evaluation; writes results.md, results.json and the plots into ``out``."""
+    t0 = time.time()
+    meta = load_or_render(cfg, out, progress)
+    images = [out / "images" / lab["image"] for lab in meta["labels"]]
+    detectors = detectors or DEFAULT_DETECTORS
+    # Detectors not run this time keep their saved predictions on this set in the table.
+    kept = [n for n in DETECTORS if n not in detectors and (out / f"predictions_{n}.json").is_file()]
+    preds = {}
+    for name in detectors:
+        if name.startswith("learned"):
+            preds[name] = run_learned(
+                model, images, progress, mode="grid" if name == "learned" else "slots", polish=name.endswith("polish")
+            )
+        else:
+            preds[name] = run_geometry(name, images, progress=progress)
+        (out / f"predictions_{name}.json").write_text(json.dumps(preds[name]))
+    # Second pass: scores from the saved predictions.
+    order = [n for n in DETECTORS if n in detectors or n in kept]
+    results = {name: score(json.loads((out / f"predictions_{name}.json").read_text()), meta["labels"]) for name in order}
+    table = _table(results, cfg.fovs)
+    elapsed = time.time() - t0
+    plots = _plots(results, cfg.fovs, out)
+    md = [
+        f"# Detection evaluation (benchmark v{BENCH_VERSION}, seed {cfg.seed})",
+        "",
+        f"{cfg.per_fov} images per FoV at {cfg.width}x{cfg.height} (half f-theta, half ucm/eucm/ds), {cfg.n_empty} without a target. "
+        f"Model: {model or 'shipped default'}. Run this time: {', '.join(detectors)} ({elapsed:.0f} s)"
+        + (f"; {', '.join(kept)}: saved predictions of an earlier run on the same set." if kept else "."),
+        "",
+        table,
+        "",
+        "Recall: detectable ground-truth corners found within 3 px (learned: right id; OpenCV: matched by position). "
+        "Outliers: reported corners with a wrong id or over 3 px off. Paper numbers: learned / geometry-based rows of its table.",
+        "",
+        *[f"![{p.stem}]({p.name})" for p in plots],
+    ]
+    (out / "results.md").write_text("\n".join(md) + "\n")
+    slim = {k: {kk: vv for kk, vv in v.items() if kk not in ("errors", "radial")} for k, v in results.items()}
+    (out / "results.json").write_text(
+        json.dumps(
+            {
+                "version": BENCH_VERSION,
+                "elapsed_s": elapsed,
+                "model": model,
+                "results": slim,
+                "paper": {str(k): v for k, v in PAPER.items()},
+            },
+            indent=1,
+        )
+    )
+    print(table)
+    print(f"evaluation took {elapsed:.0f} s -> {out}/results.md")
+    return {"results": slim, "elapsed_s": elapsed, "table": table}

@@ -1,0 +1,112 @@
+"""How many detectable corners a detector could identify from the board's geometry alone.
+
+    python -m calib_eval.detection.identifiability [--set report/detection] [--target configs/default.yaml]
+
+A partial view of a checkerboard can be ambiguous: a 4x3 patch of corners at one corner of a
+10x7 board looks the same as a 4x3 patch at the opposite corner turned by a half turn if the
+colours agree, or at another corner turned by 90 degrees. For every frame of a rendered detection
+set (its labels), this asks whether any placement of the seen corners on the board other than the
+true one (four in-plane rotations x integer offsets) is consistent with everything an ideal
+geometric detector could observe:
+
+- every seen corner lands on the board;
+- the checker colour of every cell whose four corners are seen;
+- the white margin: where a seen corner's neighbour is off the board in truth, it must be off the
+  board in the other placement too;
+- continuation: where a seen corner's neighbour is on the board and visible in the image but not
+  among the seen corners, it must be on the board in the other placement too.
+
+"Seen" is either every detectable corner (what the evaluation asks for) or every visible one
+(squares too small to be detectable still show the board's extent). The share of detectable
+corners in frames with no other consistent placement is a ceiling for a detector that takes
+identity from geometry: beyond it, only context the geometry does not pin (the network's guess)
+can identify corners, and a guess can be wrong.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from cotrain.detect.grid import ROTATIONS  # the board's in-plane turns, as the detector's placements use them
+
+STEPS = ((1, 0), (-1, 0), (0, 1), (0, -1))
+
+
+def identifiable(seen: np.ndarray, visible: np.ndarray, nx: int, ny: int) -> bool:
+    """True when the seen corner ids (K,) admit no placement on the nx x ny corner grid other than
+    the true one; ``visible`` (nx * ny,) bool marks corners whose presence the image shows."""
+    on = lambda t: (t[..., 0] >= 0) & (t[..., 0] < nx) & (t[..., 1] >= 0) & (t[..., 1] < ny)  # noqa: E731
+    ij = np.stack([seen % nx, seen // nx], 1)
+    have = set(seen.tolist())
+    cells = np.array([(i, j) for i, j in ij if {j * nx + i + 1, (j + 1) * nx + i, (j + 1) * nx + i + 1} <= have], int).reshape(-1, 2)
+    quad = np.stack([cells, cells + [1, 0], cells + [0, 1], cells + [1, 1]], 1)  # (C, 4, 2)
+    colour = quad.min(1).sum(1) % 2  # square colour of each seen cell
+    must_off, must_on = [], []  # (corner ij, step): the neighbour must be off / on the board
+    for i, j in ij:
+        for d in STEPS:
+            n = np.array([i + d[0], j + d[1]])
+            if not on(n):
+                must_off.append((i + d[0], j + d[1]))
+            elif visible[n[1] * nx + n[0]] and n[1] * nx + n[0] not in have:
+                must_on.append((i + d[0], j + d[1]))
+    must_off, must_on = np.array(must_off, int).reshape(-1, 2), np.array(must_on, int).reshape(-1, 2)
+    span = nx + ny
+    for r, R in enumerate(ROTATIONS):
+        for oi in range(-span, span):
+            for oj in range(-span, span):
+                if r == 0 and oi == 0 and oj == 0:
+                    continue
+                o = np.array([oi, oj])
+                if not on(ij @ R.T + o).all():
+                    continue
+                if len(cells) and not np.array_equal(((quad @ R.T).min(1).sum(1) + oi + oj) % 2, colour):
+                    continue
+                if on(must_off @ R.T + o).any() or not on(must_on @ R.T + o).all():
+                    continue
+                return False
+    return True
+
+
+def ceiling(labels: list[dict], nx: int, ny: int) -> dict:
+    """Share of detectable corners in identifiable frames, per FoV and overall, with the detectable
+    corners or all visible ones as what is seen."""
+    acc: dict = {}
+    for lab in labels:
+        if not lab.get("has_target", True):
+            continue
+        vis, det = np.asarray(lab["visible"], bool), np.asarray(lab["detectable"], bool)
+        n = int(det.sum())
+        if not n:
+            continue
+        for key in (lab.get("fov"), "all"):
+            a = acc.setdefault(key, [0, 0, 0])
+            a[0] += n
+            a[1] += n * identifiable(np.nonzero(det)[0], vis, nx, ny)
+            a[2] += n * identifiable(np.nonzero(vis)[0], vis, nx, ny)
+    return {str(k): {"detectable": a[0], "from_detectable": a[1] / a[0], "from_visible": a[2] / a[0]} for k, a in acc.items()}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m calib_eval.detection.identifiability", description=__doc__.splitlines()[0])
+    ap.add_argument("--set", default="report/detection", help="rendered detection set (its labels.json)")
+    ap.add_argument("--nx", type=int, default=9, help="inner corners along the board's x side")
+    ap.add_argument("--ny", type=int, default=6, help="inner corners along the board's y side")
+    args = ap.parse_args(argv)
+    path = Path(args.set) / "labels.json"
+    if not path.is_file():
+        print(f"error: no labels.json in {args.set} (render a set with calib-eval detection first)")
+        return 2
+    res = ceiling(json.loads(path.read_text())["labels"], args.nx, args.ny)
+    print(f"identifiable from geometry alone ({path}): share of detectable corners")
+    print("| FoV | detectable corners | seen = detectable | seen = visible |\n|---|---|---|---|")
+    for k, v in sorted(res.items(), key=lambda kv: (kv[0] == "all", kv[0])):
+        print(f"| {k} | {v['detectable']} | {v['from_detectable']:.3f} | {v['from_visible']:.3f} |")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,357 @@
+"""Training on online rendered data: ``cotrain train --config configs/<name>.yaml [key=value ...]``.
+
+One linear loop (nanoGPT style). Runs data-parallel under ``torchrun --nproc_per_node N`` (gloo,
+CPU). Checkpoints are written atomically, carry their config, and ``--resume`` continues exactly
+(model, optimizer, schedule, step, RNG; the data stream is a function of (seed, sample index)).
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import math
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.distributed as dist
+from torch import Tensor
+
+from cotrain.config import ConfigError, from_dict, load_config, to_dict
+from cotrain.model.losses import LossConfig, compute_losses
+from cotrain.model.network import CornerNet, ModelConfig
+from cotrain.render.renderer import RenderConfig, render_batch
+from cotrain.targets import Checkerboard
+
+
+@dataclass
+class TrainSettings:
+    steps: int = 20000  # optimisation steps in total (the schedule spans them)
+    batch_size: int = 8  # samples per step per process
+    lr: float = 2e-3  # peak learning rate (AdamW)
+    weight_decay: float = 1e-4  # AdamW weight decay
+    warmup_steps: int = 300  # linear warm-up
+    min_lr_ratio: float = 0.05  # cosine decays to lr * this
+    grad_clip: float = 5.0  # global gradient-norm clip (0 = off)
+    seed: int = 0  # data stream and initialisation seed
+    val_size: int = 64  # fixed rendered validation images
+    val_seed: int = 1_000_000  # validation stream seed (disjoint from training)
+    val_every: int = 500  # steps between validations
+    log_every: int = 20  # steps between scalar logs
+    image_every: int = 1000  # steps between image panels in TensorBoard
+    ckpt_minutes: float = 5.0  # wall minutes between checkpoints
+    out_dir: str = "runs/default"  # checkpoints, TensorBoard logs, curve.csv
+    init_from: str = ""  # checkpoint to start from (fine-tuning); ignored on --resume
+    save_rank_weights: bool = False  # debug: write each rank's final weights (DDP test)
+    threads: int = 0  # torch threads per process (0 = leave torch's default)
+    select_by: str = "recall"  # validation figure that picks best.pt: "recall" (per-slot path) or "board_id_acc" (grid pass)
+    stop_after: int = 0  # stop (with a checkpoint) after this step, as if interrupted (0 = run to the end)
+    curriculum_steps: int = 0  # before this step, train on closer, less cropped boards (identity is learned there first)
+    curriculum_distance: tuple[float, float] = (0.1, 0.45)  # render.distance_range during the curriculum
+    curriculum_offaxis_margin_deg: float = -10.0  # render.offaxis_margin_deg during the curriculum (negative: inside the FoV)
+
+
+@dataclass
+class TrainConfig:
+    render: RenderConfig = field(default_factory=RenderConfig)  # the online renderer (its size = processing size)
+    model: ModelConfig = field(default_factory=ModelConfig)  # the network
+    loss: LossConfig = field(default_factory=LossConfig)  # loss weights
+    train: TrainSettings = field(default_factory=TrainSettings)  # the optimisation
+
+
+def finalize_config(cfg: TrainConfig) -> TrainConfig:
+    """Tie the model to the target and the render size; reject inconsistent settings."""
+    board = Checkerboard(cfg.render.target)
+    cfg.model.n_corners = board.n_corners
+    cfg.model.grid_nx = board.nx
+    cfg.model.grid_ny = board.ny
+    if tuple(cfg.model.input_size) != (cfg.render.height, cfg.render.width):
+        raise ConfigError(f"model.input_size {tuple(cfg.model.input_size)} must equal (render.height, render.width)")
+    if cfg.train.batch_size < 1 or cfg.train.steps < 1:
+        raise ConfigError("train.batch_size and train.steps must be positive")
+    if cfg.train.select_by not in ("recall", "board_id_acc"):
+        raise ConfigError(f"train.select_by must be 'recall' or 'board_id_acc', not {cfg.train.select_by!r}")
+    return cfg
+
+
+def build_from_checkpoint(ckpt: dict) -> tuple[CornerNet, TrainConfig]:
+    """Rebuild the model from a checkpoint alone (it carries its config)."""
+    cfg = from_dict(TrainConfig, ckpt["config"])
+    model = CornerNet(cfg.model)
+    model.load_state_dict(ckpt["model"])
+    return model.eval(), cfg
+
+
+def load_checkpoint(path: str | Path) -> dict:
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"{path}: checkpoint not found")
+    try:
+        return torch.load(p, map_location="cpu", weights_only=True)
+    except Exception as e:  # a truncated or foreign file
+        raise ValueError(f"{path}: not a cotrain checkpoint ({type(e).__name__})") from None
+
+
+def _atomic_save(obj: dict, path: Path) -> None:
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    torch.save(obj, tmp)
+    os.replace(tmp, path)
+
+
+def _lr_lambda(s: TrainSettings):
+    def f(step: int) -> float:
+        if step < s.warmup_steps:
+            return (step + 1) / s.warmup_steps
+        t = min(1.0, (step - s.warmup_steps) / max(1, s.steps - s.warmup_steps))
+        return s.min_lr_ratio + (1 - s.min_lr_ratio) * 0.5 * (1 + math.cos(math.pi * t))
+
+    return f
+
+
+@torch.no_grad()
+def evaluate(model: CornerNet, val: dict[str, Tensor], batch_size: int = 16, tol_px: float = 3.0) -> dict[str, float]:
+    """Validation metrics at the processing resolution.
+
+    recall: detectable corners (visible, learnability > 0.2) reported visible with the right id
+    within ``tol_px``; error_px: mean error of those; id_acc: detectable corners whose slot lands
+    within ``tol_px`` whatever the visibility head says; outlier_rate: reported corners that are
+    not visible or over ``tol_px`` off; board_id_acc: detectable corners whose 1/4 cell the dense
+    board head puts in the right column and row (what the detector's grid pass votes with).
+    """
+    model.eval()
+    outs = []
+    for i in range(0, val["image"].shape[0], batch_size):
+        o = model(val["image"][i : i + batch_size])
+        if o["board_col_logits"].shape[1] > 0:  # classify: the most likely column / row
+            uv = torch.stack([o["board_col_logits"].argmax(1), o["board_row_logits"].argmax(1)], 1).to(o["board_uv"].dtype) - 1
+        else:
+            uv = o["board_uv"]
+        outs.append({"corners": o["corners"], "visibility_logit": o["visibility_logit"], "board_uv": uv})
+    model.train()
+    q = torch.cat([o["corners"] for o in outs])
+    rep = torch.cat([o["visibility_logit"] for o in outs]) > 0
+    err = (q - val["corners"]).norm(dim=-1)
+    det = val["visible"] & (val["learnability"] > 0.2)
+    close = err < tol_px
+    hit = det & rep & close
+    n_det = max(1, int(det.sum()))
+    n_rep = int(rep.sum())
+    bad = rep & (~val["visible"] | ~close)
+    uv = torch.cat([o["board_uv"] for o in outs])  # (B, 2, h, w) column / row per 1/4 cell
+    h, w = uv.shape[-2:]
+    cell = ((val["corners"] - 1.5) / 4).round().long()
+    cx, cy = cell[..., 0].clamp(0, w - 1), cell[..., 1].clamp(0, h - 1)
+    bi = torch.arange(uv.shape[0])[:, None].expand_as(cx)
+    got = torch.stack([uv[bi, 0, cy, cx], uv[bi, 1, cy, cx]], -1).round()
+    nx = model.cfg.grid_nx
+    ids = torch.arange(val["corners"].shape[1])
+    want = torch.stack([ids % nx, ids // nx], -1).to(got.dtype)
+    board_ok = (got == want[None]).all(-1)
+    return {
+        "recall": float(hit.sum()) / n_det,
+        "error_px": float(err[hit].mean()) if hit.any() else float("nan"),
+        "id_acc": float((det & close).sum()) / n_det,
+        "outlier_rate": float(bad.sum()) / max(1, n_rep),
+        "board_id_acc": float((det & board_ok).sum()) / n_det,
+        "reported": float(n_rep),
+    }
+
+
+def plot_curve(curve_csv: Path, out_png: Path) -> None:
+    """Wall time against validation recall, identity accuracy and error (the training curve)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = list(csv.DictReader(curve_csv.open()))
+    if not rows:
+        return
+    t = [float(r["wall_s"]) / 60 for r in rows]
+    fig, ax = plt.subplots(figsize=(6, 3.6))
+    ax.plot(t, [float(r["recall"]) for r in rows], "o-", label="recall (right id, <3 px, reported)")
+    ax.plot(t, [float(r["id_acc"]) for r in rows], "s--", label="identity accuracy (<3 px)")
+    if rows and "board_id_acc" in rows[0]:
+        ax.plot(t, [float(r["board_id_acc"]) for r in rows], "^-", label="board column + row at corners (grid pass votes)")
+    ax.set_xlabel("wall time (min)")
+    ax.set_ylabel("fraction of detectable corners")
+    ax.set_ylim(0, 1)
+    ax2 = ax.twinx()
+    ax2.plot(t, [float(r["error_px"]) for r in rows], "r.:", label="error of recalled (px)")
+    ax2.set_ylabel("px (processing resolution)", color="r")
+    fig.legend(loc="upper left", fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out_png, dpi=100)
+    plt.close(fig)
+
+
+def _panel(model_out: dict[str, Tensor], images: Tensor) -> Tensor:
+    """(3, H, 2W) image panel: predicted corners (green = reported) next to the input."""
+    import cv2
+
+    tiles = []
+    for b in range(images.shape[0]):
+        im = cv2.cvtColor((images[b, 0].numpy() * 255).astype(np.uint8), cv2.COLOR_GRAY2RGB)
+        for (x, y), v in zip(model_out["corners"][b].tolist(), (model_out["visibility_logit"][b] > 0).tolist()):
+            if v and 0 <= x < im.shape[1] and 0 <= y < im.shape[0]:
+                cv2.circle(im, (int(round(x)), int(round(y))), 2, (0, 255, 0), -1)
+        tiles.append(im)
+    return torch.from_numpy(np.concatenate(tiles, 1)).permute(2, 0, 1)
+
+
+def main_train(config_path: str, overrides: list[str], resume: bool = False) -> int:
+    """``cotrain train``: load the config and train; returns the exit code."""
+    train(finalize_config(load_config(TrainConfig, config_path, overrides)), resume=resume)
+    return 0
+
+
+def train(cfg: TrainConfig, resume: bool = False) -> dict:
+    """The training loop. Returns {"step", "last_loss", "best_score"}."""
+    s = cfg.train
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    rank = int(os.environ.get("RANK", "0"))
+    if world > 1:
+        dist.init_process_group("gloo")
+    if s.threads > 0:
+        torch.set_num_threads(s.threads)
+    out_dir = Path(s.out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    torch.manual_seed(s.seed)
+
+    init_state = None
+    if s.init_from and not resume:
+        # Fine-tuning: the checkpoint carries its config; its architecture wins over the recipe's.
+        ck = load_checkpoint(s.init_from)
+        cfg.model = from_dict(ModelConfig, ck["config"]["model"])
+        if tuple(cfg.model.input_size) != (cfg.render.height, cfg.render.width):
+            raise ConfigError(f"{s.init_from}: its processing size {tuple(cfg.model.input_size)} differs from render.height/width")
+        init_state = ck["model"]
+    model = CornerNet(cfg.model)
+    opt = torch.optim.AdamW(model.parameters(), lr=s.lr, weight_decay=s.weight_decay)
+    sched = torch.optim.lr_scheduler.LambdaLR(opt, _lr_lambda(s))
+    step, best, wall0 = 0, -1.0, 0.0
+    last = out_dir / "last.pt"
+    if resume:
+        ck = load_checkpoint(last)
+        model.load_state_dict(ck["model"])
+        opt.load_state_dict(ck["optimizer"])
+        sched.load_state_dict(ck["scheduler"])
+        torch.set_rng_state(ck["rng"])
+        step, best, wall0 = ck["step"], ck["best_score"], ck["wall_time"]
+    elif init_state is not None:
+        model.load_state_dict(init_state)
+    ddp = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
+
+    board = Checkerboard(cfg.render.target)
+    easy = dataclasses.replace(cfg.render, distance_range=tuple(s.curriculum_distance), offaxis_margin_deg=s.curriculum_offaxis_margin_deg)
+    val = render_batch(cfg.render, list(range(s.val_size)), seed=s.val_seed, board=board) if rank == 0 else None
+    writer = None
+    if rank == 0:
+        from torch.utils.tensorboard import SummaryWriter
+
+        writer = SummaryWriter(str(out_dir / "tb"), purge_step=step if resume else None)
+    curve_path = out_dir / "curve.csv"
+    if rank == 0 and not curve_path.exists():
+        curve_path.write_text("step,wall_s,recall,error_px,id_acc,outlier_rate,board_id_acc\n")
+
+    from tqdm import tqdm
+
+    bar = tqdm(total=s.steps, initial=step, desc="train", disable=rank != 0, dynamic_ncols=True)
+    t_start = time.time() - wall0
+    t_ckpt = time.time()
+    t_log, n_log = time.time(), 0
+
+    def save(path: Path) -> None:
+        ck = {
+            "model": model.state_dict(),
+            "optimizer": opt.state_dict(),
+            "scheduler": sched.state_dict(),
+            "rng": torch.get_rng_state(),
+            "step": step,
+            "best_score": best,
+            "wall_time": time.time() - t_start,
+            "config": to_dict(cfg),
+        }
+        _atomic_save(ck, path)
+
+    end = min(s.steps, s.stop_after) if s.stop_after > 0 else s.steps
+    last_loss = float("nan")
+    while step < end:
+        first = (step * world + rank) * s.batch_size
+        rcfg = easy if step < s.curriculum_steps else cfg.render  # validation always uses cfg.render
+        batch = render_batch(rcfg, list(range(first, first + s.batch_size)), seed=s.seed, board=board)
+        out = ddp(batch["image"])
+        losses = compute_losses(out, batch, cfg.loss)
+        opt.zero_grad(set_to_none=True)
+        losses["total"].backward()
+        if s.grad_clip > 0:
+            torch.nn.utils.clip_grad_norm_(model.parameters(), s.grad_clip)
+        opt.step()
+        sched.step()
+        step += 1
+        last_loss = float(losses["total"].detach())
+        n_log += s.batch_size * world
+        bar.update(1)
+
+        if rank != 0:
+            continue
+        if step % s.log_every == 0 or step == s.steps:
+            dt = time.time() - t_log
+            for k, v in losses.items():
+                if v.dim() == 0:
+                    writer.add_scalar(f"loss/{k}", float(v.detach()), step)
+            writer.add_scalar("train/lr", sched.get_last_lr()[0], step)
+            writer.add_scalar("train/samples_per_s", n_log / max(dt, 1e-9), step)
+            bar.set_postfix(loss=f"{float(losses['total'].detach()):.3f}", sps=f"{n_log / max(dt, 1e-9):.1f}")
+            t_log, n_log = time.time(), 0
+        if step % s.val_every == 0 or step == s.steps:
+            m = evaluate(model, val)
+            for k, v in m.items():
+                writer.add_scalar(f"val/{k}", v, step)
+            wall = time.time() - t_start
+            writer.add_scalar("val/recall_vs_wall_s", m["recall"], int(wall))
+            with curve_path.open("a") as f:
+                csv.writer(f).writerow(
+                    [
+                        step,
+                        f"{wall:.1f}",
+                        f"{m['recall']:.4f}",
+                        f"{m['error_px']:.4f}",
+                        f"{m['id_acc']:.4f}",
+                        f"{m['outlier_rate']:.4f}",
+                        f"{m['board_id_acc']:.4f}",
+                    ]
+                )
+            plot_curve(curve_path, out_dir / "curve.png")
+            bar.write(
+                f"step {step}: recall {m['recall']:.3f} err {m['error_px']:.3f}px id_acc {m['id_acc']:.3f} "
+                f"outliers {m['outlier_rate']:.3f} board_id_acc {m['board_id_acc']:.3f}"
+            )
+            score = m[s.select_by]
+            if score > best:
+                best = score
+                save(out_dir / "best.pt")
+        if step % s.image_every == 0 or step == s.steps:
+            with torch.no_grad():
+                model.eval()
+                o = model(val["image"][:4])
+                model.train()
+            writer.add_image("val/predictions", _panel(o, val["image"][:4]), step)
+        if time.time() - t_ckpt > s.ckpt_minutes * 60 or step == end:
+            save(last)
+            t_ckpt = time.time()
+    bar.close()
+    if world > 1:  # BatchNorm statistics of the last step are per rank: take rank 0's, as DDP does
+        for buf in model.buffers():
+            dist.broadcast(buf, 0)
+    if s.save_rank_weights:
+        torch.save({k: v.clone() for k, v in model.state_dict().items()}, out_dir / f"weights_rank{rank}.pt")
+    if writer is not None:
+        writer.close()
+    if world > 1:
+        dist.barrier()
+        dist.destroy_process_group()
+    return {"step": step, "last_loss": last_loss, "best_score": best}

@@ -1,0 +1,3 @@
+from cotrain.targets.checkerboard import Checkerboard, TargetConfig
+
+__all__ = ["Checkerboard", "TargetConfig"]

@@ -1,0 +1,189 @@
+"""ONNX export (checker + parity) and the onnxruntime detector on rendered and broken inputs."""
+
+import json
+
+import cv2
+import numpy as np
+import onnx
+import pytest
+
+from cotrain.cli import run as cotrain_cli
+from cotrain.config import load_config
+from cotrain.detect.detector import Detector, detect_files, expand_inputs, load_image
+from cotrain.model.train import TrainConfig, finalize_config, train
+from cotrain.render.renderer import render_batch
+from tests.paths import TINY
+
+
+@pytest.fixture(scope="module")
+def tiny_onnx(tmp_path_factory):
+    d = tmp_path_factory.mktemp("tiny")
+    train(finalize_config(load_config(TrainConfig, TINY, [f"train.out_dir={d}", "train.steps=2"])))
+    out = d / "tiny.onnx"
+    assert cotrain_cli(["export", "--checkpoint", str(d / "last.pt"), "--out", str(out)]) == 0
+    return out
+
+
+def test_export_checker_metadata_dynamic_batch(tiny_onnx):
+    m = onnx.load(str(tiny_onnx))
+    onnx.checker.check_model(m)
+    assert max(o.version for o in m.opset_import if o.domain in ("", "ai.onnx")) >= 17
+    meta = {p.key: p.value for p in m.metadata_props}
+    assert json.loads(meta["cotrain.input_size"]) == [64, 96]
+    assert json.loads(meta["cotrain.target"])["squares_x"] == 10
+    det = Detector(tiny_onnx)
+    for b in (1, 3):
+        outs = det.run(np.zeros((b, 1, 64, 96), np.float32))
+        assert outs[0].shape == (b, 54, 2) and outs[1].shape == (b, 54)
+
+
+def test_export_bad_checkpoint_is_one_line(tmp_path, capsys):
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"not a checkpoint")
+    assert cotrain_cli(["export", "--checkpoint", str(bad), "--out", str(tmp_path / "x.onnx")]) == 2
+    assert cotrain_cli(["export", "--checkpoint", str(tmp_path / "missing.pt"), "--out", str(tmp_path / "x.onnx")]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 2
+
+
+def test_detect_rendered_and_broken_inputs(tiny_onnx, tmp_path):
+    cfg = finalize_config(load_config(TrainConfig, TINY))
+    cfg.render.height, cfg.render.width = 120, 200
+    batch = render_batch(cfg.render, [0, 1], seed=5)
+    folder = tmp_path / "imgs"
+    folder.mkdir()
+    for i in range(2):
+        cv2.imwrite(str(folder / f"r{i}.png"), (batch["image"][i, 0].numpy() * 255).astype(np.uint8))
+    cv2.imwrite(str(folder / "deep.png"), (batch["image"][0, 0].numpy() * 65535).astype(np.uint16))
+    cv2.imwrite(str(folder / "colour.jpg"), cv2.cvtColor((batch["image"][1, 0].numpy() * 255).astype(np.uint8), cv2.COLOR_GRAY2BGR))
+    (folder / "corrupt.png").write_bytes(b"\x89PNG\r\n\x1a\nbroken")
+    (folder / "empty.png").write_bytes(b"")
+    cv2.imwrite(str(folder / "tiny.png"), np.zeros((1, 1), np.uint8))
+    out = tmp_path / "det.json"
+    rc = cotrain_cli(
+        [
+            "detect",
+            "--model",
+            str(tiny_onnx),
+            str(folder),
+            str(tmp_path / "missing.png"),
+            "--out",
+            str(out),
+            "--threshold",
+            "0.0",
+            "--no-consistency",
+            "--slots",
+            "--draw",
+            str(tmp_path / "draw"),
+        ]
+    )
+    assert rc == 0
+    data = json.loads(out.read_text())
+    assert set(data) == {"model", "target", "images"}
+    by = {e["path"].split("/")[-1]: e for e in data["images"]}
+    assert len(by) == 8
+    for name in ("r0.png", "r1.png", "deep.png", "colour.jpg"):
+        e = by[name]
+        assert e["error"] is None and (e["width"], e["height"]) == (200, 120)
+        # Threshold 0: every slot whose corner lands inside the image is reported.
+        full = Detector(tiny_onnx, threshold=0.0, consistency=False, mode="slots").detect(load_image(folder / name))
+        inside = ((full.all_xy[:, 0] > -0.5) & (full.all_xy[:, 0] < 199.5) & (full.all_xy[:, 1] > -0.5) & (full.all_xy[:, 1] < 119.5)).sum()
+        assert len(e["corners"]) == inside > 0
+        for c in e["corners"]:
+            assert set(c) == {"id", "x", "y", "confidence"} and 0 <= c["id"] < 54 and 0 <= c["confidence"] <= 1
+            assert -0.5 <= c["x"] < 199.5 and -0.5 <= c["y"] < 119.5
+    # 16-bit and 8-bit versions of the same image give the same corners.
+    a = np.array([[c["x"], c["y"]] for c in by["r0.png"]["corners"]])
+    b = np.array([[c["x"], c["y"]] for c in by["deep.png"]["corners"]])
+    assert np.abs(a - b).max() < 0.5
+    for name, why in [
+        ("corrupt.png", "not a readable image"),
+        ("empty.png", "empty file"),
+        ("tiny.png", "too small"),
+        ("missing.png", "not found"),
+    ]:
+        assert why in by[name]["error"] and by[name]["corners"] == []
+    assert (tmp_path / "draw" / "r0_det.png").is_file()
+
+
+def test_detect_maps_back_to_input_resolution(tiny_onnx):
+    """A corner the model puts at processing pixel x maps to (x + 0.5) / s - 0.5 in the input."""
+    det = Detector(tiny_onnx, threshold=0.0, consistency=False)
+    img = np.random.default_rng(0).random((240, 400)).astype(np.float32)  # 2.5x the 96x64 size in x, 3.75 in y
+    d = det.detect(img)
+    x, s = det.preprocess(img)
+    raw = det.run(x[None, None])[0][0]
+    assert s == pytest.approx(min(96 / 400, 64 / 240))
+    np.testing.assert_allclose(d.all_xy, (raw + 0.5) / s - 0.5, rtol=1e-6)
+
+
+def test_detect_missing_model_is_clear(tmp_path):
+    assert cotrain_cli(["detect", "--model", str(tmp_path / "none.onnx"), str(tmp_path)]) == 2
+
+
+def test_expand_inputs_sorted(tmp_path):
+    for n in ("b.png", "a.jpg", "notes.txt"):
+        (tmp_path / n).write_bytes(b"x")
+    assert [p.name for p in expand_inputs([str(tmp_path)])] == ["a.jpg", "b.png"]
+    assert detect_files  # the API is importable alongside the CLI
+
+
+def test_grid_consistency_drops_wrong_ids():
+    from cotrain.detect.detector import grid_consistent
+
+    nx, ny = 9, 6
+    ids = np.arange(nx * ny)
+    jj, ii = np.divmod(ids, nx)
+    # A smoothly distorted grid (quadratic warp, like a fisheye patch).
+    xy = np.stack([100 + 20 * ii + 0.3 * ii**2, 80 + 18 * jj + 0.2 * ii * jj], -1).astype(float)
+    assert grid_consistent(ids, xy, nx).all()
+    bad = xy.copy()
+    bad[[10, 40]] = bad[[40, 10]]  # two corners with swapped ids
+    keep = grid_consistent(ids, bad, nx)
+    assert not keep[10] and not keep[40] and keep.sum() >= len(ids) - 8
+    # An isolated corner (no neighbours reported) is not trusted.
+    assert not grid_consistent(np.array([5]), np.array([[3.0, 4.0]]), nx).any()
+
+
+def test_polish_moves_noisy_corners_to_the_saddle():
+    from cotrain.detect.detector import polish_corners
+    from cotrain.render.renderer import RenderConfig
+
+    cfg = RenderConfig(height=480, width=640, p_occluder=0.0, p_no_target=0.0, p_blur=0.0, p_motion=0.0, p_jpeg=0.0)
+    out = render_batch(cfg, list(range(6)), seed=8)
+    rng = np.random.default_rng(0)
+    before, after = [], []
+    for b in range(6):
+        sel = out["visible"][b].numpy() & (out["square_px"][b].numpy() >= 10)
+        if not sel.any():
+            continue
+        gt = out["corners_raw"][b].numpy()[sel].astype(float)
+        q = gt + rng.normal(scale=0.7, size=gt.shape)
+        p = polish_corners(out["image"][b, 0].numpy(), q, out["square_px"][b].numpy()[sel])
+        before.append(np.linalg.norm(q - gt, axis=1))
+        after.append(np.linalg.norm(p - gt, axis=1))
+    before, after = np.concatenate(before), np.concatenate(after)
+    assert len(before) > 50
+    assert np.median(after) < 0.2 < np.median(before)
+
+
+def test_detect_another_board(tmp_path, tiny_onnx, capsys):
+    """--squares-x / --squares-y name another checkerboard: the JSON's target says it, the
+    network's column / row votes are not used, slot mode (the model's own ids) is refused, and
+    half a board size or a bad square size is a one-line error."""
+    img = tmp_path / "a.png"
+    cv2.imwrite(str(img), np.full((120, 200), 128, np.uint8))
+    out = tmp_path / "d.json"
+    args = ["detect", "--model", str(tiny_onnx), str(img), "--out", str(out)]
+    assert cotrain_cli([*args, "--squares-x", "7", "--squares-y", "5", "--square-size", "0.03"]) == 0
+    assert json.loads(out.read_text())["target"].items() >= {"squares_x": 7, "squares_y": 5, "square_size": 0.03}.items()
+    det = Detector(tiny_onnx, target={"squares_x": 7, "squares_y": 5})
+    assert (det.nx, det.ny, det.board_votes) == (6, 4, False)
+    assert Detector(tiny_onnx).board_votes
+    capsys.readouterr()
+    assert cotrain_cli([*args, "--squares-x", "7"]) == 2
+    assert cotrain_cli([*args, "--squares-x", "7", "--squares-y", "5", "--slots"]) == 2
+    assert cotrain_cli([*args, "--squares-x", "2", "--squares-y", "5"]) == 2
+    assert cotrain_cli([*args, "--square-size", "-1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 4 and all(line.startswith("cotrain detect: error:") for line in err)

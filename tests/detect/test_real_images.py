@@ -1,0 +1,76 @@
+"""Real, camera-captured fisheye images (../shared/real, CC-BY 4.0 BoofCV-Data, Peter Abeles)."""
+
+import json
+from pathlib import Path
+
+import pytest
+import yaml
+
+from calib_eval.cli import run as calib_cli
+from cotrain.detect.detector import Detector, load_image
+from tests.paths import SHARED
+
+REAL = SHARED / "real" / "boofcv_fisheye_chessboard"
+pytestmark = pytest.mark.skipif(not REAL.is_dir(), reason="../shared/real is not beside the checkout")
+
+
+def _calibrate_ucm(seq: Path, tmp_path: Path) -> tuple[dict, dict]:
+    """``calib-eval calibrate`` of a one-camera sequence of the 5 x 7 board with the UCM model:
+    (report.json, camchain cam0)."""
+    target = tmp_path / "target.yaml"
+    target.write_text("squares_x: 5\nsquares_y: 7\nsquare_size: 1.0\nmargin: 0.0\n")
+    out = tmp_path / f"out_{seq.name}"
+    assert calib_cli(["calibrate", str(seq), "--fov", "190", "--model", "ucm", "--target", str(target), "--out", str(out)]) == 0
+    return json.loads((out / "report.json").read_text()), yaml.safe_load((out / "camchain.yaml").read_text())["cam0"]
+
+
+def test_calibrate_real_fisheye_against_boofcv(tmp_path):
+    """OpenCV detections -> our sequence layout -> UCM calibration. BoofCV's own calibration of the
+    same images (Mei model with radial distortion) puts the principal point at (319.18, 319.72)."""
+    seq = tmp_path / "seq"
+    assert calib_cli(["opencv-detect", str(REAL / "images"), "--squares-x", "5", "--squares-y", "7", "--out", str(seq)]) == 0
+    det = json.loads((seq / "cam0" / "detections.json").read_text())
+    assert sum(1 for e in det["images"] if len(e["corners"]) == 24) >= 24
+    report, cam = _calibrate_ucm(seq, tmp_path)
+    assert report["success"] and report["rms_px"]["cam0"] < 0.5
+    xi, fx, fy, cx, cy = cam["intrinsics"]
+    assert cam["camera_model"] == "omni" and xi > 1.0  # over 180 degrees
+    assert abs(cx - 319.18) < 2.0 and abs(cy - 319.72) < 2.0
+
+
+def test_detector_runs_on_real_images():
+    """The shipped model on real frames: no crash, arrays of the documented shapes, pixels inside."""
+    det = Detector()
+    for p in sorted((REAL / "images").glob("*.jpg"))[:3]:
+        img = load_image(p)
+        d = det.detect(img)
+        assert d.xy.shape == (len(d.ids), 2) and (d.width, d.height) == (640, 720)
+        assert ((d.xy >= -0.5) & (d.xy < [639.5, 719.5])).all()
+
+
+def test_learned_detector_on_real_frames_of_another_board(tmp_path):
+    """Our detector on a board it was not trained for (7 x 5 squares, symmetric under a half
+    turn): the network's corner and board maps still find the squares and the grid pass places
+    the lattice from the geometry alone. Every frame's corners agree with OpenCV's (up to the half
+    turn), and the calibration is as good as with OpenCV's corners (0.31 px RMS)."""
+    import numpy as np
+
+    seq, ref = tmp_path / "seq", tmp_path / "ref"
+    args = [str(REAL / "images"), "--squares-x", "5", "--squares-y", "7"]
+    assert calib_cli(["opencv-detect", *args, "--learned", "--out", str(seq)]) == 0
+    assert calib_cli(["opencv-detect", *args, "--out", str(ref)]) == 0
+    ours = json.loads((seq / "cam0" / "detections.json").read_text())["images"]
+    cv = json.loads((ref / "cam0" / "detections.json").read_text())["images"]
+    assert sum(len(e["corners"]) == 24 for e in ours) >= 25
+    for e, r in zip(ours, cv):
+        if not e["corners"] or not r["corners"]:
+            continue
+        q = {c["id"]: (c["x"], c["y"]) for c in r["corners"]}
+        d = [np.hypot(c["x"] - q[i][0], c["y"] - q[i][1]) for c in e["corners"] for i in (c["id"], 23 - c["id"])]
+        d = np.array(d).reshape(-1, 2)
+        d = d[:, np.argmin(np.median(d, 0))]  # OpenCV's order or its half turn
+        assert np.median(d) < 0.3 and d.max() < 3.0, e["path"]
+    report, cam = _calibrate_ucm(seq, tmp_path)
+    assert report["success"] and report["rms_px"]["cam0"] < 0.35
+    cx, cy = cam["intrinsics"][3:5]
+    assert abs(cx - 319.18) < 2.0 and abs(cy - 319.72) < 2.0

@@ -1,0 +1,58 @@
+"""Scoring of the detection evaluation on hand-made predictions."""
+
+import numpy as np
+import pytest
+
+from calib_eval.detection.evaluation import score, score_image
+
+GT = np.array([[100.0, 100.0], [200.0, 100.0], [300.0, 100.0], [400.0, 100.0]])
+VIS = np.array([True, True, True, False])
+DET = np.array([True, True, True, False])
+
+
+def test_score_image_learned():
+    pred = [
+        [0, 100.5, 100.0],  # exact within 0.5 px
+        [1, 300.0, 100.0],  # wrong id (lands on corner 2)
+        [2, 305.0, 100.0],
+    ]  # right id, 5 px off
+    s = score_image(pred, True, GT, VIS, DET)
+    assert s["hits"] == [(0, 0.5)]
+    assert s["n_detectable"] == 3 and s["n_reported"] == 3 and s["n_outliers"] == 2
+
+
+def test_score_image_position_matched():
+    pred = [[-1, 200.0, 101.0], [-1, 100.0, 100.0], [-1, 250.0, 100.0]]
+    s = score_image(pred, False, GT, VIS, DET)
+    assert sorted(s["hits"]) == [(0, 0.0), (1, 1.0)]
+    assert s["n_outliers"] == 1  # the one between corners
+
+
+def test_score_aggregates_and_empty_images():
+    labels = [
+        {
+            "image": "a.png",
+            "fov": 200,
+            "has_target": True,
+            "corners": GT.tolist(),
+            "visible": VIS.tolist(),
+            "detectable": DET.tolist(),
+            "centre": [250.0, 100.0],
+            "radius": 300.0,
+        },
+        {"image": "e.png", "fov": None, "has_target": False, "corners": [], "visible": [], "detectable": [], "centre": [0, 0], "radius": 1},
+        {"image": "f.png", "fov": None, "has_target": False, "corners": [], "visible": [], "detectable": [], "centre": [0, 0], "radius": 1},
+    ]
+    preds = {
+        "a.png": {"corners": [[0, 101.0, 100.0], [1, 200.0, 103.0], [3, 400.0, 100.0]], "ms": 10.0, "error": None, "has_id": True},
+        "e.png": {"corners": [[5, 1.0, 1.0]], "ms": 20.0, "error": None, "has_id": True},  # a detection on an empty image
+        "f.png": {"corners": [], "ms": 30.0, "error": None, "has_id": True},
+    }
+    r = score(preds, labels)
+    row = r["per_fov"]["200"]
+    # Corner 0 hit (1 px), corner 1 hit (3 px, the tolerance is inclusive), corner 2 missing; id 3 is not visible -> outlier.
+    assert row["recall"] == pytest.approx(2 / 3)
+    assert row["mean_error_px"] == pytest.approx(2.0) and row["median_error_px"] == pytest.approx(2.0)
+    assert row["outlier_rate"] == pytest.approx(1 / 3)
+    assert r["false_images"] == 1 and r["n_empty"] == 2
+    assert r["ms_per_image"] == pytest.approx(20.0)

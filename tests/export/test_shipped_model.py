@@ -1,0 +1,29 @@
+"""The shipped detector (export/default.onnx + grid pass) on fresh rendered 1280x720 fisheye frames:
+a regression guard for the model committed in the repository, on a seed the evaluation does not use."""
+
+import numpy as np
+
+from calib_eval.detection.evaluation import EvalConfig, _render_cfg
+from cotrain.detect.detector import Detector
+from cotrain.render.renderer import render_batch
+
+
+def test_shipped_detector_finds_corners_without_wrong_ids():
+    det = Detector()
+    cfg = EvalConfig()
+    n_det = n_hit = n_bad = 0
+    for fov in (190, 230):
+        rc = _render_cfg(fov, cfg, ["kb4", "ucm", "eucm", "ds"])
+        batch = render_batch(rc, list(range(4)), seed=31337 + fov)
+        for k in range(4):
+            found = det.detect(batch["image"][k, 0].numpy())
+            q = batch["corners_raw"][k].numpy()
+            detectable = batch["visible"][k].numpy() & (batch["square_px"][k].numpy() >= 10) & (batch["learnability"][k].numpy() > 0)
+            err = np.linalg.norm(found.xy - q[found.ids], axis=1)
+            n_det += int(detectable.sum())
+            n_hit += int((detectable[found.ids] & (err < 3)).sum())
+            n_bad += int((err >= 3).sum())
+    assert n_bad == 0
+    assert n_hit / n_det > 0.5
+    empty = render_batch(_render_cfg(200, cfg, ["kb4"], no_target=True), [0, 1], seed=4242)
+    assert all(len(det.detect(empty["image"][k, 0].numpy()).ids) == 0 for k in range(2))

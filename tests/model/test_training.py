@@ -1,0 +1,145 @@
+"""Training behaviour on the tiny config: overfitting, exact resume, 2-process gloo."""
+
+import os
+import socket
+import subprocess
+import sys
+
+import torch
+
+from cotrain.config import load_config
+from cotrain.model.losses import compute_losses
+from cotrain.model.network import CornerNet
+from cotrain.model.train import TrainConfig, build_from_checkpoint, finalize_config, load_checkpoint, train
+from cotrain.render.renderer import render_batch
+from tests.paths import ROOT, TINY
+
+
+def tiny(tmp_path, *overrides):
+    return finalize_config(load_config(TrainConfig, TINY, [f"train.out_dir={tmp_path}", *overrides]))
+
+
+def test_forward_keys_and_shapes():
+    cfg = tiny("/tmp/unused")
+    m = CornerNet(cfg.model)
+    out = m(torch.rand(2, 1, 64, 96))
+    N = 54
+    assert out["heatmap"].shape == (2, N, 16, 24)
+    for k in ("corners_rough", "corners_updated", "corners"):
+        assert out[k].shape == (2, N, 2)
+    for k in ("visibility_logit", "learnability", "confidence_logit"):
+        assert out[k].shape == (2, N)
+
+
+def test_overfits_fixed_batch():
+    torch.manual_seed(0)
+    cfg = tiny("/tmp/unused")
+    cfg.render.distance_range = (0.1, 0.2)
+    batch = render_batch(cfg.render, [0, 1], seed=4)
+    model = CornerNet(cfg.model)
+    opt = torch.optim.AdamW(model.parameters(), lr=3e-3)
+    first = None
+    for _ in range(150):
+        loss = compute_losses(model(batch["image"]), batch, cfg.loss)["total"]
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        first = first if first is not None else loss.item()
+    assert loss.item() < first / 5
+
+
+def test_resume_matches_uninterrupted(tmp_path):
+    torch.set_num_threads(1)
+    a = train(tiny(tmp_path / "a", "train.steps=4", "train.ckpt_minutes=0"))
+    train(tiny(tmp_path / "b", "train.steps=4", "train.stop_after=3", "train.ckpt_minutes=0"))
+    ck = load_checkpoint(tmp_path / "b" / "last.pt")
+    assert ck["step"] == 3
+    assert (tmp_path / "a" / "curve.csv").is_file() and (tmp_path / "a" / "curve.png").is_file()
+    b = train(tiny(tmp_path / "b", "train.steps=4", "train.ckpt_minutes=0"), resume=True)
+    assert b["step"] == 4
+    assert abs(a["last_loss"] - b["last_loss"]) < 1e-5 * max(1.0, abs(a["last_loss"]))
+    # The checkpoint rebuilds the model on its own.
+    model, cfg = build_from_checkpoint(load_checkpoint(tmp_path / "b" / "last.pt"))
+    assert cfg.model.n_corners == 54 and isinstance(model, CornerNet)
+
+
+def test_two_process_gloo(tmp_path):
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    cmd = [
+        sys.executable,
+        "-m",
+        "torch.distributed.run",
+        "--nproc_per_node",
+        "2",
+        "--master_port",
+        str(port),
+        "-m",
+        "cotrain.cli",
+        "train",
+        "--config",
+        str(TINY),
+        f"train.out_dir={tmp_path}",
+        "train.steps=3",
+        "train.save_rank_weights=true",
+        "train.threads=1",
+    ]
+    r = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=ROOT, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    w0 = torch.load(tmp_path / "weights_rank0.pt", weights_only=True)
+    w1 = torch.load(tmp_path / "weights_rank1.pt", weights_only=True)
+    assert w0.keys() == w1.keys()
+    for k in w0:
+        assert torch.equal(w0[k], w1[k]), k
+    init = CornerNet(tiny(tmp_path).model).state_dict()
+    assert any(not torch.equal(init[k], w0[k]) for k in w0 if w0[k].is_floating_point())
+
+
+def test_fine_tuning_adopts_checkpoint_architecture(tmp_path):
+    train(tiny(tmp_path / "a", "train.steps=1", "model.identity=classify"))
+    r = train(tiny(tmp_path / "b", "train.steps=1", f"train.init_from={tmp_path / 'a' / 'last.pt'}"))
+    assert r["step"] == 1
+    _, cfg = build_from_checkpoint(load_checkpoint(tmp_path / "b" / "last.pt"))
+    assert cfg.model.identity == "classify"
+
+
+class _BoardOracle(torch.nn.Module):
+    """Stands in for the network in the validation metric: column / row logits made from the
+    renderer's board coordinates (shifted by ``shift`` columns), corners exactly right."""
+
+    def __init__(self, val: dict, shift: int):
+        super().__init__()
+        self.cfg = CornerNet(finalize_config(load_config(TrainConfig, TINY)).model).cfg
+        self.val, self.shift = val, shift
+
+    def forward(self, image: torch.Tensor) -> dict:
+        i = next(
+            k for k in range(0, self.val["image"].shape[0], image.shape[0]) if torch.equal(self.val["image"][k : k + image.shape[0]], image)
+        )
+        sl = slice(i, i + image.shape[0])
+        uv = torch.nn.functional.avg_pool2d(self.val["board_uv"][sl], 4).round().long()
+        col = torch.nn.functional.one_hot((uv[:, 0] + 1 + self.shift).clamp(0, 10), 11).permute(0, 3, 1, 2).float() * 20
+        row = torch.nn.functional.one_hot((uv[:, 1] + 1).clamp(0, 7), 8).permute(0, 3, 1, 2).float() * 20
+        n = self.val["corners"].shape[1]
+        return {
+            "corners": self.val["corners"][sl],
+            "visibility_logit": torch.where(self.val["visible"][sl], 10.0, -10.0),
+            "confidence_logit": torch.zeros(image.shape[0], n),
+            "board_uv": uv.float(),
+            "board_col_logits": col,
+            "board_row_logits": row,
+        }
+
+
+def test_validation_board_id_accuracy_measures_column_and_row():
+    from cotrain.model.train import evaluate
+
+    cfg = finalize_config(load_config(TrainConfig, TINY))
+    cfg.render.height, cfg.render.width = 216, 384
+    val = render_batch(cfg.render, list(range(8)), seed=3)
+    right = evaluate(_BoardOracle(val, 0), val, batch_size=4)
+    wrong = evaluate(_BoardOracle(val, 1), val, batch_size=4)
+    assert right["recall"] == 1.0 and right["board_id_acc"] > 0.8
+    assert wrong["board_id_acc"] < 0.2
