@@ -1,4 +1,5 @@
-"""The ``calib-eval`` command: synth, select, calibrate (more stages as they land)."""
+"""The ``calib-eval`` command: synthetic sequences, frame selection, calibration, detection
+evaluation, the synthetic benchmark and its failure analysis, OpenCV sequences from images."""
 
 from __future__ import annotations
 
@@ -9,15 +10,13 @@ import time
 from pathlib import Path
 
 from calib_eval.detection.evaluation import DEFAULT_DETECTORS, DETECTORS
-from cotrain.config import build, load_yaml
-from cotrain.targets import TargetConfig
+from cotrain.geometry import MODELS
+from cotrain.targets import Checkerboard, Target, TargetConfig, load_target
 
 
-def _target(path: str | None) -> TargetConfig:
-    if not path:
-        return TargetConfig()
-    data = load_yaml(path)
-    return build(TargetConfig, data.get("target", data))
+def _target(path: str | None) -> Target | None:
+    """The target of a ``--target`` file (our config section or a Kalibr target yaml), if given."""
+    return load_target(path) if path else None
 
 
 def cmd_synth(a: argparse.Namespace) -> int:
@@ -53,7 +52,6 @@ def _selector_cfg(a: argparse.Namespace):
         max_anchors=a.max_anchors,
         max_covisible=a.max_covisible,
         max_monofill=a.max_monofill,
-        target=_target(a.target),
     )
 
 
@@ -61,7 +59,7 @@ def cmd_select(a: argparse.Namespace) -> int:
     from calib_eval.calibration.selector import select
     from cotrain.io.sequence import load_sequence
 
-    seq = load_sequence(a.seq, a.tolerance_ms)
+    seq = load_sequence(a.seq, a.tolerance_ms, target=_target(a.target))
     sel = select(seq, _selector_cfg(a))
     rows = [
         {
@@ -90,14 +88,14 @@ def cmd_calibrate(a: argparse.Namespace) -> int:
     from cotrain.io.sequence import load_sequence
 
     t0 = time.time()
-    seq = load_sequence(a.seq, a.tolerance_ms)
+    seq = load_sequence(a.seq, a.tolerance_ms, target=_target(a.target))
     order, extra = None, {}
     if a.select:
         sel = select(seq, _selector_cfg(a))
         seq = seq.subset(sel.keep)
         order = sel.order
         extra["selection"] = sel.summary()
-    cfg = CalibConfig(model=a.model, fov=a.fov, no_init=a.no_init, target=_target(a.target))
+    cfg = CalibConfig(model=a.model, fov=a.fov, no_init=a.no_init)
     res = calibrate(seq, cfg, order)
     chain, report = write_outputs(res, seq, a.out, {**extra, "total_runtime_s": time.time() - t0})
     if res.success:
@@ -145,19 +143,38 @@ def cmd_analysis(a: argparse.Namespace) -> int:
 
 
 def cmd_opencv_detect(a: argparse.Namespace) -> int:
-    from calib_eval.detection.opencv_baseline import folder_to_sequence
+    from calib_eval.detection.opencv_baseline import opencv_detect
+    from cotrain.detect.images import expand_inputs
+    from cotrain.io.sequence import images_to_sequence
 
     if not Path(a.images).is_dir():
         raise NotADirectoryError(f"{a.images}: not a folder of images")
-    tgt = TargetConfig(squares_x=a.squares_x, squares_y=a.squares_y, square_size=a.square_size, margin=0.0)
+    if a.target and a.squares_x is not None:
+        raise ValueError("give the board either as --target or as --squares-x/--squares-y")
+    if a.target:
+        tgt = load_target(a.target)
+    elif a.squares_x is not None and a.squares_y is not None:
+        tgt = Checkerboard(TargetConfig(squares_x=a.squares_x, squares_y=a.squares_y, square_size=a.square_size, margin=0.0))
+    else:
+        raise ValueError("name the board: --target TARGET.yaml, or --squares-x X --squares-y Y")
     if a.model and not a.learned:
         raise ValueError("--model goes with --learned")
     if a.sb and a.learned:
         raise ValueError("--sb chooses an OpenCV detector; it does not go with --learned")
-    seq = folder_to_sequence(Path(a.images), Path(a.out), tgt, sb=a.sb, learned=a.learned, model=a.model)
+    paths = expand_inputs([a.images])
+    if not paths:
+        raise FileNotFoundError(f"{a.images}: no images")
+    if a.learned:
+        from cotrain.detect.detector import Detector
+        from cotrain.io.detections import detect_files
+
+        det = Detector(a.model, target=tgt)
+        detect = lambda files: detect_files(files, det)  # noqa: E731
+    else:
+        detect = lambda files: opencv_detect(files, tgt, "sb" if a.sb else "classic")  # noqa: E731
+    seq = images_to_sequence(paths, Path(a.out), detect)
     print(
-        f"wrote {seq}/cam0 (images, timestamps.csv, detections.json); calibrate it with "
-        f"calib-eval calibrate {seq} --fov F --target <yaml with squares_x: {a.squares_x}, squares_y: {a.squares_y}>"
+        f"wrote {seq}/cam0 (images, timestamps.csv, detections.json with the target); calibrate it with calib-eval calibrate {seq} --fov F"
     )
     return 0
 
@@ -168,7 +185,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("synth", help="write a synthetic rig sequence (detections + ground truth) in the folder layout")
     s.add_argument("--config", default="FoV220_90", help="FoV<deg>_<yaw> or FoV<deg>_hex")
-    s.add_argument("--model", default="kb4", choices=["kb4", "ucm", "eucm", "ds"])
+    s.add_argument("--model", default="kb4", choices=list(MODELS))
     s.add_argument("--frames", type=int, default=480)
     s.add_argument("--noise", type=float, default=0.3, help="detector noise, px")
     s.add_argument("--outliers", type=float, default=0.0, help="fraction of gross outliers")
@@ -179,7 +196,7 @@ def build_parser() -> argparse.ArgumentParser:
     def seq_args(s: argparse.ArgumentParser) -> None:
         s.add_argument("seq", help="sequence folder (cam0/, cam1/, ... with timestamps.csv and detections.json)")
         s.add_argument("--fov", type=float, required=True, help="rough FoV in degrees (lens data sheet)")
-        s.add_argument("--target", help="target config YAML (default: the 10 x 7 checkerboard of CONVENTIONS)")
+        s.add_argument("--target", help="target file (our target config or a Kalibr target yaml); only where the detections name none")
         s.add_argument("--tolerance-ms", type=float, default=10.0, help="time matching tolerance between cameras")
         s.add_argument("--iso-gate", type=float, default=0.3)
         s.add_argument("--drs-numerator", type=float, default=110.0, help="s_drs gate = this / FoV")
@@ -195,7 +212,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("calibrate", help="calibrate a multi-fisheye rig; writes camchain.yaml and report.json")
     seq_args(s)
-    s.add_argument("--model", default="kb4", choices=["kb4", "ucm", "eucm", "ds"])
+    s.add_argument("--model", default="kb4", choices=list(MODELS))
     s.add_argument("--select", action="store_true", help="use the selector's frames (anchors first)")
     s.add_argument("--no-init", action="store_true", help="skip intrinsic initialisation (BA-only ablation)")
     s.add_argument("--out", required=True)
@@ -228,7 +245,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--trials", type=int, default=2, help="sequences per configuration (paper: 100)")
     s.add_argument("--frames", type=int, default=480)
-    s.add_argument("--model", default="ds", choices=["kb4", "ucm", "eucm", "ds"], help="camera model the calibrator fits")
+    s.add_argument("--model", default="ds", choices=list(MODELS), help="camera model the calibrator fits")
     s.add_argument(
         "--variants", nargs="+", default=["all", "selector", "random", "ba_only"], choices=["all", "selector", "random", "ba_only"]
     )
@@ -239,8 +256,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("opencv-detect", help="one-camera sequence folder from images, with OpenCV's (--learned: our) chessboard detections")
     s.add_argument("images", help="folder of images")
-    s.add_argument("--squares-x", type=int, required=True, help="squares along the board's x axis")
-    s.add_argument("--squares-y", type=int, required=True)
+    s.add_argument("--target", help="target file: our target config or a Kalibr target yaml")
+    s.add_argument("--squares-x", type=int, help="or: squares along the board's x axis")
+    s.add_argument("--squares-y", type=int, help="... and along its y axis")
     s.add_argument("--square-size", type=float, default=1.0, help="metres (any unit: it only scales the poses)")
     s.add_argument("--sb", action="store_true", help="findChessboardCornersSB instead of findChessboardCorners + cornerSubPix")
     s.add_argument("--learned", action="store_true", help="our detector (network + grid pass) instead of OpenCV's")

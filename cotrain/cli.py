@@ -1,4 +1,4 @@
-"""The ``cotrain`` command: pipeline, render-preview, bench-render, train, export, detect."""
+"""The ``cotrain`` command: detect, train, export, render-preview, bench-render, and the main job (pipeline)."""
 
 from __future__ import annotations
 
@@ -57,7 +57,10 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_detect(args: argparse.Namespace) -> int:
-    from cotrain.detect.detector import Detector, detect_files, expand_inputs, write_json_atomic
+    from cotrain.detect.detector import Detector
+    from cotrain.detect.images import expand_inputs
+    from cotrain.io.detections import detect_files, write_json_atomic
+    from cotrain.targets import load_target
 
     if not (0.0 <= args.threshold <= 1.0):
         raise ValueError("--threshold must be in [0, 1]")
@@ -66,7 +69,9 @@ def cmd_detect(args: argparse.Namespace) -> int:
         raise FileNotFoundError("no images found in the given paths")
     if (args.squares_x is None) != (args.squares_y is None):
         raise ValueError("give both --squares-x and --squares-y")
-    target = {}
+    if args.target and (args.squares_x is not None or args.square_size is not None):
+        raise ValueError("give the board either as --target or as --squares-x/--squares-y/--square-size")
+    target = load_target(args.target) if args.target else {}
     if args.squares_x is not None:
         target.update(squares_x=args.squares_x, squares_y=args.squares_y)
     if args.square_size is not None:
@@ -139,10 +144,11 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--threshold", type=float, default=0.5, help="with --slots: visibility probability to report a corner")
     s.add_argument("--draw", help="folder for overlays of the detections")
     s.add_argument(
-        "--slots", action="store_true", help="report the network's per-slot corners instead of the grid pass (cotrain.detect.grid)"
+        "--slots", action="store_true", help="report the network's per-slot corners instead of the grid pass (cotrain.detect.grid_pass)"
     )
     s.add_argument("--polish", action="store_true", help="with --slots: classical saddle-point polish of the corners")
     s.add_argument("--no-consistency", action="store_true", help="with --slots: keep corners that fail the grid-consistency check")
+    s.add_argument("--target", help="the board: our target config or a Kalibr target yaml (default: the model's board)")
     s.add_argument("--squares-x", type=int, help="another checkerboard than the model's: squares along x (ids from geometry alone)")
     s.add_argument("--squares-y", type=int, help="... and along its y axis")
     s.add_argument("--square-size", type=float, help="side of a square, metres (written to the JSON's target)")

@@ -1,12 +1,9 @@
 """``cotrain export --checkpoint C --out model.onnx``: ONNX (opset 18) with self-describing metadata.
 
-The graph takes ``image`` (B, 1, H, W) float32 grey in [0, 1] at the processing size and returns
-``corners`` (B, N, 2) in processing pixels, ``visibility`` (B, N), ``confidence`` (B, N) and
-``learnability`` (B, N) as probabilities, and the dense maps the detector's grid pass reads
-(:mod:`cotrain.detect.grid`) at 1/4 of the processing size: ``corner_prob`` (B, 1, h, w), ``mask_prob``
-(B, 1, h, w), ``col_logp`` (B, nx + 2, h, w) and ``row_logp`` (B, ny + 2, h, w). Resizing (letterbox, top-left) happens outside the graph
-in :mod:`cotrain.detect.detector`, as the metadata says. After export, onnxruntime is compared with PyTorch
-on rendered images; the export fails if any corner differs by more than ``tol_px``.
+The graph's input and outputs are named in :mod:`cotrain.model.outputs` (the contract the detector
+reads them by, :mod:`cotrain.detect.onnx_model`). Resizing (the letterbox, top-left) happens
+outside the graph in the detector, as the metadata says. After export, onnxruntime is compared
+with PyTorch on rendered images; the export fails if any corner differs by more than ``tol_px``.
 """
 
 from __future__ import annotations
@@ -22,11 +19,12 @@ import torch
 
 from cotrain.config import to_dict
 from cotrain.model.network import CornerNet
+from cotrain.model.outputs import INPUT, OUTPUTS
 from cotrain.model.train import TrainConfig, build_from_checkpoint, load_checkpoint
 from cotrain.render.renderer import render_batch
+from cotrain.targets import make_target
 
 OPSET = 18  # the dynamo exporter's native opset (>= 17 as required; down-conversion to 17 fails)
-OUTPUTS = ["corners", "visibility", "confidence", "learnability", "corner_prob", "mask_prob", "col_logp", "row_logp"]
 
 
 class ExportWrapper(torch.nn.Module):
@@ -37,6 +35,7 @@ class ExportWrapper(torch.nn.Module):
         self.model = model
 
     def forward(self, image: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """The outputs of :data:`cotrain.model.outputs.OUTPUTS`, in that order."""
         o = self.model(image)
         cfg = self.model.cfg
         if o["board_col_logits"].shape[1] > 0:
@@ -63,10 +62,9 @@ class ExportError(ValueError):
 
 
 def metadata(cfg: TrainConfig, name: str) -> dict[str, str]:
-    t = cfg.render.target
     return {
         "cotrain.name": name,
-        "cotrain.target": json.dumps({"kind": t.kind, "squares_x": t.squares_x, "squares_y": t.squares_y, "square_size": t.square_size}),
+        "cotrain.target": json.dumps(make_target(cfg.render.target).to_json()),
         "cotrain.input_size": json.dumps(list(cfg.model.input_size)),  # [H, W]
         "cotrain.normalisation": "grey float32 in [0, 1] (8-bit / 255, 16-bit / 65535, colour -> grey); the image is scaled by "
         "s = min(W / w, H / h) with cv2.INTER_AREA and placed top-left on a black H x W canvas; corner pixels map back as "
@@ -95,7 +93,7 @@ def export_onnx(checkpoint: str | Path, out: str | Path, tol_px: float = 0.01, n
             prog = torch.onnx.export(
                 wrapper,
                 (example,),
-                input_names=["image"],
+                input_names=[INPUT],
                 output_names=OUTPUTS,
                 opset_version=OPSET,
                 dynamic_shapes=({0: torch.export.Dim("batch", min=1, max=256)},),
@@ -114,7 +112,7 @@ def export_onnx(checkpoint: str | Path, out: str | Path, tol_px: float = 0.01, n
     # Parity on rendered images at the processing size.
     batch = render_batch(cfg.render, list(range(n_check)), seed=424242)
     sess = ort.InferenceSession(str(tmp), providers=["CPUExecutionProvider"])
-    got = sess.run(None, {"image": batch["image"].numpy().astype(np.float32)})
+    got = sess.run(list(OUTPUTS), {INPUT: batch["image"].numpy().astype(np.float32)})
     with torch.no_grad():
         ref = [t.numpy() for t in wrapper(batch["image"])]
     dq = float(np.abs(got[0] - ref[0]).max())

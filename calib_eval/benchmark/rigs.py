@@ -14,7 +14,7 @@ import torch
 
 from cotrain.geometry import cameras, poses
 from cotrain.io.sequence import CameraInfo, Observation, Sequence
-from cotrain.targets import Checkerboard, TargetConfig
+from cotrain.targets import Target, TargetConfig, make_target, square_px
 
 
 @dataclass
@@ -86,7 +86,7 @@ def make_rig(spec: RigSpec) -> tuple[list[str], list[torch.Tensor], np.ndarray]:
     return [spec.model] * n, params, T
 
 
-def _sample_rig_poses(rng: np.random.Generator, n: int, board: Checkerboard, spec: SynthSpec, T_cam_rig: np.ndarray) -> np.ndarray:
+def _sample_rig_poses(rng: np.random.Generator, n: int, board: Target, spec: SynthSpec, T_cam_rig: np.ndarray) -> np.ndarray:
     """T_rig_board for n views: the rig in front of the board, random viewing directions."""
     x0, y0, x1, y1 = board.extent()
     centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2, 0.0])
@@ -115,11 +115,10 @@ def _sample_rig_poses(rng: np.random.Generator, n: int, board: Checkerboard, spe
 def make_sequence(rig: RigSpec, spec: SynthSpec, seed: int = 0) -> tuple[Sequence, GroundTruth]:
     """A synthetic sequence with ground truth. Observations: detectable corners + noise."""
     rng = np.random.default_rng(seed)
-    board = Checkerboard(spec.target)
+    board = make_target(spec.target)
     models, params, T_cam_rig = make_rig(rig)
     T_rig_board = _sample_rig_poses(rng, spec.n_frames, board, spec, T_cam_rig)
     P = board.points().numpy()
-    s = board.s
     obs = []
     for k in range(spec.n_frames):
         for c, (model, prm) in enumerate(zip(models, params)):
@@ -132,10 +131,7 @@ def make_sequence(rig: RigSpec, spec: SynthSpec, seed: int = 0) -> tuple[Sequenc
             ok = ok.numpy() & (cameras.off_axis_angle(torch.from_numpy(pc)).numpy() <= math.radians(rig.fov) / 2 * 0.995)
             ok &= (q[:, 0] > 1) & (q[:, 0] < rig.width - 2) & (q[:, 1] > 1) & (q[:, 1] < rig.height - 2)
             # Detectable: the local square is large enough.
-            qx, _ = cameras.project(model, torch.from_numpy(pc + s / 2 * T[:3, 0]), prm)
-            qy, _ = cameras.project(model, torch.from_numpy(pc + s / 2 * T[:3, 1]), prm)
-            size = np.minimum(np.linalg.norm(qx.numpy() - q, axis=1), np.linalg.norm(qy.numpy() - q, axis=1)) * 2
-            ok &= size >= spec.min_square_px
+            ok &= square_px(model, prm, torch.from_numpy(T), board).numpy() >= spec.min_square_px
             if ok.sum() < spec.min_corners:
                 continue
             ids = np.nonzero(ok)[0]
@@ -145,6 +141,6 @@ def make_sequence(rig: RigSpec, spec: SynthSpec, seed: int = 0) -> tuple[Sequenc
                 qn[bad] += rng.uniform(8, 40, size=(bad.sum(), 2)) * rng.choice([-1, 1], size=(bad.sum(), 2))
             obs.append(Observation(c, k, ids, qn, np.ones(len(ids)), f"{k:06d}"))
     cams = [CameraInfo(f"cam{i}", rig.width, rig.height) for i in range(len(models))]
-    seq = Sequence(cams, spec.n_frames, obs, np.arange(spec.n_frames, dtype=np.int64) * 50_000_000)
+    seq = Sequence(cams, spec.n_frames, obs, np.arange(spec.n_frames, dtype=np.int64) * 50_000_000, board)
     gt = GroundTruth(models, [p.numpy() for p in params], T_cam_rig, T_rig_board)
     return seq, gt

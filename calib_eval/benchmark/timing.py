@@ -85,7 +85,8 @@ def bench_detect(model: str | None = None, checkpoint: str | None = None, n: int
     import cv2
     import numpy as np
 
-    from cotrain.detect.detector import Detector, load_image
+    from cotrain.detect.detector import Detector
+    from cotrain.detect.images import load_image
 
     cfg = RenderConfig(height=720, width=1280)
     batch = render_batch(cfg, list(range(n)), seed)
@@ -112,7 +113,8 @@ def bench_detect(model: str | None = None, checkpoint: str | None = None, n: int
         t_pt = []
         for p in paths:
             t0 = time.perf_counter()
-            x, s = det.preprocess(load_image(p))
+            g = load_image(p)
+            x = det.letterbox(g).apply(g)
             with torch.no_grad():
                 net(torch.from_numpy(x)[None, None])
             t_pt.append(time.perf_counter() - t0)
@@ -182,6 +184,7 @@ def main() -> int:
         "render_384x216": bench_render(RenderConfig(), batch=8, repeats=5),
         "render_1280x720": bench_render(RenderConfig(height=720, width=1280), batch=4, repeats=3),
         "render_vs_train_step": bench_render_vs_step(),
+        "detect_1280x720": bench_detect(),
         "calibration": bench_calibration(),
     }
     out = Path("report") / "bench.json"

@@ -10,7 +10,7 @@
 
 The solver is Levenberg-Marquardt on the block structure: target poses (6 each) are eliminated
 with the Schur complement, leaving a small system in the camera parameters. Robust kernel: Huber.
-Names follow CONVENTIONS: ``T_cam_rig`` (cam0 is the rig), ``T_rig_board`` per view.
+Names follow docs/conventions.md: ``T_cam_rig`` (cam0 is the rig), ``T_rig_board`` per view.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from torch import Tensor
 
 from cotrain.geometry import cameras, poses
 from cotrain.io.sequence import Observation, Sequence
-from cotrain.targets import Checkerboard, TargetConfig
+from cotrain.targets import Target
 
 
 @dataclass
@@ -42,7 +42,6 @@ class CalibConfig:
     max_rms_px: float = 2.0  # success needs every camera's final RMS below this
     no_init: bool = False  # skip stage 1 (the paper's BA-only two-stage ablation)
     shared_intrinsics_guess_radius: float = 0.0  # image-circle radius (px) of the initial guess; 0: half the shorter side
-    target: TargetConfig = field(default_factory=TargetConfig)
 
 
 class CalibrationFailed(RuntimeError):
@@ -109,7 +108,7 @@ class Problem:
     n_views: int
 
     @staticmethod
-    def build(obs: list[Observation], board: Checkerboard, view_index: dict[int, int], single_camera: bool = False) -> Problem:
+    def build(obs: list[Observation], board: Target, view_index: dict[int, int], single_camera: bool = False) -> Problem:
         """Flatten ``obs``; ``single_camera`` maps every observation to camera 0 (per-camera stages)."""
         P = board.points().numpy()
         cam, view, X, q, w = [], [], [], [], []
@@ -132,23 +131,6 @@ class SolveResult:
     reason: str
     residuals: Tensor  # (O,) per-corner error norm (px)
     schur_cond: float  # gamma: log10 condition of the normalised pose-free intrinsic Schur block
-
-
-def _clamp_intrinsics(model: str, x: Tensor) -> Tensor:
-    m = cameras.get_model(model)
-    x = x.clone()
-    for name in ("fx", "fy"):
-        x[..., m.index(name)] = x[..., m.index(name)].clamp_min(1.0)
-    if model == "ucm":
-        x[..., 0] = x[..., 0].clamp(0.0, 5.0)
-    if model in ("eucm", "ds"):
-        a = m.index("alpha")
-        x[..., a] = x[..., a].clamp(1e-3, 0.999)
-    if model == "eucm":
-        x[..., 1] = x[..., 1].clamp_min(1e-3)
-    if model == "ds":
-        x[..., 0] = x[..., 0].clamp(-1.0, 1.0)
-    return x
 
 
 def solve(
@@ -253,7 +235,7 @@ def solve(
             for c in range(C):
                 o, ni, ne = offs[c]
                 if ni:
-                    new_intr[c] = _clamp_intrinsics(model[c], intr[c] + dc[o : o + ni])
+                    new_intr[c] = cameras.get_model(model[c]).clamp(intr[c] + dc[o : o + ni])
                 if ne:
                     new_T[c] = _retract(T_cam_rig[c], dc[o + ni : o + ni + ne])
             new_P = _retract(T_rig_board, dp)
@@ -335,7 +317,7 @@ def pose_from_bearings(X: np.ndarray, v: np.ndarray) -> np.ndarray | None:
     return T
 
 
-def _init_view_pose(model: str, intr: Tensor, o: Observation, board: Checkerboard) -> np.ndarray | None:
+def _init_view_pose(model: str, intr: Tensor, o: Observation, board: Target) -> np.ndarray | None:
     v, ok = cameras.unproject(model, torch.from_numpy(o.q), intr)
     ok = ok.numpy()
     if ok.sum() < 4:
@@ -367,7 +349,7 @@ def initial_guess(model: str, fov: float, width: int, height: int, radius: float
     return cameras.make_camera(model, fov, width, height, radius or min(width, height) / 2.0)
 
 
-def _focal_search(model: str, guess: Tensor, obs: list[Observation], board: Checkerboard) -> Tensor:
+def _focal_search(model: str, guess: Tensor, obs: list[Observation], board: Target) -> Tensor:
     """Scale the guess's focal length to best explain a few views (1-D search, bearing poses)."""
     m = cameras.get_model(model)
     best, best_cost = guess, float("inf")
@@ -393,7 +375,7 @@ def _focal_search(model: str, guess: Tensor, obs: list[Observation], board: Chec
 
 
 def _intrinsic_stage(
-    model: str, intr: Tensor, obs: list[Observation], board: Checkerboard, cfg: CalibConfig, progressive: bool
+    model: str, intr: Tensor, obs: list[Observation], board: Target, cfg: CalibConfig, progressive: bool
 ) -> tuple[Tensor, dict[int, np.ndarray], list[float], SolveResult]:
     """Stage 1 (progressive, gamma recorded) or stage 2 (all at once) for one camera."""
     if progressive:
@@ -451,7 +433,7 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
     first); default: sequence order. Never raises for a bad sequence: the result says why.
     """
     t0 = time.time()
-    board = Checkerboard(cfg.target)
+    board = seq.target
     C = len(seq.cameras)
     models = [cfg.model] * C
     frames: dict[str, list[int]] = {}
@@ -477,6 +459,8 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
         cameras.get_model(cfg.model)
     except ValueError as e:
         return fail(str(e))
+    if board is None:
+        return fail("the sequence names no target (its detections carry none)")
     obs_by_cam = []
     for c in range(C):
         ob = [o for o in seq.by_camera(c) if len(o.ids) >= cfg.min_corners]
@@ -578,7 +562,7 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
 
 
 def _reject_outliers(
-    obs: list[Observation], poses_cb: dict[int, np.ndarray], model: str, intr: Tensor, board: Checkerboard, cfg: CalibConfig
+    obs: list[Observation], poses_cb: dict[int, np.ndarray], model: str, intr: Tensor, board: Target, cfg: CalibConfig
 ) -> list[Observation]:
     errs = []
     per = []

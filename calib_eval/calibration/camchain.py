@@ -1,4 +1,4 @@
-"""Calibration outputs of CONVENTIONS.md: Kalibr's camchain.yaml and the JSON report beside it."""
+"""Calibration outputs of docs/conventions.md: Kalibr's camchain.yaml and the JSON report beside it."""
 
 from __future__ import annotations
 

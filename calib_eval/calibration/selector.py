@@ -9,13 +9,12 @@ co-visible (time-matched views passing the 0.6-scaled gates in two or more camer
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
 from cotrain.io.sequence import Sequence
-from cotrain.targets import Checkerboard, TargetConfig
 
 
 @dataclass
@@ -31,7 +30,6 @@ class SelectorConfig:
     grid_cells: int = 8  # mono-fill coverage grid (cells per side over the usable circle)
     fill_target: int = 20  # a cell counts as weakly observed below this many corners
     centre_fraction: float = 0.05  # below this |u_bar - o| / R the principal direction is used
-    target: TargetConfig = field(default_factory=TargetConfig)
 
 
 def isotropy_score(board_xy: np.ndarray, q: np.ndarray, centre_xy: np.ndarray) -> float:
@@ -107,8 +105,9 @@ def usable_radius(width: int, height: int, mask_radius: float | None = None) -> 
 
 
 def score_observations(seq: Sequence, cfg: SelectorConfig) -> list[FrameScore]:
-    board = Checkerboard(cfg.target)
-    P = board.points().numpy()
+    if seq.target is None:
+        raise ValueError("the sequence names no target (its detections carry none)")
+    P = seq.target.points().numpy()
     centre_xy = P[:, :2].mean(0)
     out = []
     radii = []

@@ -29,6 +29,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from calib_eval.detection.opencv_baseline import find_chessboard
+
 BENCH_VERSION = 1  # bump when the benchmark set changes: results are only comparable within a version
 PAPER = {  # Table: detection recall / mean error (px) of the paper
     180: {"learned": (0.9330, 0.7841), "geometry": (0.7085, 0.8377)},
@@ -128,7 +130,8 @@ def render_benchmark(cfg: EvalConfig, out: Path, progress: bool = True) -> dict:
 def run_learned(model: str | None, images: list[Path], progress: bool = True, mode: str = "grid", polish: bool = False) -> dict:
     from tqdm import tqdm
 
-    from cotrain.detect.detector import Detector, ImageError, load_image
+    from cotrain.detect.detector import Detector
+    from cotrain.detect.images import ImageError, load_image
 
     det = Detector(model, polish=polish, mode=mode)
     out = {}
@@ -145,20 +148,15 @@ def run_learned(model: str | None, images: list[Path], progress: bool = True, mo
 
 
 def run_geometry(kind: str, images: list[Path], pattern: tuple[int, int] = (9, 6), progress: bool = True) -> dict:
-    """OpenCV detectors; corners carry no identity we trust (id -1)."""
+    """OpenCV detectors (``opencv_sb``, ``opencv_classic``); corners carry no identity we trust (id -1)."""
     from tqdm import tqdm
 
+    method = kind.removeprefix("opencv_")
     out = {}
     for p in tqdm(images, desc=kind, disable=not progress):
         t0 = time.perf_counter()
-        img = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
-        if kind == "opencv_sb":
-            ok, c = cv2.findChessboardCornersSB(img, pattern, flags=cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY)
-        else:
-            ok, c = cv2.findChessboardCorners(img, pattern, flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
-            if ok:
-                c = cv2.cornerSubPix(img, c, (5, 5), (-1, -1), (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.01))
-        corners = [[-1, float(x), float(y)] for x, y in c.reshape(-1, 2)] if ok else []
+        c = find_chessboard(cv2.imread(str(p), cv2.IMREAD_GRAYSCALE), pattern, method)
+        corners = [[-1, float(x), float(y)] for x, y in c] if c is not None else []
         out[p.name] = {"corners": corners, "ms": 1000 * (time.perf_counter() - t0), "error": None, "has_id": False}
     return out
 

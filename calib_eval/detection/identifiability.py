@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cotrain.detect.grid import ROTATIONS  # the board's in-plane turns, as the detector's placements use them
+from cotrain.targets import ROTATIONS  # the board's in-plane turns, as the detector's placements use them
 
 STEPS = ((1, 0), (-1, 0), (0, 1), (0, -1))
 

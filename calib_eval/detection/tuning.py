@@ -45,7 +45,7 @@ def degrade(grey: np.ndarray, how: str, seed: int = 0) -> np.ndarray:
 def grid_overrides(pairs: list[str]) -> dict[str, float | int]:
     """``["key=value", ...]`` -> GridConfig field overrides, each of its field's type. Unknown keys,
     ``min_margin`` (the table sweeps it) and values of the wrong type are errors."""
-    from cotrain.detect.grid import GridConfig
+    from cotrain.detect.grid_config import GridConfig
 
     fields = {f.name: type(f.default) for f in dataclasses.fields(GridConfig) if f.name != "min_margin"}
     out = {}
@@ -71,8 +71,9 @@ def margin_table(
 ) -> dict:
     from tqdm import tqdm
 
-    from cotrain.detect.detector import Detector, load_image
-    from cotrain.detect.grid import grid_pass
+    from cotrain.detect.detector import Detector
+    from cotrain.detect.grid_pass import grid_pass
+    from cotrain.detect.images import load_image
 
     meta = load_or_render(EvalConfig(seed=seed, width=size[0], height=size[1]), set_dir, progress)
     det = Detector(model)
@@ -80,9 +81,11 @@ def margin_table(
     rows, total = [], 0
     for n, lab in enumerate(tqdm(meta["labels"], desc="grid pass", disable=not progress)):
         grey = degrade(load_image(set_dir / "images" / lab["image"]), how, seed=n)
-        x, s = det.preprocess(grey)
-        out = det.run(x[None, None])
-        r = grid_pass(grey, s, out[4][0, 0], out[5][0, 0], out[6][0], out[7][0], det.nx, det.ny, gcfg)
+        box = det.letterbox(grey)
+        out = det.net.run(box.apply(grey)[None, None])
+        r = grid_pass(
+            grey, box.scale, out["corner_prob"][0, 0], out["mask_prob"][0, 0], out["col_logp"][0], out["row_logp"][0], det.nx, det.ny, gcfg
+        )
         if not lab["has_target"]:
             rows.append((r.margin, len(r.ids), len(r.ids), 0, 1))
             continue
@@ -112,7 +115,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m calib_eval.detection.tuning", description=__doc__.splitlines()[0])
     ap.add_argument("--model", help="ONNX model (default: the shipped model)")
     ap.add_argument("--seed", type=int, default=7, help="set seed (the evaluation's is 2026)")
-    ap.add_argument("--set", default="report/grid_tuning", help="folder of the rendered set (reused when it matches)")
+    ap.add_argument("--set", default="report/tuning", help="folder of the rendered set (reused when it matches)")
     ap.add_argument("--degrade", choices=DEGRADATIONS, default="none", help="degrade the frames first (see degrade())")
     ap.add_argument("--size", default="1280x720", help="image size WIDTHxHEIGHT of the rendered set")
     ap.add_argument("--grid", action="append", default=[], metavar="KEY=VALUE", help="override a GridConfig field")

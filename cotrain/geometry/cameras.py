@@ -8,13 +8,13 @@ Every model is a pair of pure, batched functions over torch tensors:
 - ``unproject(q, params) -> (v, valid)``: pixels ``(..., 2)`` to unit rays ``(..., 3)``;
   ``valid`` is False outside the unprojection domain (there ``v`` is finite, unit, meaningless).
 
-``params`` is ``(..., P)`` in Kalibr's intrinsics order (CONVENTIONS.md) and broadcasts against
+``params`` is ``(..., P)`` in Kalibr's intrinsics order (docs/conventions.md) and broadcasts against
 the leading dimensions of the points. The off-axis angle is always taken from the 3-D ray
 (``atan2(sqrt(x^2 + y^2), z)``), so rays beyond 90 degrees project correctly. Singularities
 (the optical axis, the edge of the domain) are handled with ``torch.where`` so that gradients
 stay finite; the kb4 inverse uses a fixed number of Newton steps (traceable, exportable).
 
-Models (pixel convention of CONVENTIONS: (0, 0) is the centre of the top-left pixel):
+Models (pixel convention of docs/conventions.md: (0, 0) is the centre of the top-left pixel):
 
 =====  ==========================  ====================================================
 name   params                      projection
@@ -227,6 +227,8 @@ class CameraModel:
     shape_names: tuple[str, ...]  # the projection-shape parameters (not fx, fy, cx, cy)
     kalibr_model: str  # camera_model in Kalibr's camchain.yaml
     kalibr_distortion: str  # distortion_model in camchain.yaml
+    bounds: dict[str, tuple[float, float]]  # valid range of each bounded parameter (solver increments are clamped to it)
+    shape_ranges: dict[str, tuple[float, float]]  # uniform sampling range of each shape parameter for rendered cameras
 
     @property
     def n_params(self) -> int:
@@ -234,6 +236,21 @@ class CameraModel:
 
     def index(self, name: str) -> int:
         return self.param_names.index(name)
+
+    def clamp(self, params: Tensor) -> Tensor:
+        """(..., n_params) parameters clamped into :attr:`bounds` (a copy)."""
+        out = params.clone()
+        for name, (lo, hi) in self.bounds.items():
+            i = self.index(name)
+            out[..., i] = out[..., i].clamp(lo, hi)
+        return out
+
+    def sample_shape(self, uniform: Callable[[float, float], float], scale: dict[str, float] | None = None) -> dict[str, float]:
+        """Shape parameters drawn from :attr:`shape_ranges` with ``uniform(lo, hi)`` (in
+        :attr:`shape_names` order); ``scale`` multiplies a parameter's draw (e.g. the renderer's
+        ``kb4_k_scale``)."""
+        scale = scale or {}
+        return {n: scale.get(n, 1.0) * uniform(*self.shape_ranges[n]) for n in self.shape_names}
 
 
 MODELS: dict[str, CameraModel] = {
@@ -245,10 +262,42 @@ MODELS: dict[str, CameraModel] = {
         ("k1", "k2", "k3", "k4"),
         "pinhole",
         "equidistant",
+        {"fx": (1.0, math.inf), "fy": (1.0, math.inf)},
+        {"k1": (-0.06, 0.06), "k2": (-0.015, 0.015), "k3": (-0.004, 0.004), "k4": (-0.001, 0.001)},
     ),
-    "ucm": CameraModel("ucm", ("xi", "fx", "fy", "cx", "cy"), project_ucm, unproject_ucm, ("xi",), "omni", "none"),
-    "eucm": CameraModel("eucm", ("alpha", "beta", "fx", "fy", "cx", "cy"), project_eucm, unproject_eucm, ("alpha", "beta"), "eucm", "none"),
-    "ds": CameraModel("ds", ("xi", "alpha", "fx", "fy", "cx", "cy"), project_ds, unproject_ds, ("xi", "alpha"), "ds", "none"),
+    "ucm": CameraModel(
+        "ucm",
+        ("xi", "fx", "fy", "cx", "cy"),
+        project_ucm,
+        unproject_ucm,
+        ("xi",),
+        "omni",
+        "none",
+        {"xi": (0.0, 5.0), "fx": (1.0, math.inf), "fy": (1.0, math.inf)},
+        {"xi": (0.6, 1.5)},
+    ),
+    "eucm": CameraModel(
+        "eucm",
+        ("alpha", "beta", "fx", "fy", "cx", "cy"),
+        project_eucm,
+        unproject_eucm,
+        ("alpha", "beta"),
+        "eucm",
+        "none",
+        {"alpha": (1e-3, 0.999), "beta": (1e-3, math.inf), "fx": (1.0, math.inf), "fy": (1.0, math.inf)},
+        {"alpha": (0.45, 0.7), "beta": (0.8, 1.3)},
+    ),
+    "ds": CameraModel(
+        "ds",
+        ("xi", "alpha", "fx", "fy", "cx", "cy"),
+        project_ds,
+        unproject_ds,
+        ("xi", "alpha"),
+        "ds",
+        "none",
+        {"xi": (-1.0, 1.0), "alpha": (1e-3, 0.999), "fx": (1.0, math.inf), "fy": (1.0, math.inf)},
+        {"xi": (-0.3, 0.05), "alpha": (0.45, 0.65)},
+    ),
 }
 
 DEFAULT_SHAPE: dict[str, dict[str, float]] = {

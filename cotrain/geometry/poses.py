@@ -1,4 +1,4 @@
-"""Small SE(3) helpers named by the ``T_a_b`` rule of CONVENTIONS.md.
+"""Small SE(3) helpers named by the ``T_a_b`` rule of docs/conventions.md.
 
 A pose ``T_a_b`` is a ``(..., 4, 4)`` homogeneous matrix mapping frame ``b`` to frame ``a``:
 ``p_a = T_a_b @ p_b`` and ``T_a_c = compose(T_a_b, T_b_c)``. Rotations as axis-angle

@@ -4,11 +4,12 @@ Folder layout (the one CO-Calib's release reads)::
 
     SEQ/cam0/images/*.png
     SEQ/cam0/timestamps.csv      frame_id,timestamp_ns,filename
-    SEQ/cam0/detections.json     optional: the detection JSON of CONVENTIONS.md
+    SEQ/cam0/detections.json     the detection JSON of docs/conventions.md, with its target
     SEQ/cam1/...
 
 Cameras are matched in time within a tolerance: every distinct (matched) time is one *view*, with
 one unknown target pose; each camera that saw the target at that time contributes an observation.
+The sequence carries the target its detections name, so selector and calibrator need no flag.
 """
 
 from __future__ import annotations
@@ -19,6 +20,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from cotrain.targets import Target, TargetError, describe, same_target, target_from_json
 
 
 class SequenceError(ValueError):
@@ -32,7 +35,7 @@ class Observation:
     cam: int  # camera index
     view: int  # view index (one target pose)
     ids: np.ndarray  # (M,) int corner ids
-    q: np.ndarray  # (M, 2) pixels (CONVENTIONS pixel convention)
+    q: np.ndarray  # (M, 2) pixels (docs/conventions.md)
     weight: np.ndarray  # (M,) observation weights (detector confidence, 1 if unknown)
     frame: str = ""  # image name or frame id, for reports
 
@@ -51,6 +54,7 @@ class Sequence:
     n_views: int
     observations: list[Observation] = field(default_factory=list)
     timestamps_ns: np.ndarray | None = None  # (n_views,) reference time of each view
+    target: Target | None = None  # the observed target (corner ids index its points)
 
     def by_camera(self, cam: int) -> list[Observation]:
         return [o for o in self.observations if o.cam == cam]
@@ -63,23 +67,50 @@ class Sequence:
 
     def subset(self, keep: set[tuple[int, int]]) -> Sequence:
         """The same sequence with only the (cam, view) observations in ``keep``."""
-        return Sequence(self.cameras, self.n_views, [o for o in self.observations if (o.cam, o.view) in keep], self.timestamps_ns)
+        obs = [o for o in self.observations if (o.cam, o.view) in keep]
+        return Sequence(self.cameras, self.n_views, obs, self.timestamps_ns, self.target)
 
 
-def read_detections(path: Path) -> dict[str, dict]:
-    """Detection JSON of CONVENTIONS -> {image basename: entry}. Raises SequenceError."""
+def read_detections(path: Path) -> tuple[dict[str, dict], Target | None]:
+    """Detection JSON (docs/conventions.md) -> ({image basename: entry}, its target or None).
+    Raises SequenceError."""
     try:
         data = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as e:
         raise SequenceError(f"{path}: unreadable detection JSON ({e.__class__.__name__})") from None
+    return parse_detections(data, str(path))
+
+
+def parse_detections(data: dict, where: str) -> tuple[dict[str, dict], Target | None]:
+    """A detection JSON already loaded: ({image basename: entry}, its target or None)."""
     if not isinstance(data, dict) or not isinstance(data.get("images"), list):
-        raise SequenceError(f"{path}: not a detection JSON (no 'images' list)")
+        raise SequenceError(f"{where}: not a detection JSON (no 'images' list)")
     out = {}
     for entry in data["images"]:
         if not isinstance(entry, dict) or "path" not in entry:
-            raise SequenceError(f"{path}: an image entry has no 'path'")
+            raise SequenceError(f"{where}: an image entry has no 'path'")
         out[Path(entry["path"]).name] = entry
-    return out
+    target = None
+    if data.get("target") is not None:
+        try:
+            target = target_from_json(data["target"], f"{where}: target")
+        except TargetError as e:
+            raise SequenceError(str(e)) from None
+    return out, target
+
+
+def _one_target(found: list[tuple[str, Target]], given: Target | None, seq: str) -> Target:
+    """The sequence's target: what its detections name (all alike); ``given`` (a --target) must agree."""
+    for where, t in found[1:]:
+        if not same_target(t, found[0][1]):
+            raise SequenceError(f"{where}: target {describe(t)} differs from {found[0][0]}'s {describe(found[0][1])}")
+    if found and given is not None and not same_target(given, found[0][1]):
+        raise SequenceError(f"--target ({describe(given)}) contradicts the detections' target ({describe(found[0][1])}, {found[0][0]})")
+    if found:
+        return found[0][1]
+    if given is None:
+        raise SequenceError(f"{seq}: the detections name no target; pass --target TARGET.yaml")
+    return given
 
 
 def _read_timestamps(path: Path) -> list[tuple[str, int, str]]:
@@ -102,9 +133,10 @@ def _read_timestamps(path: Path) -> list[tuple[str, int, str]]:
     return rows
 
 
-def load_sequence(seq: str | Path, tolerance_ms: float = 10.0, detect=None) -> Sequence:
-    """Read a sequence folder. ``detect(image_paths) -> {basename: entry}`` is used for cameras
-    without ``detections.json``; without it such a camera is an error."""
+def load_sequence(seq: str | Path, tolerance_ms: float = 10.0, detect=None, target: Target | None = None) -> Sequence:
+    """Read a sequence folder. ``detect(image_paths) -> detection JSON dict`` is used for cameras
+    without ``detections.json``; without it such a camera is an error. The target comes from the
+    detections; ``target`` is used where they name none, and must agree with them otherwise."""
     root = Path(seq)
     if not root.is_dir():
         raise SequenceError(f"{seq}: not a folder")
@@ -115,15 +147,18 @@ def load_sequence(seq: str | Path, tolerance_ms: float = 10.0, detect=None) -> S
         raise SequenceError(f"{seq}: no cam0/, cam1/, ... folders")
     per_cam = []
     cameras = []
+    targets: list[tuple[str, Target]] = []
     for cd in cam_dirs:
         rows = _read_timestamps(cd / "timestamps.csv")
         det_path = cd / "detections.json"
         if det_path.is_file():
-            dets = read_detections(det_path)
+            dets, t = read_detections(det_path)
         elif detect is not None:
-            dets = detect([cd / "images" / r[2] for r in rows])
+            dets, t = parse_detections(detect([cd / "images" / r[2] for r in rows]), f"{cd.name} (detector)")
         else:
             raise SequenceError(f"{cd}: no detections.json and no detector available")
+        if t is not None:
+            targets.append((str(det_path), t))
         size = None
         for e in dets.values():
             if e.get("width") and e.get("height"):
@@ -161,11 +196,14 @@ def load_sequence(seq: str | Path, tolerance_ms: float = 10.0, detect=None) -> S
     arr = np.asarray(sorted(set(times)), dtype=np.int64)
     for o in obs:
         o.view = int(np.argmin(np.abs(arr - o.view)))
-    return Sequence(cameras, len(arr), obs, arr)
+    return Sequence(cameras, len(arr), obs, arr, _one_target(targets, target, str(seq)))
 
 
-def write_sequence(seq: Sequence, root: str | Path, target: dict | None = None, model_name: str = "synthetic") -> Path:
-    """Write ``seq`` in the folder layout (timestamps.csv and detections.json per camera; no images)."""
+def write_sequence(seq: Sequence, root: str | Path, model_name: str = "synthetic") -> Path:
+    """Write ``seq`` in the folder layout (timestamps.csv and detections.json per camera, with the
+    sequence's target; no images)."""
+    if seq.target is None:
+        raise SequenceError("the sequence has no target to write")
     root = Path(root)
     ts = seq.timestamps_ns if seq.timestamps_ns is not None else np.arange(seq.n_views, dtype=np.int64) * 50_000_000
     by_cam_view = {(o.cam, o.view): o for o in seq.observations}
@@ -189,8 +227,30 @@ def write_sequence(seq: Sequence, root: str | Path, target: dict | None = None, 
         (d / "timestamps.csv").write_text("\n".join(lines) + "\n")
         det = {
             "model": model_name,
-            "target": target or {"kind": "checkerboard", "squares_x": 10, "squares_y": 7, "square_size": 0.04},
+            "target": seq.target.to_json(),
             "images": images,
         }
         (d / "detections.json").write_text(json.dumps(det))
     return root
+
+
+def images_to_sequence(paths: list[Path], seq_dir: str | Path, detect) -> Path:
+    """A one-camera sequence folder (``cam0``) from image files: the images copied, timestamps
+    0.1 s apart in file order, and ``detect(image_paths) -> detection JSON dict`` written as its
+    detections.json (paths relative to the sequence)."""
+    if not paths:
+        raise SequenceError("no images to make a sequence of")
+    cam = Path(seq_dir) / "cam0"
+    (cam / "images").mkdir(parents=True, exist_ok=True)
+    lines = ["frame_id,timestamp_ns,filename"]
+    for k, p in enumerate(paths):
+        dst = cam / "images" / p.name
+        if not dst.exists():
+            dst.write_bytes(p.read_bytes())
+        lines.append(f"{k},{k * 100_000_000},{p.name}")
+    (cam / "timestamps.csv").write_text("\n".join(lines) + "\n")
+    det = detect([cam / "images" / p.name for p in paths])
+    for e in det["images"]:
+        e["path"] = f"cam0/images/{Path(e['path']).name}"
+    (cam / "detections.json").write_text(json.dumps(det))
+    return Path(seq_dir)

@@ -14,6 +14,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from cotrain.geometry.letterbox import CELLS
+
 
 @dataclass
 class LossConfig:
@@ -38,7 +40,7 @@ class LossConfig:
 
 def gaussian_targets(corners: Tensor, h: int, w: int, sigma: float) -> Tensor:
     """G_i: (B, N, h, w) Gaussians at corners (B, N, 2) given in processing pixels."""
-    c = (corners - 1.5) / 4  # processing pixel -> 1/4 cell coordinates
+    c = CELLS.to_cell(corners)  # processing pixel -> 1/4 cell coordinates
     ys = torch.arange(h, dtype=corners.dtype, device=corners.device)
     xs = torch.arange(w, dtype=corners.dtype, device=corners.device)
     gx = torch.exp(-((xs[None, None] - c[..., :1]) ** 2) / (2 * sigma**2))  # (B, N, w)
@@ -50,7 +52,7 @@ def sample_logits(heat: Tensor, points: Tensor) -> Tensor:
     """H_k(p_j) for every channel k and point j: heat (B, N, h, w), points (B, M, 2) processing
     pixels -> (B, N, M), bilinear."""
     h, w = heat.shape[-2:]
-    c = (points - 1.5) / 4
+    c = CELLS.to_cell(points)
     g = torch.stack([(2 * c[..., 0] + 1) / w - 1, (2 * c[..., 1] + 1) / h - 1], -1)
     return F.grid_sample(heat, g[:, None], mode="bilinear", padding_mode="border", align_corners=False)[:, :, 0]
 

@@ -21,6 +21,8 @@ import torch.nn as nn
 import torch.nn.functional as F
 from torch import Tensor
 
+from cotrain.geometry.letterbox import CELLS
+
 
 @dataclass
 class ModelConfig:
@@ -147,7 +149,7 @@ class CornerNet(nn.Module):
         p = torch.softmax(vals, -1)
         cx = (p * xx.flatten(2).to(heat.dtype)).sum(-1)
         cy = (p * yy.flatten(2).to(heat.dtype)).sum(-1)
-        q = torch.stack([cx, cy], -1) * 4 + 1.5  # 1/4 cell centre -> processing pixel
+        q = CELLS.to_pixel(torch.stack([cx, cy], -1))  # 1/4 cell centre -> processing pixel
         return q, peak
 
     def forward(self, image: Tensor) -> dict[str, Tensor]:

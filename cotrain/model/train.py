@@ -21,6 +21,7 @@ import torch.distributed as dist
 from torch import Tensor
 
 from cotrain.config import ConfigError, from_dict, load_config, to_dict
+from cotrain.geometry.letterbox import CELLS
 from cotrain.model.losses import LossConfig, compute_losses
 from cotrain.model.network import CornerNet, ModelConfig
 from cotrain.render.renderer import RenderConfig, render_batch
@@ -142,7 +143,7 @@ def evaluate(model: CornerNet, val: dict[str, Tensor], batch_size: int = 16, tol
     bad = rep & (~val["visible"] | ~close)
     uv = torch.cat([o["board_uv"] for o in outs])  # (B, 2, h, w) column / row per 1/4 cell
     h, w = uv.shape[-2:]
-    cell = ((val["corners"] - 1.5) / 4).round().long()
+    cell = CELLS.to_cell(val["corners"]).round().long()
     cx, cy = cell[..., 0].clamp(0, w - 1), cell[..., 1].clamp(0, h - 1)
     bi = torch.arange(uv.shape[0])[:, None].expand_as(cx)
     got = torch.stack([uv[bi, 0, cy, cx], uv[bi, 1, cy, cx]], -1).round()

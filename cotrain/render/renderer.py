@@ -27,7 +27,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from cotrain.geometry import cameras, poses
-from cotrain.targets import Checkerboard, TargetConfig
+from cotrain.targets import Target, TargetConfig, make_target, square_px
 
 
 @dataclass
@@ -99,20 +99,8 @@ def _sample_camera(cfg: RenderConfig, g: torch.Generator) -> tuple[str, Tensor, 
     principal = ((cfg.width - 1) / 2 + _u(g, -jit, jit), (cfg.height - 1) / 2 + _u(g, -jit, jit))
     params = None
     for _ in range(8):
-        if model == "kb4":
-            ks = cfg.kb4_k_scale
-            shape = {
-                "k1": ks * _u(g, -0.06, 0.06),
-                "k2": ks * _u(g, -0.015, 0.015),
-                "k3": ks * _u(g, -0.004, 0.004),
-                "k4": ks * _u(g, -0.001, 0.001),
-            }
-        elif model == "ucm":
-            shape = {"xi": _u(g, 0.6, 1.5)}
-        elif model == "eucm":
-            shape = {"alpha": _u(g, 0.45, 0.7), "beta": _u(g, 0.8, 1.3)}
-        else:
-            shape = {"xi": _u(g, -0.3, 0.05), "alpha": _u(g, 0.45, 0.65)}
+        ks = cfg.kb4_k_scale
+        shape = cameras.get_model(model).sample_shape(lambda lo, hi: _u(g, lo, hi), {k: ks for k in ("k1", "k2", "k3", "k4")})
         try:
             params = cameras.make_camera(model, fov, cfg.width, cfg.height, radius, principal, **shape)
         except ValueError:
@@ -133,7 +121,7 @@ def _sample_camera(cfg: RenderConfig, g: torch.Generator) -> tuple[str, Tensor, 
     return model, params, fov, radius
 
 
-def _sample_pose(cfg: RenderConfig, board: Checkerboard, fov: float, g: torch.Generator) -> Tensor:
+def _sample_pose(cfg: RenderConfig, board: Target, fov: float, g: torch.Generator) -> Tensor:
     """T_cam_board: board centre along a random ray (up to FoV/2 + margin off-axis), tilted."""
     half = min(math.radians(fov / 2 + cfg.offaxis_margin_deg), math.radians(150))
     theta = half * math.sqrt(_u(g))  # denser towards the edge, where real detectors fail
@@ -159,7 +147,7 @@ def _sample_pose(cfg: RenderConfig, board: Checkerboard, fov: float, g: torch.Ge
     return poses.make_pose(R_cam_board, t)
 
 
-def sample_scene(cfg: RenderConfig, board: Checkerboard, gens: list[torch.Generator]) -> Scene:
+def sample_scene(cfg: RenderConfig, board: Target, gens: list[torch.Generator]) -> Scene:
     models, params, fovs, radii, Ts = [], [], [], [], []
     for g in gens:
         model, p, fov, radius = _sample_camera(cfg, g)
@@ -210,27 +198,17 @@ def _board_hit(v: Tensor, T_cam_board: Tensor) -> tuple[Tensor, Tensor]:
     return xy, hit
 
 
-def corner_labels(cfg: RenderConfig, board: Checkerboard, scene: Scene) -> dict[str, Tensor]:
+def corner_labels(cfg: RenderConfig, board: Target, scene: Scene) -> dict[str, Tensor]:
     """Exact labels of every corner slot (see :func:`render_batch` for the keys)."""
     P = board.points(torch.float64)  # (N, 3)
     N = P.shape[0]
-    s = board.s
     qs, valid, l_size, cos_inc = [], [], [], []
     for b, (model, p) in enumerate(zip(scene.model, scene.params)):
         T = scene.T_cam_board[b]
         pc = poses.transform_points(T, P)
         q, ok = cameras.project(model, pc, p)
         ok = ok & (cameras.off_axis_angle(pc) <= math.radians(float(scene.fov[b])) / 2)
-        # Local pixels-per-square: Jacobian of the board -> image map by central differences.
-        dx = torch.tensor([s / 2, 0, 0], dtype=torch.float64)
-        dy = torch.tensor([0, s / 2, 0], dtype=torch.float64)
-        qx1, ok1 = cameras.project(model, poses.transform_points(T, P + dx), p)
-        qx0, ok2 = cameras.project(model, poses.transform_points(T, P - dx), p)
-        qy1, ok3 = cameras.project(model, poses.transform_points(T, P + dy), p)
-        qy0, ok4 = cameras.project(model, poses.transform_points(T, P - dy), p)
-        J = torch.stack([qx1 - qx0, qy1 - qy0], dim=-1)  # (N, 2, 2), pixels per square
-        sv = torch.linalg.svdvals(J)
-        size = torch.where(ok1 & ok2 & ok3 & ok4, sv[:, -1], torch.zeros_like(sv[:, -1]))
+        size = square_px(model, p, T, board)  # local pixels per square
         n = T[:3, 2]
         ray = pc / pc.norm(dim=-1, keepdim=True)
         cos_inc.append((ray @ n).clamp(0, 1))
@@ -313,7 +291,7 @@ def _background(cfg: RenderConfig, gens: list[torch.Generator], h: int, w: int) 
     return torch.stack(out)[:, None].clamp(0, 1).float()
 
 
-def render_batch(cfg: RenderConfig, indices: list[int], seed: int = 0, board: Checkerboard | None = None) -> dict[str, Tensor]:
+def render_batch(cfg: RenderConfig, indices: list[int], seed: int = 0, board: Target | None = None) -> dict[str, Tensor]:
     """Render samples ``indices`` of the stream ``seed``.
 
     Returns a dict:
@@ -329,12 +307,12 @@ def render_batch(cfg: RenderConfig, indices: list[int], seed: int = 0, board: Ch
         fov: (B,) degrees; model_index: (B,) index into ``cfg.models``
         T_cam_board: (B, 4, 4); params: list of per-sample camera parameter tensors
     """
-    board = board or Checkerboard(cfg.target)
+    board = board or make_target(cfg.target)
     gens = [sample_generator(seed, i) for i in indices]
     return render_scene(cfg, board, sample_scene(cfg, board, gens), gens)
 
 
-def render_scene(cfg: RenderConfig, board: Checkerboard, scene: Scene, gens: list[torch.Generator]) -> dict[str, Tensor]:
+def render_scene(cfg: RenderConfig, board: Target, scene: Scene, gens: list[torch.Generator]) -> dict[str, Tensor]:
     """Render given cameras and poses (``scene``); appearance is drawn from ``gens`` (one per
     sample). Returns the dict of :func:`render_batch`."""
     B, H, W, ss = len(gens), cfg.height, cfg.width, cfg.supersample
@@ -357,9 +335,9 @@ def render_scene(cfg: RenderConfig, board: Checkerboard, scene: Scene, gens: lis
     value, cover = board.intensity(xy_safe, foot.clamp(max=1.0))
     cover = cover * ok * (~no_target)[:, None, None]
     # Board region of the checker squares (for the auxiliary mask) and board (u, v) coordinates.
-    u = xy_safe[..., 0] / board.s - 1
-    vv = xy_safe[..., 1] / board.s - 1
-    in_sq = ok & (u > -1) & (u < board.nx) & (vv > -1) & (vv < board.ny)
+    uv_grid, in_pattern = board.grid_coordinates(xy_safe)
+    u, vv = uv_grid[..., 0], uv_grid[..., 1]
+    in_sq = ok & in_pattern
 
     # Per-sample appearance parameters.
     def rr(g: torch.Generator, lo: float = 0.0, hi: float = 1.0) -> float:
@@ -472,7 +450,7 @@ class RenderedDataset(torch.utils.data.Dataset):
 
     def __init__(self, cfg: RenderConfig, seed: int = 0, length: int = 10**9):
         self.cfg, self.seed, self.length = cfg, seed, length
-        self.board = Checkerboard(cfg.target)
+        self.board = make_target(cfg.target)
 
     def __len__(self) -> int:
         return self.length

@@ -1,3 +1,33 @@
-from cotrain.targets.checkerboard import Checkerboard, TargetConfig
+"""Calibration targets: a :class:`Target` protocol and its kinds (the checkerboard)."""
 
-__all__ = ["Checkerboard", "TargetConfig"]
+from cotrain.targets.base import (
+    KINDS,
+    Target,
+    TargetConfig,
+    TargetError,
+    describe,
+    load_target,
+    make_target,
+    same_target,
+    square_px,
+    target_from_json,
+    target_from_kalibr,
+)
+from cotrain.targets.checkerboard import ROTATIONS, Checkerboard, board_symmetries
+
+__all__ = [
+    "KINDS",
+    "ROTATIONS",
+    "Checkerboard",
+    "Target",
+    "TargetConfig",
+    "TargetError",
+    "board_symmetries",
+    "describe",
+    "load_target",
+    "make_target",
+    "same_target",
+    "square_px",
+    "target_from_json",
+    "target_from_kalibr",
+]

@@ -1,46 +1,71 @@
-"""Calibration targets: 3-D corner points with their ids, and the target's appearance.
+"""The checkerboard target: corner ids, board coordinates, printed texture and symmetries.
 
-The default is the checkerboard of CONVENTIONS.md: 10 x 7 squares of 0.04 m, 54 inner corners,
-ids row-major, square (0, 0) black. Board frame: origin at the top-left outer corner of the
-squares, x along ``squares_x``, y along ``squares_y``, z into the board (away from the viewer).
+The default is the checkerboard of docs/conventions.md: 10 x 7 squares of 0.04 m, 54 inner
+corners, ids row-major, square (0, 0) black. Board frame: origin at the top-left outer corner of
+the squares, x along ``squares_x``, y along ``squares_y``, z into the board (away from the viewer).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import functools
 
+import numpy as np
 import torch
 from torch import Tensor
 
+from cotrain.targets.base import TargetConfig, TargetError
 
-@dataclass
-class TargetConfig:
-    kind: str = "checkerboard"  # only "checkerboard" for now
-    squares_x: int = 10  # squares along the board's x axis
-    squares_y: int = 7  # squares along the board's y axis
-    square_size: float = 0.04  # side of one square, metres
-    margin: float = 0.5  # white border around the squares, in squares (0 = no border)
+# The board's in-plane quarter turns (lattice coordinates (a, b) -> R @ (a, b)).
+ROTATIONS = [np.array([[1, 0], [0, 1]]), np.array([[0, -1], [1, 0]]), np.array([[-1, 0], [0, -1]]), np.array([[0, 1], [-1, 0]])]
 
 
 class Checkerboard:
     """A checkerboard target: geometry (corners, ids) and appearance (analytic intensity)."""
 
+    kind = "checkerboard"
+
     def __init__(self, cfg: TargetConfig | None = None):
         cfg = cfg or TargetConfig()
         if cfg.kind != "checkerboard":
-            raise ValueError(f"target.kind: unsupported target {cfg.kind!r} (only 'checkerboard')")
+            raise TargetError(f"target.kind: {cfg.kind!r} is not a checkerboard")
         if cfg.squares_x < 2 or cfg.squares_y < 2:
-            raise ValueError("target.squares_x and target.squares_y must be at least 2")
+            raise TargetError("target.squares_x and target.squares_y must be at least 2")
         if cfg.square_size <= 0:
-            raise ValueError("target.square_size must be positive")
+            raise TargetError("target.square_size must be positive")
         self.cfg = cfg
         self.nx = cfg.squares_x - 1  # inner corners along x
         self.ny = cfg.squares_y - 1
         self.s = cfg.square_size
 
+    def __repr__(self) -> str:
+        return f"Checkerboard({self.cfg.squares_x} x {self.cfg.squares_y} squares of {self.s:g} m)"
+
     @property
     def n_corners(self) -> int:
         return self.nx * self.ny
+
+    @property
+    def spacing(self) -> float:
+        """Distance between neighbouring corners, metres: the square size."""
+        return self.s
+
+    def to_json(self) -> dict:
+        """The detection JSON's ``"target"`` entry (docs/conventions.md)."""
+        return {"kind": "checkerboard", "squares_x": self.cfg.squares_x, "squares_y": self.cfg.squares_y, "square_size": self.s}
+
+    def to_kalibr(self) -> dict:
+        """Kalibr's target yaml: ``targetCols`` / ``targetRows`` count inner corners."""
+        return {
+            "target_type": "checkerboard",
+            "targetCols": self.nx,
+            "targetRows": self.ny,
+            "rowSpacingMeters": self.s,
+            "colSpacingMeters": self.s,
+        }
+
+    def symmetries(self) -> tuple[np.ndarray, ...]:
+        """Corner-id permutations under which the board looks the same (see :func:`board_symmetries`)."""
+        return board_symmetries(self.nx, self.ny)
 
     def grid_ij(self) -> Tensor:
         """(N, 2) integer grid indices (i, j) of corner ids 0..N-1 (id = j * nx + i)."""
@@ -52,6 +77,14 @@ class Checkerboard:
         ij = self.grid_ij().to(dtype)
         xy = (ij + 1) * self.s
         return torch.cat([xy, torch.zeros_like(xy[:, :1])], dim=-1)
+
+    def grid_coordinates(self, xy: Tensor) -> tuple[Tensor, Tensor]:
+        """Board points (..., 2) metres -> corner-grid coordinates (..., 2) (corner (i, j) at (i, j))
+        and (...) bool: on the checker squares."""
+        u = xy[..., 0] / self.s - 1
+        v = xy[..., 1] / self.s - 1
+        inside = (u > -1) & (u < self.nx) & (v > -1) & (v < self.ny)
+        return torch.stack([u, v], -1), inside
 
     def extent(self) -> tuple[float, float, float, float]:
         """(x_min, y_min, x_max, y_max) of the printed board including its margin, metres."""
@@ -117,3 +150,27 @@ def _filtered_square_wave(u: Tensor, w: Tensor) -> Tensor:
 def _box_coverage(u: Tensor, lo: float, hi: float, w: Tensor) -> Tensor:
     """Fraction of the box [u - w/2, u + w/2] inside [lo, hi] (for w below hi - lo)."""
     return torch.clamp((u - lo) / w + 0.5, 0.0, 1.0) * torch.clamp((hi - u) / w + 0.5, 0.0, 1.0)
+
+
+@functools.lru_cache(maxsize=8)
+def board_symmetries(nx: int, ny: int) -> tuple[np.ndarray, ...]:
+    """Corner id permutations (nx ny,) under which a board of nx x ny inner corners looks the same:
+    turns that map its squares onto squares of the same colour. None for the default 10 x 7
+    squares; the half turn for boards whose square counts are both odd or both even (7 x 5, 8 x 6);
+    also the quarter turns for square boards of an odd count. Such boards give each corner its id
+    only up to these turns."""
+    sx, sy = nx + 1, ny + 1
+    sq = np.stack(np.meshgrid(np.arange(sx), np.arange(sy), indexing="ij"), -1).reshape(-1, 2)
+    ij = np.stack(np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij"), -1).reshape(-1, 2)
+    out = []
+    for R in ROTATIONS[1:]:
+        t = sq @ R.T
+        t -= t.min(0)
+        if not np.array_equal(t.max(0), [sx - 1, sy - 1]) or not np.array_equal(t.sum(1) % 2, sq.sum(1) % 2):
+            continue
+        c = ij @ R.T  # inner corners turn the same way (about the board centre)
+        c -= c.min(0)
+        perm = np.empty(nx * ny, int)
+        perm[ij[:, 1] * nx + ij[:, 0]] = c[:, 1] * nx + c[:, 0]
+        out.append(perm)
+    return tuple(out)

@@ -9,7 +9,9 @@ import pytest
 
 from cotrain.cli import run as cotrain_cli
 from cotrain.config import load_config
-from cotrain.detect.detector import Detector, detect_files, expand_inputs, load_image
+from cotrain.detect.detector import Detector
+from cotrain.detect.images import expand_inputs, load_image
+from cotrain.io.detections import detect_files
 from cotrain.model.train import TrainConfig, finalize_config, train
 from cotrain.render.renderer import render_batch
 from tests.paths import TINY
@@ -33,8 +35,9 @@ def test_export_checker_metadata_dynamic_batch(tiny_onnx):
     assert json.loads(meta["cotrain.target"])["squares_x"] == 10
     det = Detector(tiny_onnx)
     for b in (1, 3):
-        outs = det.run(np.zeros((b, 1, 64, 96), np.float32))
-        assert outs[0].shape == (b, 54, 2) and outs[1].shape == (b, 54)
+        outs = det.net.run(np.zeros((b, 1, 64, 96), np.float32))
+        assert outs["corners"].shape == (b, 54, 2) and outs["visibility"].shape == (b, 54)
+        assert outs["col_logp"].shape == (b, 11, 16, 24) and outs["row_logp"].shape == (b, 8, 16, 24)
 
 
 def test_export_bad_checkpoint_is_one_line(tmp_path, capsys):
@@ -111,8 +114,9 @@ def test_detect_maps_back_to_input_resolution(tiny_onnx):
     det = Detector(tiny_onnx, threshold=0.0, consistency=False)
     img = np.random.default_rng(0).random((240, 400)).astype(np.float32)  # 2.5x the 96x64 size in x, 3.75 in y
     d = det.detect(img)
-    x, s = det.preprocess(img)
-    raw = det.run(x[None, None])[0][0]
+    box = det.letterbox(img)
+    s = box.scale
+    raw = det.net.run(box.apply(img)[None, None])["corners"][0]
     assert s == pytest.approx(min(96 / 400, 64 / 240))
     np.testing.assert_allclose(d.all_xy, (raw + 0.5) / s - 0.5, rtol=1e-6)
 

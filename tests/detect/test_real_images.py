@@ -7,7 +7,8 @@ import pytest
 import yaml
 
 from calib_eval.cli import run as calib_cli
-from cotrain.detect.detector import Detector, load_image
+from cotrain.detect.detector import Detector
+from cotrain.detect.images import load_image
 from tests.paths import SHARED
 
 REAL = SHARED / "real" / "boofcv_fisheye_chessboard"

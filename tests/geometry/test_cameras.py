@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from cotrain.geometry import MODELS, make_camera, off_axis_angle, project, unproject
+from cotrain.geometry import MODELS, cameras, make_camera, off_axis_angle, project, unproject
 
 FOVS = [180, 200, 220, 240]
 SHAPES = {
@@ -18,7 +18,7 @@ SHAPES = {
 
 
 def np_project(model, p, prm):
-    """Independent numpy projection straight from the formulas in CONVENTIONS / the papers."""
+    """Independent numpy projection straight from the formulas in docs/conventions.md / the papers."""
     x, y, z = p[..., 0], p[..., 1], p[..., 2]
     if model == "kb4":
         fx, fy, cx, cy, k1, k2, k3, k4 = prm
@@ -140,3 +140,24 @@ def test_make_camera_rejects_impossible_fov():
         make_camera("ucm", 250, 640, 480, xi=0.3)
     with pytest.raises(ValueError, match="unknown camera model"):
         make_camera("pinhole", 100, 640, 480)
+
+
+@pytest.mark.parametrize("model", list(cameras.MODELS))
+def test_model_owns_bounds_and_sampling(model):
+    """Every model says its own valid ranges; the solver's clamp uses them without knowing positions."""
+    m = cameras.get_model(model)
+    assert set(m.shape_ranges) == set(m.shape_names)
+    assert {"fx", "fy"} <= set(m.bounds)
+    x = torch.full((2, m.n_params), -10.0, dtype=torch.float64)
+    c = m.clamp(x)
+    for name, (lo, _hi) in m.bounds.items():
+        assert bool((c[:, m.index(name)] == lo).all())
+    free = [n for n in m.param_names if n not in m.bounds]
+    assert all(bool((c[:, m.index(n)] == -10).all()) for n in free)
+    draws = [m.sample_shape(lambda lo, hi: hi) for _ in range(2)]
+    assert draws[0] == {n: m.shape_ranges[n][1] for n in m.shape_names}
+    # The default camera and the middle of the sampling ranges lie inside the bounds.
+    mid = {n: sum(m.shape_ranges[n]) / 2 for n in m.shape_names}
+    for shape in ({}, mid):
+        p = cameras.make_camera(model, 200, 1280, 720, **shape)
+        assert torch.equal(m.clamp(p), p)

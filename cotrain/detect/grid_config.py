@@ -1,0 +1,71 @@
+"""Every threshold of the detector's grid pass, in one dataclass.
+
+The stages (:mod:`cotrain.detect.saddle`, :mod:`cotrain.detect.lattice`,
+:mod:`cotrain.detect.identity`, :mod:`cotrain.detect.grid_pass`) read their numbers from here;
+docs/detector.md explains where each one comes from. Lengths called "steps" are lattice steps in
+image pixels (the distance to the neighbouring corner); "squares" are a square's smaller side.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass
+class GridConfig:
+    # --- region and candidates (grid_pass, saddle) ---
+    region_threshold: float = 0.3  # corner-score or board-mask probability of a 1/4 cell that puts it in the searched region
+    region_grow_cells: int = 2  # the searched region is grown by this many 1/4 cells
+    crop_pad_px: int = 12  # the full-resolution work happens on the region's bounding box grown by this
+    max_candidates: int = 600  # strongest saddle-response maxima kept as candidates
+    min_response: float = 0.002  # saddle response (scale-normalised -det Hessian) a candidate needs
+    seed_score_floor: float = 0.05  # added to the network's corner score when ranking seeds (response x score)
+    merge_radius_px: float = 1.0  # candidates (or a candidate and a lattice corner) this close are one saddle
+    # --- saddle fit (saddle) ---
+    min_saddle_contrast: float = 0.04  # |eigenvalue| of the fitted quadratic * half^2 (intensity units) a saddle needs
+    min_saddle_ratio: float = 0.03  # smaller / larger |eigenvalue|: below this the fit is an edge, not an X
+    min_symmetry: float = 0.65  # correlation of the window with itself turned 180 deg (X-junctions are point-symmetric)
+    min_symmetric_share: float = 0.3  # share of window pixels seen on both sides of the 180 deg turn the symmetry test needs
+    min_rim_px: float = 3.0  # corners closer than this to the image circle's dark rim or the image border are not reported
+    # --- lattice growth (lattice.grow_lattice) ---
+    seed_axis_angle: float = 20.0  # deg: a seed's first neighbours lie within this of its fitted edge directions
+    min_seed_axes_sin: float = 0.2  # |sin| of the angle between the seed's two steps (nearly parallel ones are no lattice)
+    diag_offset: float = 0.3  # colour test samples the four quadrants this fraction of (step a +- step b) from the corner
+    min_seed_contrast: float = 0.05  # |quadrant contrast| (intensity) the seed needs (see lattice._diag_contrast)
+    min_alternation: float = 0.25  # a new corner's quadrant contrast must flip sign with at least this share of its parent's
+    match_radius: float = 0.45  # a neighbour must lie within this fraction of the grid step of its prediction
+    agree_radius: float = 0.3  # predictions of one corner from different neighbours must agree within this fraction of a step
+    min_step_ratio: float = 0.5  # a new step may be this much shorter than its prediction ...
+    max_step_ratio: float = 2.0  # ... or this much longer
+    crowd_radius: float = 0.5  # a new corner this close (fraction of the square's smaller side) to a placed one is refused
+    crowd_small_factor: float = 1.5  # in squares under this x min_step_px the crowding is measured against the step instead
+    min_step_px: float = 7.0  # no growth into squares smaller than this (saddles of tinier squares are unreliable)
+    # --- verification and positions (lattice) ---
+    max_line_offset: float = 0.4  # a corner may miss the midpoint of its two neighbours on a line by this fraction of half their distance
+    oblique_ratio: float = 2.0  # squares with sides over this ratio are "oblique": a failed refit is retried with a smaller window
+    max_refit_shift: float = 0.15  # a verifying refit must land within this fraction of the square on the corner
+    max_rim_edge_angle: float = 15.0  # deg: a corner fitted in a window cut by the rim must have its edges along the lattice lines
+    max_skipped: float = 0.3  # share of lattice steps (cells) with an X-junction at the midpoint (centre) that drops a lattice
+    skip_response_ratio: float = 0.5  # a midpoint (centre) is an X-junction when its response exceeds this x that of the weakest end
+    final_max_half: int = 3  # px: largest fit window half-size for the reported positions (see refine_positions)
+    max_final_shift: float = 0.15  # the final refit may move a corner by at most this fraction of its square
+    # --- which lattice is a board (grid_pass) ---
+    min_corners: int = 6  # smallest lattice that is reported
+    min_cells: int = 2  # complete lattice squares (four corners) a reported lattice needs
+    min_board_prob: float = 0.3  # mean board probability (network mask) at a lattice's corners
+    max_seeds: int = 12  # seeds tried (best corner scores first); the lattice with the surest identity wins
+    # --- identity (identity) ---
+    vote_offset: float = 0.25  # network votes are also read this fraction of a step along both lattice axes (the diagonals)
+    parity_weight: float = 2.0  # log-likelihood per lattice cell whose checker colour agrees with a placement
+    min_margin: float = 25.0  # the best placement must beat the runner-up by this (nats) to be reported
+    logp_floor: float = -3.0  # network log-probabilities are clamped here (one corner cannot veto a board)
+    offboard_penalty: float = 10.0  # per lattice corner a placement puts off the board (they are verified X-junctions)
+    edge_weight: float = 8.0  # per lattice corner whose outward neighbour is the board's white margin
+    min_edge_contrast: float = 0.1  # intensity difference of the two outward profiles half a step out that margin evidence needs
+    edge_end_min: float = 0.7  # steps out: the last squares must end (both profiles turn white) no closer than this ...
+    edge_end_max: float = 1.6  # ... and no farther
+    margin_band_start: float = 0.1  # steps beyond the squares' end where the white margin is sampled ...
+    margin_band_end: float = 0.25  # ... up to here
+    max_violated_edges: float = 2.5  # margin evidence (corners' worth) a placement may contradict before the lattice is rejected
+    max_violated_share: float = 0.35  # ... or this share of all the lattice's margin evidence, when that is more
+    filled_confidence: float = 0.9  # confidence factor of corners found by a saddle search, not among the candidates

@@ -1,0 +1,192 @@
+"""Grid pass of the detector: corner identities from the board's topology, not from one pixel.
+
+The network's per-slot heatmaps must recognise *which* of the 54 corners a blob is from global
+context alone, and that is what trains slowest on a CPU budget. Its dense maps (board mask,
+class-agnostic corner score, column / row classification of every pixel) train much faster.
+This pass turns them into identities the way a person would (docs/detector.md has the details):
+
+1. region and candidates (:func:`find_candidates`, :mod:`cotrain.detect.saddle`): X-junctions of
+   the full-resolution image inside the network's board region, moved to the saddle of a fitted
+   quadratic (which also gives the two edge directions) and kept if the window is point-symmetric;
+   next to the image circle's rim or the image border, from the part of the window that is seen;
+2. growth (:mod:`cotrain.detect.lattice`): from a seed, neighbours are predicted one square step
+   along each grid axis (from the last two steps: perspective's cross-ratio and the fisheye's
+   bend) and matched to a candidate, or, when the network missed it, to a saddle found at the
+   predicted spot; checker colours must alternate; a verification pass drops corners off their
+   lattice lines, and lattices grown with skipped corners; the result is a lattice coordinate
+   (a, b) per corner;
+3. identity (:mod:`cotrain.detect.identity`): the lattice is placed on the board by one of the
+   four in-plane rotations and an integer offset; every placement is scored by the network's
+   column / row log-probabilities at the corners, the checker colour of every lattice cell
+   (square (i, j) of corners is black when i + j is even) and the board's white margin where the
+   lattice stops, and the best one wins if it beats the runner-up by a margin (a board that looks
+   the same turned, like 7 x 5 squares, is identified up to that turn: corner 0 goes nearest the
+   image's top left);
+4. positions (:func:`cotrain.detect.lattice.refine_positions`): the reported corners are fitted
+   once more in a small window (at most 3 px half-size), close to the junction, where bent edges
+   and the blooming of real prints pull least.
+
+So one identity decision is made per board from all its corners, and a corner only gets an id if
+it is connected to the board's lattice. Thresholds: :class:`cotrain.detect.grid_config.GridConfig`.
+Pure functions over numpy arrays; pixels follow CONVENTIONS (centre of the top-left pixel at
+(0, 0)); input pixels map to the network's maps through the letterbox
+(:mod:`cotrain.geometry.letterbox`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy.spatial import cKDTree
+
+from cotrain.detect.grid_config import GridConfig
+from cotrain.detect.identity import assign_ids, canonical_ids, cell_darkness, corner_votes, edge_evidence
+from cotrain.detect.lattice import Lattice, grow_lattice, refine_positions, skipped_corners, verify_lattice
+from cotrain.detect.saddle import fit_saddles, outside_circle, saddle_candidates, saddle_response, smooth_cached, window_half
+from cotrain.geometry.letterbox import CELLS, cell_mask_to_input, to_processing
+
+
+@dataclass
+class GridResult:
+    ids: np.ndarray  # (K,) corner ids
+    xy: np.ndarray  # (K, 2) input-image pixels (saddle points)
+    confidence: np.ndarray  # (K,)
+    margin: float  # identity margin of the placement (nats); nan when no lattice was found
+
+
+def search_region(prob: np.ndarray, shape: tuple[int, int], scale: float, cfg: GridConfig) -> np.ndarray:
+    """Full-resolution (H, W) = ``shape`` bool region from a (h, w) 1/4-processing-resolution
+    probability map: cells above ``cfg.region_threshold``, grown by ``cfg.region_grow_cells``,
+    mapped back through the letterbox of ``scale``."""
+    k = 2 * cfg.region_grow_cells + 1
+    m = cv2.dilate((prob > cfg.region_threshold).astype(np.uint8), np.ones((k, k), np.uint8))
+    return cell_mask_to_input(m, scale, shape)
+
+
+def find_candidates(
+    grey: np.ndarray,
+    roi: np.ndarray,
+    offset: np.ndarray,
+    scale: float,
+    corner_prob: np.ndarray,
+    cfg: GridConfig,
+    smoothed: dict[int, np.ndarray],
+    rim_dist: np.ndarray | None = None,
+    response: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Saddle points inside ``roi`` (the network's corner / board region), best seeds first.
+
+    ``grey`` (H, W), ``roi`` (H, W), ``rim_dist`` (H, W) and ``response`` (H, W) are a crop of the
+    input whose top-left pixel is input pixel ``offset`` (2,); ``corner_prob`` (h, w) is the
+    network's corner score. Returns xy (K, 2) crop pixels and axes (K, 2, 2) (see
+    :func:`cotrain.detect.saddle.saddle_fit`)."""
+    xy0, resp = saddle_candidates(grey, roi, cfg, response=response)
+    if len(xy0) < 2:
+        return np.zeros((0, 2)), np.zeros((0, 2, 2))
+    # Window per candidate from the spacing to its nearest other candidate.
+    d, _ = cKDTree(xy0).query(xy0, k=2)
+    halves = window_half(d[:, 1])
+    xy = np.zeros_like(xy0)
+    ok = np.zeros(len(xy0), bool)
+    axes = np.zeros((len(xy0), 2, 2))
+    for h in np.unique(halves):
+        m = halves == h
+        xy[m], ok[m], axes[m] = fit_saddles(grey, smoothed, xy0[m], int(h), cfg, rim_dist)
+    # Seeds in order of saddle response times the network's corner score there.
+    score = resp * (CELLS.sample(corner_prob[None], to_processing(xy + offset, scale))[:, 0] + cfg.seed_score_floor)
+    keep = np.nonzero(ok)[0]
+    keep = keep[np.argsort(-score[keep])]
+    # Merge candidates that converged onto the same saddle: the better-scored one stays.
+    drop = np.zeros(len(keep), bool)
+    for i, j in sorted(cKDTree(xy[keep]).query_pairs(cfg.merge_radius_px)):
+        if not drop[i]:
+            drop[j] = True
+    keep = keep[~drop]
+    return xy[keep], axes[keep]
+
+
+def grid_pass(
+    grey: np.ndarray,
+    scale: float,
+    corner_prob: np.ndarray,
+    mask_prob: np.ndarray,
+    logp_col: np.ndarray,
+    logp_row: np.ndarray,
+    nx: int,
+    ny: int,
+    cfg: GridConfig,
+) -> GridResult:
+    """Corners with ids from the network's dense outputs and the full-resolution image.
+
+    Args:
+        grey: (H, W) float32 input image in [0, 1]; scale: processing pixels per input pixel.
+        corner_prob: (h, w) class-agnostic corner probability and mask_prob: (h, w) board
+        probability at 1/4 processing resolution; logp_col: (nx + 2, h, w), logp_row: (ny + 2, h, w)
+        column / row log-probabilities.
+    """
+    empty = GridResult(np.zeros(0, int), np.zeros((0, 2)), np.zeros(0), float("nan"))
+    # Work on the crop around the network's corner / board region (all full-resolution filtering
+    # scales with its area); crop pixels + offset = input pixels.
+    roi = search_region(np.maximum(corner_prob, mask_prob), grey.shape, scale, cfg)
+    allowed = ~outside_circle(grey)
+    allowed[[0, -1], :] = False  # the image's own border is a rim too
+    allowed[:, [0, -1]] = False
+    roi &= allowed
+    ys, xs = np.nonzero(roi.any(1))[0], np.nonzero(roi.any(0))[0]
+    if not len(ys):
+        return empty
+    pad = cfg.crop_pad_px
+    y0, y1 = max(0, ys[0] - pad), min(grey.shape[0], ys[-1] + 1 + pad)
+    x0, x1 = max(0, xs[0] - pad), min(grey.shape[1], xs[-1] + 1 + pad)
+    grey, roi, allowed = grey[y0:y1, x0:x1], roi[y0:y1, x0:x1], allowed[y0:y1, x0:x1]
+    offset = np.array([x0, y0], np.float64)
+    rim_dist = cv2.distanceTransform(allowed.astype(np.uint8), cv2.DIST_L2, 3)
+    smoothed: dict[int, np.ndarray] = {}
+    response = saddle_response(grey)
+    xy, axes = find_candidates(grey, roi, offset, scale, corner_prob, cfg, smoothed, rim_dist, response)
+    if len(xy) < cfg.min_corners:
+        return empty
+    # Grow from several seeds (distractors can hold the strongest saddles); a lattice must lie on
+    # what the network calls board, and the one whose identity is surest wins.
+    best: tuple[float, Lattice, np.ndarray] | None = None
+    covered = np.zeros(len(xy), bool)
+    tried = 0
+    for seed in range(len(xy)):
+        if tried >= cfg.max_seeds:
+            break
+        if covered[seed]:
+            continue
+        tried += 1
+        lat = grow_lattice(xy, axes, seed, grey, cfg, smoothed, rim_dist)
+        if lat is None:
+            continue
+        covered |= cKDTree(lat.xy).query(xy)[0] < cfg.merge_radius_px
+        lat = verify_lattice(lat, grey, cfg, smoothed, rim_dist)
+        if len(lat.ab) < cfg.min_corners or skipped_corners(lat, response, cfg) > cfg.max_skipped:
+            continue
+        if CELLS.sample(mask_prob[None], to_processing(lat.xy + offset, scale))[:, 0].mean() < cfg.min_board_prob:
+            continue
+        blur1 = smooth_cached(smoothed, grey, -1)
+        dark = cell_darkness(blur1, lat)
+        if len(dark) < cfg.min_cells:
+            continue  # a line of corners (or a diagonal) is not a checker lattice
+        lc, lr = corner_votes(lat, logp_col, offset, scale, cfg), corner_votes(lat, logp_row, offset, scale, cfg)
+        edges = edge_evidence(blur1, lat, cfg)
+        ids, _, margin, violated = assign_ids(lat.ab, lc, lr, dark, nx, ny, cfg, edges)
+        if violated > max(cfg.max_violated_edges, cfg.max_violated_share * sum(e[3] for e in edges)):
+            continue  # the board ends where the target goes on: another target, or a distractor
+        if best is None or margin > best[0]:
+            best = (margin, lat, ids)
+    if best is None:
+        return empty
+    margin, lat, ids = best
+    if margin < cfg.min_margin:
+        return GridResult(np.zeros(0, int), np.zeros((0, 2)), np.zeros(0), float(margin))
+    lat = refine_positions(lat, grey, cfg, smoothed, rim_dist)
+    ids = canonical_ids(ids, lat.xy, nx, ny)
+    on = ids >= 0
+    conf = np.full(len(ids), 1.0 - np.exp(-margin)) * np.where(lat.filled, cfg.filled_confidence, 1.0)
+    order = np.argsort(ids[on])
+    return GridResult(ids[on][order], lat.xy[on][order] + offset, conf[on][order], float(margin))

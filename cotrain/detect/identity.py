@@ -1,0 +1,244 @@
+"""Identity: which board corner every lattice corner is.
+
+The lattice (:class:`cotrain.detect.lattice.Lattice`) is placed on the board by one of the four
+in-plane rotations (:data:`ROTATIONS`; a board seen from its printed side is never mirrored) and
+an integer offset. :func:`assign_ids` scores every placement by
+
+- the network's column / row log-probabilities at the corners (:func:`corner_votes`);
+- the checker colour of every lattice cell (:func:`cell_darkness`): square (i, j) of corners is
+  black when i + j is even;
+- the board's white margin where the lattice stops (:func:`edge_evidence`);
+
+and the best one wins if it beats the runner-up by a margin. A board that looks the same turned
+(:func:`board_symmetries`, like 7 x 5 squares) is identified up to that turn, and
+:func:`canonical_ids` puts corner 0 nearest the image's top left.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cotrain.detect.grid_config import GridConfig
+from cotrain.detect.lattice import STEPS, Lattice, value_at, values_at
+from cotrain.geometry.letterbox import CELLS, to_processing
+from cotrain.targets.checkerboard import ROTATIONS, board_symmetries
+
+
+def canonical_ids(ids: np.ndarray, xy: np.ndarray, nx: int, ny: int) -> np.ndarray:
+    """For a symmetric board (:func:`board_symmetries`), the one of the equivalent id assignments
+    that puts corner 0 nearest the image's top left (smallest x + y, where an affine fit of the
+    corners' positions to their board coordinates places it), as OpenCV orders them; ids (K,)
+    with -1 off the board, xy (K, 2) pixels."""
+    perms = board_symmetries(nx, ny)
+    on = ids >= 0
+    if not perms or on.sum() < 3:
+        return ids
+
+    def corner0(v: np.ndarray) -> float:
+        A = np.stack([v % nx, v // nx, np.ones_like(v)], 1).astype(np.float64)
+        coef = np.linalg.lstsq(A, xy[on], rcond=None)[0]  # (3, 2): pixel = i c0 + j c1 + c2
+        return float(coef[2].sum())
+
+    best, best_key = ids, corner0(ids[on])
+    for perm in perms:
+        alt = ids.copy()
+        alt[on] = perm[ids[on]]
+        key = corner0(alt[on])
+        if key < best_key - 1e-6:
+            best, best_key = alt, key
+    return best
+
+
+# --------------------------------------------------------------------------------------------
+# Evidence
+# --------------------------------------------------------------------------------------------
+def corner_votes(lat: Lattice, logp: np.ndarray, offset: np.ndarray, scale: float, cfg: GridConfig) -> np.ndarray:
+    """Log-probabilities (K, C) of a dense column / row map ``logp`` (C, h, w) (1/4 processing
+    resolution) for every lattice corner: the mean over the corner and the four points
+    ``cfg.vote_offset`` of a step away along the diagonals (all of them are nearest to this
+    corner, so all share its column and row). ``lat.xy`` + ``offset`` (2,) are input pixels;
+    ``scale``: processing pixels per input pixel."""
+    where = lat.where
+    acc = np.zeros((len(lat.ab), logp.shape[0]))
+    for k, (a, b) in enumerate(lat.ab.tolist()):
+        pts = [lat.xy[k]]
+        for da, db in ((1, 1), (1, -1), (-1, 1), (-1, -1)):
+            n1, n2 = where.get((a + da, b)), where.get((a, b + db))
+            if n1 is not None and n2 is not None:
+                pts.append(lat.xy[k] + cfg.vote_offset * (lat.xy[n1] - lat.xy[k]) + cfg.vote_offset * (lat.xy[n2] - lat.xy[k]))
+        acc[k] = CELLS.sample(logp, to_processing(np.array(pts) + offset, scale)).mean(0)
+    return acc
+
+
+def cell_darkness(blur: np.ndarray, lat: Lattice) -> dict[tuple[int, int], float]:
+    """Per lattice cell (a, b) with all four corners known: +1 darker than its neighbour cells,
+    -1 lighter (0 when it has no neighbour cell). Cell (a, b) is spanned by (a, b) .. (a+1, b+1).
+    ``blur``: the (H, W) image blurred by 1 px."""
+    where = lat.where
+    val = {}
+    for (a, b), k in where.items():
+        quad = [where.get(t) for t in ((a + 1, b), (a, b + 1), (a + 1, b + 1))]
+        if None in quad:
+            continue
+        c = lat.xy[[k, *quad]].mean(0)
+        val[(a, b)] = value_at(blur, c)
+    out = {}
+    for (a, b), v in val.items():
+        nbs = [val[t] for t in ((a + 1, b), (a - 1, b), (a, b + 1), (a, b - 1)) if t in val]
+        out[(a, b)] = float(np.sign(np.mean(nbs) - v)) if nbs else 0.0
+    return out
+
+
+EDGE_T = np.arange(0.3, 2.0, 0.05)  # outward profile positions, in lattice steps
+
+
+def edge_evidence(blur: np.ndarray, lat: Lattice, cfg: GridConfig | None = None) -> list[tuple[int, int, int, float]]:
+    """Where the lattice stops because the board does: (k, da, db, e) for boundary corner k whose
+    neighbour (a + da, b + db) is missing, e in [0, 1] the evidence that the squares end one
+    square further on and the white margin follows. ``blur``: the (H, W) image blurred by 1 px.
+
+    Beyond the last corner row there is one more row of squares, then the margin. Two profiles run
+    outwards from the corner, half a square to either side: they differ across the last squares
+    (one black, one white, by ``cfg.min_edge_contrast`` at least), and where the squares end
+    (``cfg.edge_end_min`` .. ``cfg.edge_end_max`` steps out: perspective and the fisheye change
+    the step) both turn white, and stay white over the band ``cfg.margin_band_start`` ..
+    ``cfg.margin_band_end`` beyond. Where the board goes on (occlusion, image edge, rim)
+    the profiles keep differing, or turn dark, and there is no evidence. The outward step comes
+    from the corner behind and the sideways step from a neighbour across; where one of them is
+    missing (a lattice one corner deep, a corner at a tip) it is the other turned by 90 degrees
+    (lattice axes have a x b > 0 in the image).
+    """
+    cfg = cfg or GridConfig()
+    where = lat.where
+    jobs = []  # (k, da, db, p, out_step, across)
+    for (a, b), k in where.items():
+        for da, db in STEPS:
+            if (a + da, b + db) in where:
+                continue
+            side = [where.get((a + db, b + da)), where.get((a - db, b - da))]  # neighbours across the direction
+            back = where.get((a - da, b - db))
+            if all(m is None for m in side) and back is None:
+                continue
+            # Image steps outwards and sideways (along lattice direction (db, da)); one of them may
+            # come from the other turned by 90 degrees (rot90: b = rot90(a) in the image).
+            rot90 = lambda v: np.array([-v[1], v[0]])  # noqa: E731
+            if back is not None:
+                out_step = lat.xy[k] - lat.xy[back]
+            if any(m is not None for m in side):
+                m = next(m for m in side if m is not None)
+                sgn = 1.0 if m == side[0] else -1.0
+                across = sgn * (lat.xy[m] - lat.xy[k])
+                if back is None:
+                    out_step = -rot90(across) if da else rot90(across)
+            else:
+                across = rot90(out_step) if da else -rot90(out_step)
+            jobs.append((k, da, db, lat.xy[k], out_step, across))
+    if not jobs:
+        return []
+    p = np.array([j[3] for j in jobs])[:, None, None, :]
+    o = np.array([j[4] for j in jobs])[:, None, None, :]
+    c = np.array([j[5] for j in jobs])[:, None, None, :]
+    g = np.array([0.5, -0.5])[None, None, :, None]
+    prof = values_at(blur, p + EDGE_T[None, :, None, None] * o + g * c)  # (J, T, 2)
+    out = []
+    i_half = int(np.argmin(np.abs(EDGE_T - 0.5)))
+    for n, (k, da, db, *_rest) in enumerate(jobs):
+        A, B = prof[n, :, 0], prof[n, :, 1]
+        seen = np.cumprod(~(np.isnan(A) | np.isnan(B))).astype(bool)  # the profiles up to the image's edge
+        if not seen[i_half]:
+            continue
+        diff = (A - B) * np.sign(A[i_half] - B[i_half])
+        contrast = diff[i_half]
+        if contrast < cfg.min_edge_contrast:
+            continue
+        ended = np.nonzero(seen & (EDGE_T > 0.5) & (diff < 0.5 * contrast))[0]
+        if not len(ended) or not cfg.edge_end_min <= EDGE_T[ended[0]] <= cfg.edge_end_max:
+            continue
+        t_end = EDGE_T[ended[0]]
+        band = (EDGE_T >= t_end + cfg.margin_band_start) & (EDGE_T <= t_end + cfg.margin_band_end)  # inside the margin
+        white = max(A[i_half], B[i_half]) - 0.5 * contrast
+        if not seen[band].all() or not band.any() or min(A[band].min(), B[band].min()) < white:
+            continue
+        out.append((k, da, db, float(np.clip(1 - np.abs(A[band] - B[band]).mean() / contrast, 0, 1))))
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# Placement
+# --------------------------------------------------------------------------------------------
+def assign_ids(
+    ab: np.ndarray,
+    logp_col: np.ndarray,
+    logp_row: np.ndarray,
+    dark: dict[tuple[int, int], float],
+    nx: int,
+    ny: int,
+    cfg: GridConfig,
+    edges: list[tuple[int, int, int, float]] | None = None,
+) -> tuple[np.ndarray, float, float, float]:
+    """Place the lattice on the board.
+
+    Args:
+        ab: (K, 2) lattice coordinates; logp_col: (K, nx + 2) / logp_row: (K, ny + 2) the network's
+        log-probabilities of the corner column -1 .. nx / row -1 .. ny at each corner;
+        dark: cell darkness (see :func:`cell_darkness`); edges: margin evidence (see :func:`edge_evidence`).
+    Returns: ids (K,) (-1 where the placement puts a corner off the board), best score, margin
+    over the best placement that gives any corner another id (turns of a symmetric board, see
+    :func:`board_symmetries`, do not count), and the margin evidence the best
+    placement contradicts (sum of e over corners whose missing outward neighbour it puts on the
+    board: large when the lattice is a whole board of another size).
+    """
+    lc = np.maximum(logp_col, cfg.logp_floor)
+    lr = np.maximum(logp_row, cfg.logp_floor)
+    cells = np.array(list(dark.keys()), int).reshape(-1, 2)
+    dsign = np.array(list(dark.values()))
+    results = []  # (score, rot, oi, oj)
+    for r, R in enumerate(ROTATIONS):
+        ij0 = ab @ R.T  # (K, 2) before the offset
+        # Column score for every offset oi: sum_k lc[k, i_k + 1], i_k = ij0[k, 0] + oi (off-board -> floor).
+        ois = np.arange(-ij0[:, 0].max() - 1, nx - ij0[:, 0].min() + 1)
+        ojs = np.arange(-ij0[:, 1].max() - 1, ny - ij0[:, 1].min() + 1)
+        ii = ij0[:, 0][:, None] + ois[None]  # (K, n_oi)
+        jj = ij0[:, 1][:, None] + ojs[None]
+        sc = np.where((ii >= 0) & (ii < nx), np.take_along_axis(lc, np.clip(ii + 1, 0, nx + 1), 1), -cfg.offboard_penalty).sum(0)
+        sr = np.where((jj >= 0) & (jj < ny), np.take_along_axis(lr, np.clip(jj + 1, 0, ny + 1), 1), -cfg.offboard_penalty).sum(0)
+        # Parity: the cell's min corner after rotation decides its colour; black when i + j even.
+        par = np.zeros(2)
+        if len(cells):
+            quad = np.stack([cells, cells + [1, 0], cells + [0, 1], cells + [1, 1]], 1) @ R.T  # (C, 4, 2)
+            mn = quad.min(1).sum(1)  # i0 + j0 without offset
+            for e in (0, 1):  # e = (oi + oj) mod 2
+                black = ((mn + e) % 2) == 0
+                par[e] = cfg.parity_weight * float((np.where(black, 1.0, -1.0) * dsign).sum())
+        total = sc[:, None] + sr[None, :] + par[(ois[:, None] + ojs[None, :]) % 2]
+        if edges:
+            # Margin evidence: the missing outward neighbour must fall off the board.
+            kk = np.array([e[0] for e in edges])
+            t0 = (ab[kk] + np.array([[e[1], e[2]] for e in edges])) @ R.T  # (E, 2) before the offset
+            ev = np.array([e[3] for e in edges])
+            ti = t0[:, 0, None, None] + ois[None, :, None]
+            tj = t0[:, 1, None, None] + ojs[None, None, :]
+            off = (ti < 0) | (ti >= nx) | (tj < 0) | (tj >= ny)  # (E, n_oi, n_oj)
+            total = total + cfg.edge_weight * (ev[:, None, None] * np.where(off, 1.0, -1.0)).sum(0)
+        for a, oi in enumerate(ois):
+            for b, oj in enumerate(ojs):
+                results.append((float(total[a, b]), r, int(oi), int(oj)))
+    results.sort(key=lambda t: -t[0])
+    best = results[0]
+
+    def ids_of(res: tuple[float, int, int, int]) -> np.ndarray:
+        ij = ab @ ROTATIONS[res[1]].T + [res[2], res[3]]
+        on = (ij[:, 0] >= 0) & (ij[:, 0] < nx) & (ij[:, 1] >= 0) & (ij[:, 1] < ny)
+        return np.where(on, ij[:, 1] * nx + ij[:, 0], -1)
+
+    ids = ids_of(best)
+    # On a symmetric board the turned placements give the same view: they are not competitors.
+    on = ids >= 0
+    same = [ids] + [np.where(on, perm[np.where(on, ids, 0)], -1) for perm in board_symmetries(nx, ny)]
+    runner = next((r for r in results[1:] if not any(np.array_equal(ids_of(r), v) for v in same)), None)
+    margin = best[0] - runner[0] if runner is not None else np.inf
+    violated = 0.0
+    for k, da, db, e in edges or []:
+        i, j = (ab[k] + [da, db]) @ ROTATIONS[best[1]].T + [best[2], best[3]]
+        violated += e if (0 <= i < nx and 0 <= j < ny) else 0.0
+    return ids, best[0], margin, violated

@@ -1,0 +1,68 @@
+"""Images as the detector takes them: files read and converted to grey float32 in [0, 1].
+
+An unusable image raises :class:`ImageError` with a one-line reason, so work over many files
+records it and goes on.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp"}
+MIN_SIDE = 16  # smaller images are rejected with an error entry
+
+
+class ImageError(ValueError):
+    """An image that cannot be used (one-line reason)."""
+
+
+def to_grey_float(img: np.ndarray) -> np.ndarray:
+    """8- or 16-bit (or float), grey, colour or with alpha -> (H, W) float32 grey in [0, 1]."""
+    if img.ndim == 3 and img.shape[2] == 1:
+        img = img[..., 0]
+    if img.ndim == 3:
+        if img.shape[2] == 4:
+            img = img[..., :3]
+        if img.shape[2] != 3:
+            raise ImageError(f"unsupported channel count {img.shape[2]}")
+        img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+    if img.ndim != 2:
+        raise ImageError(f"unsupported image shape {img.shape}")
+    if img.dtype == np.uint8:
+        return img.astype(np.float32) / 255.0
+    if img.dtype == np.uint16:
+        return img.astype(np.float32) / 65535.0
+    if np.issubdtype(img.dtype, np.floating):
+        return np.clip(img.astype(np.float32), 0.0, 1.0)
+    raise ImageError(f"unsupported pixel type {img.dtype}")
+
+
+def load_image(path: str | Path) -> np.ndarray:
+    """Read an image file as grey float32 in [0, 1]; raises :class:`ImageError` with the reason."""
+    p = Path(path)
+    if not p.exists():
+        raise ImageError("file not found")
+    if p.is_dir():
+        raise ImageError("is a folder")
+    if p.stat().st_size == 0:
+        raise ImageError("empty file")
+    img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise ImageError("not a readable image (corrupt or unsupported format)")
+    return to_grey_float(img)
+
+
+def expand_inputs(items: list[str]) -> list[Path]:
+    """Files as given; folders expanded to their images (sorted). Missing paths are kept (they
+    become error entries)."""
+    out: list[Path] = []
+    for it in items:
+        p = Path(it)
+        if p.is_dir():
+            out.extend(sorted(q for q in p.iterdir() if q.suffix.lower() in IMAGE_SUFFIXES and q.is_file()))
+        else:
+            out.append(p)
+    return out

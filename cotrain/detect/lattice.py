@@ -1,0 +1,355 @@
+"""Lattice growth: checker corners connected into integer lattice coordinates (a, b).
+
+- :func:`grow_lattice`: breadth first from a seed candidate; each missing neighbour is predicted
+  one square step along a grid axis (from the last two steps: perspective's cross-ratio and the
+  fisheye's bend, see :func:`next_step`) and matched to a candidate or, where the network missed
+  it, to a saddle found at the predicted spot; checker colours must alternate;
+- :func:`verify_lattice`: a second look at every corner with its final neighbours (refit, straight
+  lattice lines, edges along the lines next to the rim); the largest connected part stays;
+- :func:`skipped_corners`: whether the lattice was grown with double steps or knight's moves;
+- :func:`refine_positions`: the reported positions, fitted once more in a small window.
+
+Lattice axes are oriented so that a x b > 0 in the image (x right, y down), as the board's own
+i, j axes are when its printed side is seen. Pixels follow CONVENTIONS (centre of the top-left
+pixel at (0, 0)).
+"""
+
+from __future__ import annotations
+
+import collections
+import functools
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy.spatial import cKDTree
+
+from cotrain.detect.grid_config import GridConfig
+from cotrain.detect.saddle import fit_saddles, smooth_cached, window_half
+
+STEPS = ((1, 0), (-1, 0), (0, 1), (0, -1))  # the four lattice neighbours (da, db)
+
+
+@dataclass(frozen=True)
+class Lattice:
+    xy: np.ndarray  # (K, 2) corner pixels
+    ab: np.ndarray  # (K, 2) integer lattice coordinates, distinct
+    filled: np.ndarray  # (K,) True where the corner was found by a saddle search at its predicted spot, not among the candidates
+
+    @functools.cached_property
+    def where(self) -> dict[tuple[int, int], int]:
+        """Index of every lattice coordinate: ``where[(a, b)]`` is its corner's row in xy / ab (in
+        the order of ab). Built once; a Lattice is not changed after it is made."""
+        return {tuple(t): k for k, t in enumerate(self.ab.tolist())}
+
+
+# --------------------------------------------------------------------------------------------
+# Colours
+# --------------------------------------------------------------------------------------------
+def value_at(img: np.ndarray, q: np.ndarray) -> float:
+    """Bilinear value of ``img`` (H, W) at one point q (2,) (exact sub-pixel position, border replicated)."""
+    return float(cv2.getRectSubPix(img, (1, 1), (float(q[0]), float(q[1])))[0, 0])
+
+
+def values_at(img: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Bilinear values (...) of ``img`` (H, W) at points (..., 2); NaN outside the image."""
+    flat = pts.reshape(-1, 2).astype(np.float32)
+    v = cv2.remap(img, flat[:, :1], flat[:, 1:], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
+    return v.reshape(pts.shape[:-1])
+
+
+def _diag_contrast(img: np.ndarray, p: np.ndarray, ea: np.ndarray, eb: np.ndarray, offset: float) -> float:
+    """Brightness of the (+a, -b) / (-a, +b) quadrants minus the (+a, +b) / (-a, -b) ones around
+    corner ``p`` (2,) (steps ``ea``, ``eb`` (2,), sampled ``offset`` of the way along the
+    diagonals): its sign alternates between lattice neighbours on a checker."""
+    d1, d2 = offset * (ea + eb), offset * (ea - eb)
+    return value_at(img, p + d2) + value_at(img, p - d2) - value_at(img, p + d1) - value_at(img, p - d1)
+
+
+# --------------------------------------------------------------------------------------------
+# Growth
+# --------------------------------------------------------------------------------------------
+def _cross(u: np.ndarray, v: np.ndarray) -> float:
+    return float(u[0] * v[1] - u[1] * v[0])
+
+
+def next_step(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """The image step after steps ``u`` then ``v`` (2,) along one lattice line.
+
+    Equal steps on the board seen in perspective keep their cross-ratio: with step lengths
+    d0 = |u|, d1 = |v| the next one is d1 (d0 + d1) / (3 d0 - d1) (clamped to 0.5 .. 2 d1), and
+    the fisheye bends the line by about the same angle again (clamped to 30 deg)."""
+    d0, d1 = float(np.linalg.norm(u)), float(np.linalg.norm(v))
+    den = 3 * d0 - d1
+    ratio = float(np.clip((d0 + d1) / den, 0.5, 2.0)) if den > 0 else 2.0
+    turn = float(np.clip(np.arctan2(_cross(u, v), float(np.dot(u, v))), -np.pi / 6, np.pi / 6))
+    c, s = np.cos(turn), np.sin(turn)
+    return ratio * np.array([c * v[0] - s * v[1], s * v[0] + c * v[1]])
+
+
+def grow_lattice(
+    xy: np.ndarray,
+    axes: np.ndarray,
+    seed: int,
+    grey: np.ndarray,
+    cfg: GridConfig,
+    smoothed: dict[int, np.ndarray],
+    rim_dist: np.ndarray | None = None,
+) -> Lattice | None:
+    """Breadth-first lattice growth from candidate ``seed`` among candidates xy (K, 2) with edge
+    directions axes (K, 2, 2) (see :func:`cotrain.detect.saddle.saddle_fit`) on the image grey
+    (H, W); corners found by the saddle search are fitted with ``rim_dist`` (H, W). None when the
+    seed has no two neighbours along its edges or no checker colours.
+
+    Lattice axes are oriented so that a x b > 0 in the image (x right, y down), as the board's own
+    i, j axes are when its printed side is seen.
+    """
+    tree = cKDTree(xy)
+    p0 = xy[seed]
+    d, nb = tree.query(p0, k=min(9, len(xy)))
+    cos_seed = np.cos(np.radians(cfg.seed_axis_angle))
+    steps = []
+    for u in axes[seed]:
+        best = None
+        for sgn in (1, -1):
+            for dist, j in zip(d[1:], nb[1:]):
+                if not np.isfinite(dist) or dist < 1.0:
+                    continue
+                v = xy[j] - p0
+                if np.dot(v, sgn * u) / dist > cos_seed and (best is None or dist < best[0]):
+                    best = (dist, sgn * v)
+        if best is None:
+            return None
+        steps.append(best[1])
+    sa, sb = steps
+    if abs(_cross(sa, sb)) < cfg.min_seed_axes_sin * np.linalg.norm(sa) * np.linalg.norm(sb):
+        return None
+    if _cross(sa, sb) < 0:
+        sa, sb = sb, sa
+    pts = [p0.copy()]
+    sm1 = smooth_cached(smoothed, grey, 2)
+    par = {(0, 0): _diag_contrast(sm1, p0, sa, sb, cfg.diag_offset)}
+    if abs(par[(0, 0)]) < cfg.min_seed_contrast:
+        return None
+    lab = [(0, 0)]
+    filled = [False]
+    step = {(0, 0): (sa, sb)}
+    where = {(0, 0): 0}  # the growing lattice's index (see Lattice.where)
+    used = {seed}
+    queue = collections.deque([(0, 0)])
+    H, W = grey.shape
+    while queue:
+        a, b = queue.popleft()
+        k = where[(a, b)]
+        sa, sb = step[(a, b)]
+        for da, db in STEPS:
+            t = (a + da, b + db)
+            if t in where:
+                continue
+            back = where.get((a - da, b - db))
+            v = pts[k] - pts[back] if back is not None else da * sa + db * sb
+            back2 = where.get((a - 2 * da, b - 2 * db))
+            if back is not None and back2 is not None:
+                v = next_step(pts[back] - pts[back2], v)
+            preds = [pts[k] + v]
+            for side in ((db, da), (-db, -da)):  # the perpendicular neighbours' own steps along (da, db)
+                m0, m1 = where.get((a + side[0], b + side[1])), where.get((t[0] + side[0], t[1] + side[1]))
+                if m0 is not None and m1 is not None:
+                    preds.append(pts[k] + pts[m1] - pts[m0])
+            pred = np.mean(preds, 0)
+            if max(np.linalg.norm(p_ - pred) for p_ in preds) > cfg.agree_radius * np.linalg.norm(v):
+                continue  # the neighbours disagree about where this corner is
+            short = min(np.linalg.norm(v), np.linalg.norm(sb if da else sa))  # the square's smaller side here
+            r = cfg.match_radius * np.linalg.norm(v)
+            if not (0 <= pred[0] < W and 0 <= pred[1] < H) or short < cfg.min_step_px:
+                continue
+            found, was_filled = None, False
+            dist, j = tree.query(pred)
+            if dist < r and j not in used:
+                # A candidate is offered once: if the checks below refuse it here, it is doubtful
+                # and is not tried again from another corner (measured: offering it again lets
+                # wrong corners into small squares).
+                found = xy[j]
+                used.add(int(j))
+            else:
+                q, ok, _ = fit_saddles(grey, smoothed, pred[None], window_half(short), cfg, rim_dist)
+                if ok[0] and np.linalg.norm(q[0] - pred) < r:
+                    found, was_filled = q[0], True
+            if found is None:
+                continue
+            new_v = found - pts[k]
+            len_new, len_v = np.linalg.norm(new_v), np.linalg.norm(v)
+            if len_new < cfg.min_step_ratio * len_v or len_new > cfg.max_step_ratio * len_v:
+                continue  # the step changed its length too much
+            crowd = short if short >= cfg.crowd_small_factor * cfg.min_step_px else np.linalg.norm(v)
+            if min(np.linalg.norm(np.array(pts) - found, axis=1)) < cfg.crowd_radius * crowd:
+                # Would sit on top of a lattice corner already placed. Measured against the smaller
+                # side (on a board seen obliquely the next corner across is much nearer than the
+                # step), except in small squares, where a diagonal slip is then let through.
+                continue
+            na = new_v * da if da else sa
+            nbv = new_v * db if db else sb
+            pc = _diag_contrast(sm1, np.asarray(found), na, nbv, cfg.diag_offset)
+            if pc * par[(a, b)] >= 0 or abs(pc) < cfg.min_alternation * abs(par[(a, b)]):
+                continue  # checker colours do not alternate: a slipped row or column, or not this board
+            par[t] = pc
+            where[t] = len(pts)
+            pts.append(np.asarray(found, np.float64))
+            lab.append(t)
+            filled.append(was_filled)
+            step[t] = (na, nbv)
+            queue.append(t)
+    return Lattice(np.array(pts), np.array(lab, int), np.array(filled))
+
+
+# --------------------------------------------------------------------------------------------
+# Verification
+# --------------------------------------------------------------------------------------------
+def _largest_component(lat: Lattice) -> np.ndarray:
+    """(K,) bool: the largest 4-connected set of the lattice's coordinates."""
+    ab, where = lat.ab, lat.where
+    comp = -np.ones(len(ab), int)
+    n = 0
+    for k0 in range(len(ab)):
+        if comp[k0] >= 0:
+            continue
+        comp[k0] = n
+        stack = [k0]
+        while stack:
+            a, b = ab[stack.pop()]
+            for da, db in STEPS:
+                m = where.get((a + da, b + db))
+                if m is not None and comp[m] < 0:
+                    comp[m] = n
+                    stack.append(m)
+        n += 1
+    return comp == np.bincount(comp).argmax() if len(ab) else np.zeros(0, bool)
+
+
+def verify_lattice(
+    lat: Lattice, grey: np.ndarray, cfg: GridConfig, smoothed: dict[int, np.ndarray], rim_dist: np.ndarray | None = None
+) -> Lattice:
+    """Second look at every corner with its final neighbours (image grey (H, W), ``rim_dist``
+    (H, W)). A corner is dropped when
+
+    - the local square (smaller side) is under ``min_step_px``;
+    - a saddle refit in a window sized for the square (with ``rim_dist``, see
+      :func:`cotrain.detect.saddle.saddle_fit`: near the image circle's rim from the part of the
+      window that is seen) does not land on it again (within ``max_refit_shift`` of the square),
+      or, where the window is cut by the rim, its edge directions do not follow the lattice lines
+      (within ``max_rim_edge_angle``);
+    - it breaks a lattice line: the midpoint of its two neighbours along a, or along b, misses it
+      by more than ``max_line_offset`` of a step (where a group of corners slipped by a diagonal
+      step during the growth, the corners along the seam fail this).
+    Of what is left, the largest 4-connected part is kept.
+    """
+    where = lat.where
+    K = len(lat.ab)
+    H, W = grey.shape
+    short, oblique = np.zeros(K), np.zeros(K, bool)
+    todo = np.zeros(K, bool)
+    for (a, b), k in where.items():
+        sides = []
+        straight = True
+        for nbrs in (((a + 1, b), (a - 1, b)), ((a, b + 1), (a, b - 1))):
+            d = [np.linalg.norm(lat.xy[where[t]] - lat.xy[k]) for t in nbrs if t in where]
+            if d:
+                sides.append(min(d))
+            if len(d) == 2:
+                p1, p2 = lat.xy[where[nbrs[0]]], lat.xy[where[nbrs[1]]]
+                straight &= bool(np.linalg.norm((p1 + p2) / 2 - lat.xy[k]) < cfg.max_line_offset * np.linalg.norm(p1 - p2) / 2)
+        if sides and min(sides) >= cfg.min_step_px and straight:
+            todo[k] = True
+            short[k] = min(sides)
+            oblique[k] = len(sides) == 2 and max(sides) > cfg.oblique_ratio * min(sides)
+    # Refit all corners at once, per window size.
+    halves = np.where(todo, window_half(np.maximum(short, 1.0)), 0)
+    q, ok, axes = lat.xy.copy(), np.zeros(K, bool), np.zeros((K, 2, 2))
+    for h in np.unique(halves[todo]):
+        m = todo & (halves == h)
+        q[m], ok[m], axes[m] = fit_saddles(grey, smoothed, lat.xy[m], int(h), cfg, rim_dist)
+    # Squares seen very obliquely (sides over 2:1) and blurred: at every other corner the two black
+    # squares meet along the short diagonal and merge in a large window; a smaller one still sees
+    # the X. (Not elsewhere: next to occluders it lets false junctions in.)
+    retry = todo & ~ok & oblique & (halves > 2)
+    first = halves.copy()
+    for h in np.unique(first[retry]):
+        m = retry & (first == h)
+        halves[m] = max(2, int(h) // 2)
+        q[m], ok[m], axes[m] = fit_saddles(grey, smoothed, lat.xy[m], max(2, int(h) // 2), cfg, rim_dist)
+    keep = todo & ok & (np.linalg.norm(q - lat.xy, axis=1) < cfg.max_refit_shift * short)
+    if rim_dist is not None:
+        qi = np.clip(np.rint(q).astype(int), 0, [W - 1, H - 1])
+        cut = keep & (rim_dist[qi[:, 1], qi[:, 0]] < 1 + 1.8 * halves)
+        cos_max = np.cos(np.radians(cfg.max_rim_edge_angle))
+        for k in np.nonzero(cut)[0]:
+            # Cut by the rim, a square's corner against the margin or the rim can pass for half an
+            # X-junction: the fitted edges must run along the lattice lines to the neighbours.
+            a, b = lat.ab[k]
+            for da, db in STEPS:
+                t = (a + da, b + db)
+                if t in where:
+                    u = lat.xy[where[t]] - q[k]
+                    u = u / max(np.linalg.norm(u), 1e-9)
+                    keep[k] &= bool(np.abs(axes[k] @ u).max() >= cos_max)
+    xy = np.where(keep[:, None], q, lat.xy)
+    lat = Lattice(xy[keep], lat.ab[keep], lat.filled[keep])
+    big = _largest_component(lat)
+    return Lattice(lat.xy[big], lat.ab[big], lat.filled[big])
+
+
+def skipped_corners(lat: Lattice, response: np.ndarray, cfg: GridConfig | None = None) -> float:
+    """Share of lattice steps (along a, along b) or cells whose midpoint is itself an X-junction
+    (:func:`cotrain.detect.saddle.saddle_response` (H, W) there over ``cfg.skip_response_ratio``
+    of that of the weakest end), the worst of the three.
+
+    On the board, a step's midpoint lies on an edge between two squares and a cell's centre inside
+    a square, where the response is near zero. A lattice grown with double steps, or with knight's
+    moves (two along, one across: the colours still alternate), has corners at the one or the
+    other; in small blurred squares the colour test alone lets them through."""
+    cfg = cfg or GridConfig()
+    where = lat.where
+    groups = []
+    for da, db in ((1, 0), (0, 1)):
+        groups.append([(k, where[(a + da, b + db)]) for (a, b), k in where.items() if (a + da, b + db) in where])
+    cells = [(k, *(where.get(t) for t in ((a + 1, b), (a, b + 1), (a + 1, b + 1)))) for (a, b), k in where.items()]
+    groups.append([c for c in cells if None not in c])
+    worst = 0.0
+    for g in groups:
+        if len(g) < 3:
+            continue
+        idx = np.array(g)
+        ends = values_at(response, lat.xy[idx])  # (P, 2 or 4)
+        mid = values_at(response, lat.xy[idx].mean(1))
+        worst = max(worst, float(np.mean(mid > cfg.skip_response_ratio * ends.min(1))))
+    return worst
+
+
+# --------------------------------------------------------------------------------------------
+# Reported positions
+# --------------------------------------------------------------------------------------------
+def refine_positions(
+    lat: Lattice, grey: np.ndarray, cfg: GridConfig, smoothed: dict[int, np.ndarray], rim_dist: np.ndarray | None = None
+) -> Lattice:
+    """The reported positions: every corner fitted once more in a window of at most
+    ``cfg.final_max_half`` (about a third of its square's smaller side below that). The search
+    and the checks above need the larger windows' robustness; the position is best taken close to
+    the junction, where the bent edges and the blooming of real prints pull it least (BoofCV
+    frames: calibration RMS 0.26 -> 0.21 px). A corner whose fit fails or moves by over
+    ``cfg.max_final_shift`` of its square keeps its position."""
+    where = lat.where
+    short = np.full(len(lat.ab), np.inf)
+    for (a, b), k in where.items():
+        for da, db in STEPS:
+            t = (a + da, b + db)
+            if t in where:
+                short[k] = min(short[k], float(np.linalg.norm(lat.xy[where[t]] - lat.xy[k])))
+    short = np.where(np.isfinite(short), short, 3 * cfg.min_step_px)
+    halves = window_half(short, cfg.final_max_half)
+    xy = lat.xy.copy()
+    for h in np.unique(halves):
+        idx = np.nonzero(halves == h)[0]
+        q, ok, _ = fit_saddles(grey, smoothed, lat.xy[idx], int(h), cfg, rim_dist)
+        good = ok & (np.linalg.norm(q - lat.xy[idx], axis=1) < cfg.max_final_shift * short[idx])
+        xy[idx[good]] = q[good]
+    return Lattice(xy, lat.ab, lat.filled)

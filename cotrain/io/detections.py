@@ -1,0 +1,48 @@
+"""The detection JSON (docs/conventions.md): written by ``cotrain detect``, read by every evaluator.
+
+Work over many files goes on past a bad one: an unreadable image becomes an entry with an
+``error`` and no corners.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import cv2
+
+from cotrain.detect.detector import Detector, draw_detection
+from cotrain.detect.images import ImageError, load_image
+
+
+def detect_files(paths: list[Path], detector: Detector, draw_dir: Path | None = None, progress: bool = True) -> dict:
+    """Run the detector over files; returns the detection JSON of docs/conventions.md (as a dict)."""
+    from tqdm import tqdm
+
+    entries = []
+    if draw_dir is not None:
+        draw_dir.mkdir(parents=True, exist_ok=True)
+    for p in tqdm(paths, desc="detect", unit="img", disable=not progress or len(paths) < 2):
+        entry = {"path": str(p), "width": 0, "height": 0, "corners": [], "error": None}
+        try:
+            grey = load_image(p)
+            entry["height"], entry["width"] = grey.shape
+            det = detector.detect(grey)
+            entry["corners"] = [
+                {"id": int(i), "x": round(float(x), 3), "y": round(float(y), 3), "confidence": round(float(c), 4)}
+                for i, (x, y), c in zip(det.ids, det.xy, det.confidence)
+            ]
+            if draw_dir is not None:
+                cv2.imwrite(str(draw_dir / (p.stem + "_det.png")), draw_detection(grey, det))
+        except ImageError as e:
+            entry["error"] = str(e)
+        entries.append(entry)
+    return {"model": str(detector.path), "target": detector.target.to_json(), "images": entries}
+
+
+def write_json_atomic(data: dict, out: Path) -> None:
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_suffix(out.suffix + ".tmp")
+    tmp.write_text(json.dumps(data, indent=1))
+    os.replace(tmp, out)

@@ -1,0 +1,192 @@
+"""What every calibration target is, and how targets are described in files.
+
+A :class:`Target` is the one home of what a calibration target is: corner ids and board
+coordinates, the printed texture the renderer warps, its symmetries, and how it is written to and
+read from the detection JSON and a Kalibr target yaml (docs/conventions.md). Renderer, training,
+detector, evaluation, sequences, selector and calibrator take a Target.
+
+Targets are described three ways, all read here:
+
+- our config section (``target:`` in a training config; :class:`TargetConfig`);
+- the detection JSON's ``"target"`` entry (:func:`target_from_json`, :meth:`Target.to_json`);
+- a Kalibr target yaml (``target_type: checkerboard``, ``targetCols`` / ``targetRows`` counting
+  inner corners, ``rowSpacingMeters`` / ``colSpacingMeters``; :func:`target_from_kalibr`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from cotrain.geometry import cameras, poses
+
+KINDS = ("checkerboard",)  # target kinds this release knows
+
+
+class TargetError(ValueError):
+    """A target description that cannot be used (one-line message)."""
+
+
+@dataclass
+class TargetConfig:
+    """The ``target:`` section of a config (one kind's fields are used)."""
+
+    kind: str = "checkerboard"  # one of KINDS
+    squares_x: int = 10  # checkerboard: squares along the board's x axis
+    squares_y: int = 7  # checkerboard: squares along the board's y axis
+    square_size: float = 0.04  # checkerboard: side of one square, metres
+    margin: float = 0.5  # white border around the pattern, in squares (0 = no border); rendering only
+
+
+@runtime_checkable
+class Target(Protocol):
+    """A planar calibration target with identified corners (board frame: docs/conventions.md)."""
+
+    kind: str
+
+    @property
+    def n_corners(self) -> int:
+        """Number of corner ids (0 .. n_corners - 1)."""
+
+    @property
+    def spacing(self) -> float:
+        """Distance between neighbouring corners on the board, metres (the local 'square')."""
+
+    def points(self, dtype: torch.dtype = torch.float64) -> Tensor:
+        """(N, 3) board-frame coordinates of corner ids 0 .. N - 1, metres (z = 0)."""
+
+    def extent(self) -> tuple[float, float, float, float]:
+        """(x_min, y_min, x_max, y_max) of the printed sheet, metres."""
+
+    def grid_coordinates(self, xy: Tensor) -> tuple[Tensor, Tensor]:
+        """Board points (..., 2) -> corner-grid coordinates (..., 2) and (...) bool: on the pattern."""
+
+    def intensity(self, xy: Tensor, footprint: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        """Printed texture at board points (..., 2): intensity in [0, 1] and coverage (on the sheet)."""
+
+    def symmetries(self) -> tuple[np.ndarray, ...]:
+        """Corner-id permutations (N,) under which the target looks the same (empty: every id is unique)."""
+
+    def to_json(self) -> dict:
+        """The detection JSON's ``"target"`` entry."""
+
+    def to_kalibr(self) -> dict:
+        """The target as a Kalibr target yaml mapping."""
+
+
+def make_target(cfg: TargetConfig | None = None) -> Target:
+    """The Target a config section describes."""
+    from cotrain.targets.checkerboard import Checkerboard
+
+    cfg = cfg or TargetConfig()
+    if cfg.kind == "checkerboard":
+        return Checkerboard(cfg)
+    raise TargetError(f"target.kind: unsupported target {cfg.kind!r} (known: {', '.join(KINDS)})")
+
+
+def _number(data: dict, key: str, where: str, kind: type = float, positive: bool = True):
+    if key not in data:
+        raise TargetError(f"{where}: missing {key!r}")
+    v = data[key]
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or (kind is int and not float(v).is_integer()):
+        raise TargetError(f"{where}: {key} must be {'an integer' if kind is int else 'a number'}, not {v!r}")
+    if positive and v <= 0:
+        raise TargetError(f"{where}: {key} must be positive, not {v!r}")
+    return kind(v)
+
+
+def target_from_json(data: dict, where: str = "target") -> Target:
+    """The Target of a detection JSON's ``"target"`` entry (docs/conventions.md)."""
+    if not isinstance(data, dict):
+        raise TargetError(f"{where}: expected a mapping, got {type(data).__name__}")
+    kind = data.get("kind", "checkerboard")
+    if kind != "checkerboard":
+        raise TargetError(f"{where}: unsupported target kind {kind!r} (known: {', '.join(KINDS)})")
+    cfg = TargetConfig(
+        kind=kind,
+        squares_x=_number(data, "squares_x", where, int),
+        squares_y=_number(data, "squares_y", where, int),
+        square_size=_number(data, "square_size", where) if "square_size" in data else TargetConfig.square_size,
+    )
+    return make_target(cfg)
+
+
+def target_from_kalibr(data: dict, where: str = "target yaml") -> Target:
+    """The Target of a Kalibr target yaml (``target_type: checkerboard``: inner corners counted)."""
+    kind = data.get("target_type")
+    if kind == "checkerboard":
+        cols = _number(data, "targetCols", where, int)
+        rows = _number(data, "targetRows", where, int)
+        dr = _number(data, "rowSpacingMeters", where)
+        dc = _number(data, "colSpacingMeters", where)
+        if not math.isclose(dr, dc, rel_tol=1e-6):
+            raise TargetError(f"{where}: rowSpacingMeters {dr} and colSpacingMeters {dc} differ (only square checkers are supported)")
+        return make_target(TargetConfig(squares_x=cols + 1, squares_y=rows + 1, square_size=dc))
+    raise TargetError(f"{where}: unsupported Kalibr target_type {kind!r} (supported: checkerboard)")
+
+
+def load_target(path: str | Path) -> Target:
+    """A target file: a Kalibr target yaml (``target_type: ...``), or our ``target:`` config section
+    (a file with a ``target:`` mapping, or the section's keys at the top level)."""
+    from cotrain.config import ConfigError, build, load_yaml
+
+    try:
+        data = load_yaml(path)
+    except ConfigError as e:
+        raise TargetError(str(e)) from None
+    if "target_type" in data:
+        return target_from_kalibr(data, str(path))
+    section = data.get("target", data)
+    if not isinstance(section, dict):
+        raise TargetError(f"{path}: 'target' must be a mapping")
+    try:
+        return make_target(build(TargetConfig, section, "target"))
+    except ConfigError as e:
+        raise TargetError(f"{path}: {e}") from None
+
+
+def same_target(a: Target, b: Target) -> bool:
+    """True when two targets describe the same printed board (kind, layout, size within 1e-6 m)."""
+    ja, jb = a.to_json(), b.to_json()
+    if ja.keys() != jb.keys():
+        return False
+    for k, va in ja.items():
+        vb = jb[k]
+        if isinstance(va, float) or isinstance(vb, float):
+            if not math.isclose(float(va), float(vb), rel_tol=1e-6, abs_tol=1e-9):
+                return False
+        elif va != vb:
+            return False
+    return True
+
+
+def describe(target: Target) -> str:
+    """A short human description, for messages: ``checkerboard 10 x 7 squares of 0.04 m``."""
+    j = target.to_json()
+    if j["kind"] == "checkerboard":
+        return f"checkerboard {j['squares_x']} x {j['squares_y']} squares of {j['square_size']:g} m"
+    return str(j)
+
+
+def square_px(model: str, params: Tensor, T_cam_board: Tensor, target: Target) -> Tensor:
+    """Local size of the target's square in pixels at every corner: the smaller singular value of
+    the board -> image map over one ``target.spacing`` (central differences). 0 where any of the
+    four sample points does not project. The one definition of "local square size" (renderer
+    labels, synthetic rigs). (N,) float64."""
+    P = target.points(torch.float64)
+    s = target.spacing
+    dx = torch.tensor([s / 2, 0, 0], dtype=torch.float64)
+    dy = torch.tensor([0, s / 2, 0], dtype=torch.float64)
+    qx1, ok1 = cameras.project(model, poses.transform_points(T_cam_board, P + dx), params)
+    qx0, ok2 = cameras.project(model, poses.transform_points(T_cam_board, P - dx), params)
+    qy1, ok3 = cameras.project(model, poses.transform_points(T_cam_board, P + dy), params)
+    qy0, ok4 = cameras.project(model, poses.transform_points(T_cam_board, P - dy), params)
+    J = torch.stack([qx1 - qx0, qy1 - qy0], dim=-1)  # (N, 2, 2), pixels per square
+    sv = torch.linalg.svdvals(J)
+    return torch.where(ok1 & ok2 & ok3 & ok4, sv[:, -1], torch.zeros_like(sv[:, -1]))

@@ -1,0 +1,108 @@
+"""Identity (cotrain.detect.identity): placements of hand-made lattices, margin evidence and board symmetries."""
+
+import numpy as np
+import pytest
+
+from cotrain.detect.grid_config import GridConfig
+from cotrain.detect.identity import ROTATIONS, assign_ids, board_symmetries, canonical_ids, edge_evidence
+from cotrain.detect.lattice import Lattice
+from cotrain.detect.saddle import smooth_for
+from tests.detect.boards import NX, NY, board_image
+
+
+def _board_ab() -> tuple[np.ndarray, np.ndarray]:
+    ids = np.arange(NX * NY)
+    return ids, np.stack([ids % NX, ids // NX], 1)
+
+
+@pytest.mark.parametrize("rot", [0, 1, 2, 3])
+def test_whole_board_is_identified_by_geometry_alone(rot):
+    """With uninformative network maps, a fully seen board is placed by its extent and the checker
+    colours alone (a 10 x 7 board is not symmetric under a half turn)."""
+    ids, ij = _board_ab()
+    ab = ij @ ROTATIONS[rot]  # the lattice as seen, turned by rot quarter turns (R^-1 = R^T)
+    black = {(i, j): (i + j) % 2 == 0 for i in range(NX - 1) for j in range(NY - 1)}
+    dark = {}
+    for (i, j), b in black.items():
+        quad = np.array([[i, j], [i + 1, j], [i, j + 1], [i + 1, j + 1]]) @ ROTATIONS[rot]
+        dark[tuple(quad.min(0))] = 1.0 if b else -1.0
+    flat_c = np.full((len(ab), NX + 2), -np.log(NX + 2))
+    flat_r = np.full((len(ab), NY + 2), -np.log(NY + 2))
+    got, _, margin, _ = assign_ids(ab, flat_c, flat_r, dark, NX, NY, GridConfig())
+    np.testing.assert_array_equal(got, ids)
+    assert margin > 10
+
+
+def test_partial_lattice_follows_the_network_votes():
+    """A 3 x 3 patch: geometry allows many placements; column / row votes pick one."""
+    ids, ij = _board_ab()
+    sel = (ij[:, 0] >= 4) & (ij[:, 0] < 7) & (ij[:, 1] >= 2) & (ij[:, 1] < 5)
+    ab = ij[sel] - [4, 2]
+    lc = np.full((len(ab), NX + 2), np.log(0.05))
+    lr = np.full((len(ab), NY + 2), np.log(0.05))
+    lc[np.arange(len(ab)), ij[sel, 0] + 1] = np.log(0.5)
+    lr[np.arange(len(ab)), ij[sel, 1] + 1] = np.log(0.5)
+    got, _, margin, _ = assign_ids(ab, lc, lr, {}, NX, NY, GridConfig())
+    np.testing.assert_array_equal(got, ids[sel])
+    assert margin > 5
+
+
+def test_margin_evidence_on_a_lattice_one_row_deep():
+    """A lattice of only the top corner row: the outward step is the sideways step turned by 90
+    degrees, the white margin is found above every corner, and nothing is claimed below (the
+    squares go on there)."""
+    img, q = board_image()
+    ids = np.arange(NX)[q[:NX, 0] < img.shape[1] - 12]  # row 0, inside the image
+    lat = Lattice(q[ids], np.stack([ids, np.zeros_like(ids)], 1), np.zeros(len(ids), bool))
+    ev = edge_evidence(smooth_for(img, -1), lat)
+    up = {k for k, da, db, e in ev if (da, db) == (0, -1) and e > 0.8}
+    assert up == set(range(len(ids)))
+    assert not [e for e in ev if (e[1], e[2]) == (0, 1)]
+    # The row's first corner has no neighbour across the left direction: the sideways step is the
+    # step behind it turned by 90 degrees, and the left margin is found too.
+    assert {k for k, da, db, e in ev if (da, db) == (-1, 0) and e > 0.8} == {0}
+
+
+def test_board_symmetries_of_known_boards():
+    """Turns that map a board onto itself, colours included: none for 10 x 7 squares, the half
+    turn for 7 x 5 and 6 x 6, all three turns for 5 x 5 (squares; inner corners are one less)."""
+    assert board_symmetries(9, 6) == ()
+    for nx, ny, n in ((6, 4, 1), (5, 5, 1), (4, 4, 3), (7, 5, 1)):
+        perms = board_symmetries(nx, ny)
+        assert len(perms) == n
+        ids = np.arange(nx * ny)
+        for perm in perms:
+            assert sorted(perm) == list(ids) and (perm != ids).any()
+            # Which diagonal of a corner is black ((i + j) mod 2 in board axes) is kept by the half
+            # turn and swapped by a quarter turn, which swaps the diagonals themselves.
+            half = np.array_equal(perm[perm], ids)
+            kept = (perm % nx + perm // nx) % 2 == (ids % nx + ids // nx) % 2
+            assert kept.all() if half else not kept.any()
+    half = board_symmetries(6, 4)[0]
+    np.testing.assert_array_equal(half[[0, 5, 18, 23]], [23, 18, 5, 0])
+
+
+@pytest.mark.parametrize("rot", [0, 1, 2, 3])
+def test_symmetric_board_is_placed_up_to_its_half_turn(rot):
+    """A whole 7 x 5 board (symmetric under a half turn) with uninformative votes: the half-turned
+    placement is the same view, not a competitor, so the margin is large; the reported ids are the
+    ones that put id 0 towards the image's top left."""
+    nx, ny = 6, 4
+    ids = np.arange(nx * ny)
+    ij = np.stack([ids % nx, ids // nx], 1)
+    ab = ij @ ROTATIONS[rot]
+    dark = {}
+    for i in range(nx - 1):
+        for j in range(ny - 1):
+            quad = np.array([[i, j], [i + 1, j], [i, j + 1], [i + 1, j + 1]]) @ ROTATIONS[rot]
+            dark[tuple(quad.min(0))] = 1.0 if (i + j) % 2 == 0 else -1.0
+    got, _, margin, _ = assign_ids(ab, np.zeros((len(ab), nx + 2)), np.zeros((len(ab), ny + 2)), dark, nx, ny, GridConfig())
+    assert margin > 10
+    assert np.array_equal(got, ids) or np.array_equal(got, board_symmetries(nx, ny)[0][ids])
+    xy = 40.0 * ab  # the lattice as the image shows it (a x b > 0, x right, y down)
+    canon = canonical_ids(got, xy, nx, ny)
+    assert np.array_equal(np.sort(canon), ids)
+    k0, k1 = int(np.nonzero(canon == 0)[0][0]), int(np.nonzero(canon == nx * ny - 1)[0][0])
+    assert xy[k0].sum() < xy[k1].sum()  # id 0 is the end of the board nearer the top left
+    # An asymmetric board keeps its ids.
+    np.testing.assert_array_equal(canonical_ids(np.array([0, 1, -1]), np.zeros((3, 2)), 9, 6), [0, 1, -1])
