@@ -8,8 +8,9 @@
 3. Full calibration: extrinsics initialised from co-visible views, then intrinsics, extrinsics
    and target poses optimised together.
 
-The solver is Levenberg-Marquardt on the block structure: target poses (6 each) are eliminated
-with the Schur complement, leaving a small system in the camera parameters. Robust kernel: Huber.
+The solver (:mod:`calib_eval.calibration.solver`) is Levenberg-Marquardt on the block structure:
+target poses (6 each) are eliminated with the Schur complement, leaving a small system in the
+camera parameters. Robust kernel: Huber. Initial values: :mod:`calib_eval.calibration.initialisation`.
 Names follow docs/conventions.md: ``T_cam_rig`` (cam0 is the rig), ``T_rig_board`` per view.
 """
 
@@ -23,7 +24,9 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from cotrain.geometry import cameras, poses
+from calib_eval.calibration.initialisation import average_pose, focal_search, initial_guess, view_pose
+from calib_eval.calibration.solver import Problem, SolveResult, solve
+from cotrain.geometry import cameras
 from cotrain.io.sequence import Observation, Sequence
 from cotrain.targets import Target
 
@@ -49,283 +52,6 @@ class CalibrationFailed(RuntimeError):
 
 
 # --------------------------------------------------------------------------------------------
-# Residuals and Jacobians
-# --------------------------------------------------------------------------------------------
-def _retract(T: Tensor, d: Tensor) -> Tensor:
-    """Left increment: (R, t) -> (Exp(w) R, Exp(w) t + v), d = (w, v)."""
-    R = poses.rotation_from_axis_angle(d[..., :3])
-    return poses.make_pose(R @ T[..., :3, :3], (R @ T[..., :3, 3:])[..., 0] + d[..., 3:])
-
-
-def _skew(p: Tensor) -> Tensor:
-    """(O, 3) -> (O, 3, 3) with skew(p) w = p x w."""
-    z = torch.zeros_like(p[:, 0])
-    return torch.stack(
-        [torch.stack([z, -p[:, 2], p[:, 1]], -1), torch.stack([p[:, 2], z, -p[:, 0]], -1), torch.stack([-p[:, 1], p[:, 0], z], -1)], -2
-    )
-
-
-def project_with_jacobians(model: str, p: Tensor, intr: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """q (O, 2), valid (O,), d q / d p (O, 2, 3) and d q / d intr (O, 2, P) through the shared
-    camera model. Points are independent and the intrinsics are expanded per point, so two
-    reverse passes (one per pixel coordinate) give every per-point Jacobian."""
-    proj = cameras.get_model(model).project
-    with torch.enable_grad():
-        p_ = p.detach().requires_grad_(True)
-        i_ = intr.detach().expand(p.shape[0], -1).clone().requires_grad_(True)
-        q, valid = proj(p_, i_)
-        gx = torch.autograd.grad(q[:, 0].sum(), (p_, i_), retain_graph=True)
-        gy = torch.autograd.grad(q[:, 1].sum(), (p_, i_))
-    return q.detach(), valid, torch.stack([gx[0], gy[0]], 1), torch.stack([gx[1], gy[1]], 1)
-
-
-def _jacobians(model: str, intr: Tensor, T_cam_rig: Tensor, T_rig_board: Tensor, X: Tensor):
-    """Per observation (O): predicted q (O, 2), d q / d intr (O, 2, P), d q / d cam increment
-    (O, 2, 6) and d q / d pose increment (O, 2, 6). Poses are gathered per observation; the
-    increments are the left perturbations of :func:`_retract` (rotation first)."""
-    p_r = (T_rig_board[:, :3, :3] @ X[:, :, None])[..., 0] + T_rig_board[:, :3, 3]
-    R_c = T_cam_rig[:, :3, :3]
-    p_c = (R_c @ p_r[:, :, None])[..., 0] + T_cam_rig[:, :3, 3]
-    q, _, Jq_p, Ji = project_with_jacobians(model, p_c, intr)
-    eye = torch.eye(3, dtype=X.dtype).expand(X.shape[0], 3, 3)
-    d_cam = torch.cat([-_skew(p_c), eye], -1)  # d p_c / d (w_c, v_c)
-    d_pose = R_c @ torch.cat([-_skew(p_r), eye], -1)  # d p_c / d (w_p, v_p)
-    return q, Ji, Jq_p @ d_cam, Jq_p @ d_pose
-
-
-# --------------------------------------------------------------------------------------------
-# The problem state and the LM solver
-# --------------------------------------------------------------------------------------------
-@dataclass
-class Problem:
-    """Observations flattened: per corner o, its camera, view, board point and pixel."""
-
-    cam: Tensor  # (O,) long
-    view: Tensor  # (O,) long, index into the active views
-    X: Tensor  # (O, 3)
-    q: Tensor  # (O, 2)
-    w: Tensor  # (O,) observation weights
-    n_views: int
-
-    @staticmethod
-    def build(obs: list[Observation], board: Target, view_index: dict[int, int], single_camera: bool = False) -> Problem:
-        """Flatten ``obs``; ``single_camera`` maps every observation to camera 0 (per-camera stages)."""
-        P = board.points().numpy()
-        cam, view, X, q, w = [], [], [], [], []
-        for o in obs:
-            cam.append(np.full(len(o.ids), 0 if single_camera else o.cam))
-            view.append(np.full(len(o.ids), view_index[o.view]))
-            X.append(P[o.ids])
-            q.append(o.q)
-            w.append(o.weight)
-        t = lambda a, dt=torch.float64: torch.from_numpy(np.concatenate(a)).to(dt)  # noqa: E731
-        return Problem(t(cam, torch.long), t(view, torch.long), t(X), t(q), t(w), len(view_index))
-
-
-@dataclass
-class SolveResult:
-    converged: bool
-    cost: float
-    rms: list[float]  # per camera RMS reprojection error (px) over the problem's observations
-    iterations: int
-    reason: str
-    residuals: Tensor  # (O,) per-corner error norm (px)
-    schur_cond: float  # gamma: log10 condition of the normalised pose-free intrinsic Schur block
-
-
-def solve(
-    prob: Problem,
-    model: list[str],
-    intr: list[Tensor],
-    T_cam_rig: Tensor,
-    T_rig_board: Tensor,
-    *,
-    opt_intr: bool = True,
-    opt_extr: bool = False,
-    iters: int = 30,
-    huber: float = 1.0,
-) -> tuple[list[Tensor], Tensor, Tensor, SolveResult]:
-    """Levenberg-Marquardt with the target poses eliminated by the Schur complement.
-
-    Camera parameters: intrinsics of every camera (if ``opt_intr``) and extrinsics of cameras 1..
-    (if ``opt_extr``; cam0 is the gauge). Target poses T_rig_board (V, 4, 4) are always optimised.
-    Returns updated (intr, T_cam_rig, T_rig_board, result).
-    """
-    C = len(model)
-    V = prob.n_views
-    intr = [x.clone() for x in intr]
-    T_cam_rig = T_cam_rig.clone()
-    T_rig_board = T_rig_board.clone()
-    # Column layout of the camera block.
-    offs = []
-    n = 0
-    for c in range(C):
-        ni = intr[c].numel() if opt_intr else 0
-        ne = 6 if (opt_extr and c > 0) else 0
-        offs.append((n, ni, ne))
-        n += ni + ne
-    lam = 1e-3
-    cams_present = [c for c in range(C) if bool((prob.cam == c).any())]
-
-    def linearise(intr, T_cam_rig, T_rig_board):
-        r_all = torch.zeros(prob.q.shape[0], 2, dtype=torch.float64)
-        Jcam = torch.zeros(prob.q.shape[0], 2, max(1, n), dtype=torch.float64)
-        Jpose = torch.zeros(prob.q.shape[0], 2, 6, dtype=torch.float64)
-        for c in cams_present:
-            sel = (prob.cam == c).nonzero()[:, 0]
-            qh, Ji, Jc, Jp = _jacobians(model[c], intr[c], T_cam_rig[c].expand(len(sel), 4, 4), T_rig_board[prob.view[sel]], prob.X[sel])
-            r_all[sel] = prob.q[sel] - qh
-            o, ni, ne = offs[c]
-            if ni:
-                Jcam[sel, :, o : o + ni] = Ji
-            if ne:
-                Jcam[sel, :, o + ni : o + ni + ne] = Jc
-            Jpose[sel] = Jp
-        return r_all, Jcam[..., :n], Jpose
-
-    def residuals(intr, T_cam_rig, T_rig_board):
-        r_all = torch.zeros(prob.q.shape[0], 2, dtype=torch.float64)
-        for c in cams_present:
-            sel = (prob.cam == c).nonzero()[:, 0]
-            T = T_cam_rig[c] @ T_rig_board[prob.view[sel]]
-            p = (T[:, :3, :3] @ prob.X[sel][:, :, None])[..., 0] + T[:, :3, 3]
-            r_all[sel] = prob.q[sel] - cameras.project(model[c], p, intr[c])[0]
-        return r_all
-
-    def cost_of(r):
-        e = r.norm(dim=-1)
-        rho = torch.where(e < huber, 0.5 * e * e, huber * (e - 0.5 * huber))
-        return float((prob.w * rho).sum())
-
-    r, Jc, Jp = linearise(intr, T_cam_rig, T_rig_board)
-    cost = cost_of(r)
-    if not math.isfinite(cost):
-        return intr, T_cam_rig, T_rig_board, _result(False, cost, r, prob, C, 0, "non-finite initial residuals", float("nan"))
-    converged, reason, it = False, "max iterations", 0
-    gamma = float("nan")
-    for it in range(1, iters + 1):
-        e = r.norm(dim=-1)
-        wr = prob.w * torch.where(e < huber, torch.ones_like(e), huber / e.clamp_min(1e-12))  # IRLS Huber weights
-        # Normal equations (the residual is q - q_hat, so J of the residual is -J of q_hat).
-        A = torch.einsum("o,oia,oib->ab", wr, Jc, Jc)
-        g_c = torch.einsum("o,oia,oi->a", wr, Jc, r)
-        Bo = torch.einsum("o,oia,oib->oab", wr, Jc, Jp)  # (O, n, 6)
-        Co = torch.einsum("o,oia,oib->oab", wr, Jp, Jp)
-        g_po = torch.einsum("o,oia,oi->oa", wr, Jp, r)
-        B = torch.zeros(V, n, 6, dtype=torch.float64).index_add_(0, prob.view, Bo)
-        Cm = torch.zeros(V, 6, 6, dtype=torch.float64).index_add_(0, prob.view, Co)
-        g_p = torch.zeros(V, 6, dtype=torch.float64).index_add_(0, prob.view, g_po)
-        if it == 1 and opt_intr:
-            gamma = _schur_gamma(A, B, Cm, offs)
-        improved = False
-        for _ in range(10):
-            Ad = A + lam * torch.diag(torch.diagonal(A).clamp_min(1e-9))
-            Cd = Cm + lam * torch.diag_embed(torch.diagonal(Cm, dim1=-2, dim2=-1).clamp_min(1e-9))
-            Cd = Cd + 1e-12 * torch.eye(6, dtype=torch.float64)
-            Ci = torch.linalg.inv(Cd)
-            S = Ad - torch.einsum("vai,vij,vbj->ab", B, Ci, B)
-            rhs = g_c - torch.einsum("vai,vij,vj->a", B, Ci, g_p)
-            try:
-                dc = torch.linalg.solve(S, rhs) if n else torch.zeros(0, dtype=torch.float64)
-            except RuntimeError:
-                lam *= 10
-                continue
-            dp = torch.einsum("vij,vj->vi", Ci, g_p - torch.einsum("vai,a->vi", B, dc))
-            new_intr, new_T = list(intr), T_cam_rig.clone()
-            for c in range(C):
-                o, ni, ne = offs[c]
-                if ni:
-                    new_intr[c] = cameras.get_model(model[c]).clamp(intr[c] + dc[o : o + ni])
-                if ne:
-                    new_T[c] = _retract(T_cam_rig[c], dc[o + ni : o + ni + ne])
-            new_P = _retract(T_rig_board, dp)
-            r_new = residuals(new_intr, new_T, new_P)
-            c_new = cost_of(r_new)
-            if math.isfinite(c_new) and c_new < cost:
-                rel = (cost - c_new) / max(cost, 1e-300)
-                intr, T_cam_rig, T_rig_board = new_intr, new_T, new_P
-                r, Jc, Jp = linearise(intr, T_cam_rig, T_rig_board)
-                cost = cost_of(r)
-                lam = max(lam / 3, 1e-9)
-                improved = True
-                if rel < 1e-9:
-                    converged, reason = True, "converged"
-                break
-            lam *= 8
-            if lam > 1e10:
-                break
-        if not improved:
-            # No decrease possible: at a minimum (converged) or stuck (divergent).
-            converged, reason = True, "converged (no further decrease)"
-            break
-        if converged:
-            break
-    return intr, T_cam_rig, T_rig_board, _result(converged, cost, r, prob, C, it, reason, gamma)
-
-
-def _result(converged, cost, r, prob, C, it, reason, gamma) -> SolveResult:
-    e = r.norm(dim=-1)
-    rms = [float(torch.sqrt((e[prob.cam == c] ** 2).mean())) if bool((prob.cam == c).any()) else float("nan") for c in range(C)]
-    return SolveResult(converged, cost, rms, it, reason, e, gamma)
-
-
-def _schur_gamma(A: Tensor, B: Tensor, Cm: Tensor, offs) -> float:
-    """gamma = log10 kappa of the diagonally normalised pose-free Schur block of the intrinsics."""
-    Ci = torch.linalg.pinv(Cm)
-    S = A - torch.einsum("vai,vij,vbj->ab", B, Ci, B)
-    idx = torch.cat([torch.arange(o, o + ni) for o, ni, _ in offs if ni])
-    S = S[idx][:, idx]
-    d = torch.diagonal(S).clamp_min(1e-300).rsqrt()
-    ev = torch.linalg.eigvalsh(d[:, None] * S * d[None, :]).abs()
-    return float(torch.log10(ev.max() / ev.min().clamp_min(1e-300)))
-
-
-# --------------------------------------------------------------------------------------------
-# Pose initialisation from bearing vectors
-# --------------------------------------------------------------------------------------------
-def pose_from_bearings(X: np.ndarray, v: np.ndarray) -> np.ndarray | None:
-    """T_cam_board of a planar target from board points X (M, 3) with z = 0 and unit bearings v (M, 3).
-
-    DLT on v x (H [x, y, 1]) = 0 with H = [r1 r2 t]; works for rays beyond 90 degrees because
-    bearings are never divided by z. Returns None when degenerate.
-    """
-    if len(X) < 4:
-        return None
-    m = X[:, :2].mean(0)
-    s = np.sqrt(((X[:, :2] - m) ** 2).sum(1).mean()) + 1e-12
-    xn = np.c_[(X[:, :2] - m) / s, np.ones(len(X))]
-    a, b, c = (v[:, i : i + 1] * xn for i in range(3))  # (M, 3) each: bearing component times x
-    z = np.zeros_like(xn)
-    rows = np.concatenate([np.c_[z, -c, b], np.c_[c, z, -a], np.c_[-b, a, z]], 0)  # rows of v x (H x) = 0
-    _, _, Vt = np.linalg.svd(rows, full_matrices=False)
-    H = Vt[-1].reshape(3, 3)
-    # Undo the normalisation: x_n = N x with N = [[1/s, 0, -m/s], [0, 1/s, -m/s], [0, 0, 1]].
-    N = np.array([[1 / s, 0, -m[0] / s], [0, 1 / s, -m[1] / s], [0, 0, 1]])
-    H = H @ N
-    scale = (np.linalg.norm(H[:, 0]) + np.linalg.norm(H[:, 1])) / 2
-    if scale < 1e-12:
-        return None
-    H = H / scale
-    if np.mean(np.einsum("ij,ij->i", (H @ np.c_[X[:, :2], np.ones(len(X))].T).T, v)) < 0:
-        H = -H
-    R = np.c_[H[:, 0], H[:, 1], np.cross(H[:, 0], H[:, 1])]
-    U, _, Vt2 = np.linalg.svd(R)
-    R = U @ np.diag([1, 1, np.linalg.det(U @ Vt2)]) @ Vt2
-    T = np.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = H[:, 2]
-    return T
-
-
-def _init_view_pose(model: str, intr: Tensor, o: Observation, board: Target) -> np.ndarray | None:
-    v, ok = cameras.unproject(model, torch.from_numpy(o.q), intr)
-    ok = ok.numpy()
-    if ok.sum() < 4:
-        return None
-    return pose_from_bearings(board.points().numpy()[o.ids[ok]], v.numpy()[ok])
-
-
-# --------------------------------------------------------------------------------------------
 # The staged pipeline
 # --------------------------------------------------------------------------------------------
 @dataclass
@@ -341,37 +67,6 @@ class CalibrationResult:
     gamma: list[list[float]]  # per camera, the conditioning trajectory of stage 1
     runtime_s: float
     stages: list[dict] = field(default_factory=list)
-
-
-def initial_guess(model: str, fov: float, width: int, height: int, radius: float = 0.0) -> Tensor:
-    """Intrinsics from the rough FoV and image size: the FoV fills a circle of ``radius`` (default
-    half the shorter side) about the image centre; shape parameters at the family's defaults."""
-    return cameras.make_camera(model, fov, width, height, radius or min(width, height) / 2.0)
-
-
-def _focal_search(model: str, guess: Tensor, obs: list[Observation], board: Target) -> Tensor:
-    """Scale the guess's focal length to best explain a few views (1-D search, bearing poses)."""
-    m = cameras.get_model(model)
-    best, best_cost = guess, float("inf")
-    for scale in np.exp(np.linspace(math.log(0.4), math.log(2.5), 25)):
-        g = guess.clone()
-        g[m.index("fx")] *= scale
-        g[m.index("fy")] *= scale
-        costs = []
-        for o in obs[:8]:
-            T = _init_view_pose(model, g, o, board)
-            if T is None:
-                costs.append(1e6)
-                continue
-            pc = board.points().numpy()[o.ids] @ T[:3, :3].T + T[:3, 3]
-            q, ok = cameras.project(model, torch.from_numpy(pc), g)
-            err = np.linalg.norm(q.numpy() - o.q, axis=1)
-            err[~ok.numpy()] = 1e3
-            costs.append(float(np.median(err)))
-        c = float(np.median(costs)) if costs else float("inf")
-        if c < best_cost:
-            best, best_cost = g, c
-    return best
 
 
 def _intrinsic_stage(
@@ -390,7 +85,7 @@ def _intrinsic_stage(
         active = []
         for o in prefix:
             if o.view not in poses_cb:
-                T = _init_view_pose(model, intr, o, board)
+                T = view_pose(model, intr, o, board)
                 if T is None:
                     continue
                 poses_cb[o.view] = T
@@ -411,19 +106,6 @@ def _intrinsic_stage(
     if res is None:
         raise CalibrationFailed("too few usable views to initialise the intrinsics")
     return intr, poses_cb, gammas, res
-
-
-def _average_pose(Ts: list[np.ndarray]) -> np.ndarray:
-    """Robust mean of poses: chordal mean of rotations near the median, median translation."""
-    Rs = np.stack([T[:3, :3] for T in Ts])
-    ts = np.stack([T[:3, 3] for T in Ts])
-    t = np.median(ts, axis=0)
-    M = np.median(Rs, axis=0)
-    U, _, Vt = np.linalg.svd(M)
-    R = U @ np.diag([1, 1, np.linalg.det(U @ Vt)]) @ Vt
-    out = np.eye(4)
-    out[:3, :3], out[:3, 3] = R, t
-    return out
 
 
 def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | None = None) -> CalibrationResult:
@@ -480,7 +162,7 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
         for c in range(C):
             info = seq.cameras[c]
             guess = initial_guess(cfg.model, cfg.fov, info.width, info.height, cfg.shared_intrinsics_guess_radius)
-            guess = _focal_search(cfg.model, guess, obs_by_cam[c], board)
+            guess = focal_search(cfg.model, guess, obs_by_cam[c], board)
             if cfg.no_init:
                 x, pc_, res = guess, {}, None
                 frames.setdefault("init", []).append(0)
@@ -510,7 +192,7 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
     T_cam_rig = np.tile(np.eye(4), (C, 1, 1))
     if cfg.no_init:
         for c in range(C):
-            cam_poses[c] = {o.view: T for o in obs_by_cam[c] if (T := _init_view_pose(cfg.model, intr[c], o, board)) is not None}
+            cam_poses[c] = {o.view: T for o in obs_by_cam[c] if (T := view_pose(cfg.model, intr[c], o, board)) is not None}
     known = {0}
     while len(known) < C:
         added = False
@@ -522,7 +204,7 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
                 if len(shared) >= 1:
                     # T_c_rig = T_c_board T_board_k T_k_rig
                     cands = [cam_poses[c][v] @ np.linalg.inv(cam_poses[k][v]) @ T_cam_rig[k] for v in shared]
-                    T_cam_rig[c] = _average_pose(cands)
+                    T_cam_rig[c] = average_pose(cands)
                     known.add(c)
                     added = True
                     break
@@ -533,7 +215,7 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
     T_rig_board = {}
     for v in views:
         cands = [np.linalg.inv(T_cam_rig[c]) @ cam_poses[c][v] for c in range(C) if v in cam_poses[c]]
-        T_rig_board[v] = cands[0] if len(cands) == 1 else _average_pose(cands)
+        T_rig_board[v] = cands[0] if len(cands) == 1 else average_pose(cands)
     vi = {v: i for i, v in enumerate(views)}
     used = [o for c in range(C) for o in obs_by_cam[c] if o.view in vi]
     prob = Problem.build(used, board, vi)

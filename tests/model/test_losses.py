@@ -58,24 +58,57 @@ def test_terms_match_hand_values():
     assert L["exclusion"].item() == pytest.approx(0.0, abs=1e-9)
     # corner score: constant logit 1 -> positive part softplus(-1), negative part softplus(1).
     assert L["corner"].item() == pytest.approx(sp(-1.0) + sp(1.0), rel=1e-5)
-    total = sum(
-        getattr(cfg, k) * L[k]
-        for k in [
-            "heat_pos",
-            "heat_neg",
-            "exclusion",
-            "rough",
-            "updated",
-            "refined",
-            "visibility",
-            "learnability",
-            "confidence",
-            "board_uv",
-            "board_mask",
-            "corner",
-        ]
+
+
+def test_total_is_the_weighted_sum_of_the_hand_values():
+    """``total`` on the small case, with weights chosen here (not the recipe's), against the hand
+    values of each term; then one weight at a time, and all weights off."""
+    out, batch = _small_case()
+    sp = lambda x: math.log1p(math.exp(x))  # softplus  # noqa: E731
+    ln2 = math.log(2)
+    hand = {  # the values of test_terms_match_hand_values
+        "heat_pos": sp(2.0) + sp(-2.0),
+        "heat_neg": sp(-2.0),
+        "exclusion": 0.0,
+        "rough": 0.0,
+        "updated": 0.5,
+        "refined": 0.0,
+        "visibility": ln2,
+        "learnability": 0.5,
+        "confidence": ln2,
+        "board_uv": 1.0,
+        "board_mask": ln2,
+        "corner": sp(-1.0) + sp(1.0),
+    }
+    weights = dict(
+        heat_pos=0.7,
+        heat_neg=1.3,
+        exclusion=2.0,
+        rough=3.0,
+        updated=0.25,
+        refined=5.0,
+        visibility=0.4,
+        learnability=2.5,
+        confidence=0.1,
+        board_uv=0.3,
+        board_mask=1.5,
+        corner=0.05,
     )
-    assert L["total"].item() == pytest.approx(total.item(), rel=1e-6)
+    # 0.7 (s(2) + s(-2)) + 1.3 s(-2) + 0.25 * 0.5 + 0.4 ln2 + 2.5 * 0.5 + 0.1 ln2 + 0.3 + 1.5 ln2 + 0.05 (s(-1) + s(1))
+    expected = (
+        0.7 * (sp(2.0) + sp(-2.0)) + 1.3 * sp(-2.0) + 0.125 + 0.4 * ln2 + 1.25 + 0.1 * ln2 + 0.3 + 1.5 * ln2 + 0.05 * (sp(-1.0) + sp(1.0))
+    )
+    assert expected == pytest.approx(4.8853, abs=1e-4)  # the number itself, worked by hand
+    total = compute_losses(out, batch, LossConfig(**weights))["total"]
+    assert total.item() == pytest.approx(expected, rel=1e-5)
+    # Raising one weight by 2 raises the total by twice that term (terms with value 0 leave it alone).
+    for k, v in hand.items():
+        bumped = compute_losses(out, batch, LossConfig(**{**weights, k: weights[k] + 2.0}))["total"].item()
+        assert bumped - total.item() == pytest.approx(2.0 * v, abs=1e-5), k
+    # Only one term weighted: the total is that term.
+    only = compute_losses(out, batch, LossConfig(**{k: 0.0 for k in weights} | {"updated": 1.0}))["total"].item()
+    assert only == pytest.approx(0.5, rel=1e-6)
+    assert compute_losses(out, batch, LossConfig(**{k: 0.0 for k in weights}))["total"].item() == 0.0
 
 
 def test_gaussian_target_peaks_at_corner():
