@@ -235,3 +235,21 @@ def test_detect_another_board(tmp_path, tiny_onnx, capsys):
     assert cotrain_cli([*args, "--square-size", "-1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 4 and all(line.startswith("cotrain detect: error:") for line in err)
+
+
+def test_detect_target_from_a_kalibr_yaml(tmp_path, tiny_onnx, capsys):
+    """--target takes a Kalibr target yaml (inner corners counted): the JSON names the board, the
+    detector finds 6 x 4 inner corners; a missing or contradictory target is a one-line error."""
+    img = tmp_path / "a.png"
+    cv2.imwrite(str(img), np.full((120, 200), 128, np.uint8))
+    kalibr = tmp_path / "checkerboard.yaml"
+    kalibr.write_text("target_type: checkerboard\ntargetCols: 6\ntargetRows: 4\nrowSpacingMeters: 0.03\ncolSpacingMeters: 0.03\n")
+    out = tmp_path / "d.json"
+    args = ["detect", "--model", str(tiny_onnx), str(img), "--out", str(out)]
+    assert cotrain_cli([*args, "--target", str(kalibr)]) == 0
+    assert json.loads(out.read_text())["target"] == {"kind": "checkerboard", "squares_x": 7, "squares_y": 5, "square_size": 0.03}
+    capsys.readouterr()
+    assert cotrain_cli([*args, "--target", str(tmp_path / "missing.yaml")]) == 2
+    assert cotrain_cli([*args, "--target", str(kalibr), "--squares-x", "7", "--squares-y", "5"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and "not found" in err[0] and "either" in err[1]
