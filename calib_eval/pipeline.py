@@ -20,7 +20,22 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from calib_eval.benchmark.benchmark import evaluate_result
+from calib_eval.benchmark.rigs import SynthSpec, make_sequence, paper_config
+from calib_eval.calibration.calibrator import CalibConfig, calibrate
+from calib_eval.calibration.camchain import write_outputs
+from calib_eval.calibration.selector import SelectorConfig, select
+from calib_eval.detection.evaluation import EvalConfig, evaluate_detection
 from cotrain.config import ConfigError, load_config
+from cotrain.detect.detector import Detector, draw_detection
+from cotrain.detect.images import load_image
+from cotrain.detect.onnx_model import default_model_path
+from cotrain.io.detections import detect_files, write_json_atomic
+from cotrain.io.sequence import load_sequence
+from cotrain.model.train import TrainConfig, finalize_config, train
+from cotrain.render.renderer import RenderConfig, Scene, render_scene, sample_generator
+from cotrain.targets import make_target
+from export.onnx_export import export_onnx
 
 
 @dataclass
@@ -58,10 +73,6 @@ def _render_rig_sequence(cfg: PipelineConfig, seq_dir: Path) -> tuple:
     import torch
     from tqdm import tqdm
 
-    from calib_eval.benchmark.rigs import SynthSpec, make_sequence, paper_config
-    from cotrain.render.renderer import RenderConfig, Scene, render_scene, sample_generator
-    from cotrain.targets import make_target
-
     rig = paper_config(cfg.calib_rig)
     seq, gt = make_sequence(rig, SynthSpec(n_frames=cfg.calib_frames, noise_px=0.0), seed=11)
     rc = RenderConfig(height=rig.height, width=rig.width, p_occluder=0.0, p_no_target=0.0, p_motion=0.0, max_blur_sigma=0.6)
@@ -83,18 +94,6 @@ def _render_rig_sequence(cfg: PipelineConfig, seq_dir: Path) -> tuple:
 
 
 def run_pipeline(cfg: PipelineConfig, from_scratch: bool = False) -> int:
-    from calib_eval.benchmark.benchmark import evaluate_result
-    from calib_eval.calibration.calibrator import CalibConfig, calibrate
-    from calib_eval.calibration.camchain import write_outputs
-    from calib_eval.calibration.selector import SelectorConfig, select
-    from calib_eval.detection.evaluation import EvalConfig, evaluate_detection
-    from cotrain.detect.detector import Detector, draw_detection
-    from cotrain.detect.images import load_image
-    from cotrain.io.detections import detect_files, write_json_atomic
-    from cotrain.io.sequence import load_sequence
-    from cotrain.model.train import TrainConfig, finalize_config, train
-    from export.onnx_export import export_onnx
-
     t_start = time.time()
     out = Path(cfg.out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -102,8 +101,6 @@ def run_pipeline(cfg: PipelineConfig, from_scratch: bool = False) -> int:
     figures: dict[str, object] = {}
     init = "" if from_scratch else cfg.init_checkpoint
     if init == "export/default.pt" and not Path(init).is_file():  # an installed package: the shipped file
-        from cotrain.detect.onnx_model import default_model_path
-
         init = str(default_model_path().with_suffix(".pt"))
     if init and not Path(init).is_file():
         raise FileNotFoundError(f"{init}: shipped checkpoint not found (use --from-scratch to train without it)")

@@ -31,6 +31,11 @@ from pathlib import Path
 
 import numpy as np
 
+from calib_eval.benchmark.rigs import SynthSpec, make_sequence, paper_config
+from calib_eval.calibration.calibrator import CalibConfig, calibrate
+from calib_eval.calibration.selector import SelectorConfig, select
+from cotrain.geometry import cameras, rotation_angle_deg
+
 PAPER_CONFIGS = [f"FoV{f}_{y}" for f in (180, 200, 220, 240) for y in (0, 60, 90, 120)]
 ALL_CONFIGS = PAPER_CONFIGS + ["FoV220_hex"]
 VARIANTS = ["all", "selector", "random", "ba_only"]
@@ -72,8 +77,6 @@ def _pose_errors(T: np.ndarray, T_gt: np.ndarray) -> tuple[np.ndarray, np.ndarra
     """Translation (mm) and rotation (deg) errors of poses (K, 4, 4) against ground truth."""
     import torch
 
-    from cotrain.geometry import rotation_angle_deg
-
     dR = torch.from_numpy(T[:, :3, :3] @ np.swapaxes(T_gt[:, :3, :3], -1, -2))
     return 1000 * np.linalg.norm(T[:, :3, 3] - T_gt[:, :3, 3], axis=-1), rotation_angle_deg(dR).numpy()
 
@@ -82,8 +85,6 @@ def projection_difference(model: str, params: np.ndarray, gt_model: str, gt_para
     """RMS pixel difference between two cameras over rays up to 95 % of the half FoV: a
     model-independent intrinsic error (the calibrated family may differ from the true one)."""
     import torch
-
-    from cotrain.geometry import cameras
 
     rng = np.random.default_rng(0)
     th = np.sqrt(rng.random(n)) * math.radians(fov) / 2 * 0.95
@@ -151,9 +152,6 @@ def run_trial(
     import torch
 
     torch.set_num_threads(1)
-    from calib_eval.benchmark.rigs import SynthSpec, make_sequence, paper_config
-    from calib_eval.calibration.calibrator import CalibConfig, calibrate
-    from calib_eval.calibration.selector import SelectorConfig, select
 
     rig = paper_config(config)
     seed = zlib.crc32(f"{config}/{trial}".encode())
@@ -257,8 +255,6 @@ def run_benchmark(
 ) -> dict:
     """Run (this rank's share of) the benchmark, write its shard, and on rank 0 merge all shards."""
     from tqdm import tqdm
-
-    from calib_eval.benchmark.rigs import paper_config
 
     for c in configs:
         paper_config(c)  # validates the names early

@@ -14,6 +14,15 @@ from pathlib import Path
 
 import torch
 
+from calib_eval.benchmark.rigs import SynthSpec, make_sequence, paper_config
+from calib_eval.calibration.calibrator import CalibConfig, calibrate
+from calib_eval.calibration.selector import SelectorConfig, select
+from cotrain.config import load_config
+from cotrain.detect.detector import Detector
+from cotrain.detect.images import load_image
+from cotrain.model.losses import compute_losses
+from cotrain.model.network import CornerNet
+from cotrain.model.train import TrainConfig, build_from_checkpoint, finalize_config, load_checkpoint
 from cotrain.render.renderer import RenderConfig, render_batch
 
 
@@ -44,10 +53,6 @@ def bench_render(cfg: RenderConfig, batch: int = 8, repeats: int = 5, seed: int 
 
 def bench_render_vs_step(cfg_path: str = "configs/default.yaml", repeats: int = 5) -> dict:
     """Median time to render one training batch and to run one training step on it (same process)."""
-    from cotrain.config import load_config
-    from cotrain.model.losses import compute_losses
-    from cotrain.model.network import CornerNet
-    from cotrain.model.train import TrainConfig, finalize_config
 
     cfg = finalize_config(load_config(TrainConfig, cfg_path))
     B = cfg.train.batch_size
@@ -85,9 +90,6 @@ def bench_detect(model: str | None = None, checkpoint: str | None = None, n: int
     import cv2
     import numpy as np
 
-    from cotrain.detect.detector import Detector
-    from cotrain.detect.images import load_image
-
     cfg = RenderConfig(height=720, width=1280)
     batch = render_batch(cfg, list(range(n)), seed)
     tmp = Path(tempfile.mkdtemp())
@@ -107,8 +109,6 @@ def bench_detect(model: str | None = None, checkpoint: str | None = None, n: int
             t_ort.append(time.perf_counter() - t0)
         out["detector_ms" if mode == "grid" else "onnxruntime_slots_ms"] = 1000 * statistics.median(t_ort)
     if checkpoint:
-        from cotrain.model.train import build_from_checkpoint, load_checkpoint
-
         net, _ = build_from_checkpoint(load_checkpoint(checkpoint))
         t_pt = []
         for p in paths:
@@ -143,9 +143,6 @@ def bench_detect(model: str | None = None, checkpoint: str | None = None, n: int
 
 def bench_calibration(config: str = "FoV220_90", frames: int = 480, repeats: int = 3) -> dict:
     """Median seconds to calibrate a synthetic stereo sequence: all frames, and selector + selected subset."""
-    from calib_eval.benchmark.rigs import SynthSpec, make_sequence, paper_config
-    from calib_eval.calibration.calibrator import CalibConfig, calibrate
-    from calib_eval.calibration.selector import SelectorConfig, select
 
     rig = paper_config(config)
     seq, _ = make_sequence(rig, SynthSpec(n_frames=frames), seed=0)

@@ -30,6 +30,11 @@ import cv2
 import numpy as np
 
 from calib_eval.detection.opencv_baseline import find_chessboard
+from cotrain.detect.detector import Detector
+from cotrain.detect.images import ImageError, load_image
+from cotrain.geometry import cameras
+from cotrain.render.renderer import RenderConfig, render_batch
+from cotrain.targets import Checkerboard, make_target
 
 BENCH_VERSION = 1  # bump when the benchmark set changes: results are only comparable within a version
 PAPER = {  # Table: detection recall / mean error (px) of the paper
@@ -63,8 +68,6 @@ def parse_size(text: str) -> tuple[int, int]:
 
 
 def _render_cfg(fov: float, cfg: EvalConfig, models: list[str], no_target: bool = False):
-    from cotrain.render.renderer import RenderConfig
-
     return RenderConfig(
         height=cfg.height,
         width=cfg.width,
@@ -80,9 +83,6 @@ def _render_cfg(fov: float, cfg: EvalConfig, models: list[str], no_target: bool 
 def render_benchmark(cfg: EvalConfig, out: Path, progress: bool = True) -> dict:
     """Render the benchmark set into ``out/images`` and its labels into ``out/labels.json``."""
     from tqdm import tqdm
-
-    from cotrain.geometry import cameras
-    from cotrain.render.renderer import render_batch
 
     img_dir = out / "images"
     img_dir.mkdir(parents=True, exist_ok=True)
@@ -130,9 +130,6 @@ def render_benchmark(cfg: EvalConfig, out: Path, progress: bool = True) -> dict:
 def run_learned(model: str | None, images: list[Path], progress: bool = True, mode: str = "grid", polish: bool = False) -> dict:
     from tqdm import tqdm
 
-    from cotrain.detect.detector import Detector
-    from cotrain.detect.images import ImageError, load_image
-
     det = Detector(model, polish=polish, mode=mode)
     out = {}
     for p in tqdm(images, desc=f"learned ({det.mode}{' + polish' if polish else ''})", disable=not progress):
@@ -147,15 +144,16 @@ def run_learned(model: str | None, images: list[Path], progress: bool = True, mo
     return out
 
 
-def run_geometry(kind: str, images: list[Path], pattern: tuple[int, int] = (9, 6), progress: bool = True) -> dict:
-    """OpenCV detectors (``opencv_sb``, ``opencv_classic``); corners carry no identity we trust (id -1)."""
+def run_geometry(kind: str, images: list[Path], target: Checkerboard, progress: bool = True) -> dict:
+    """OpenCV detectors (``opencv_sb``, ``opencv_classic``) looking for ``target``; corners carry no
+    identity we trust (id -1)."""
     from tqdm import tqdm
 
     method = kind.removeprefix("opencv_")
     out = {}
     for p in tqdm(images, desc=kind, disable=not progress):
         t0 = time.perf_counter()
-        c = find_chessboard(cv2.imread(str(p), cv2.IMREAD_GRAYSCALE), pattern, method)
+        c = find_chessboard(cv2.imread(str(p), cv2.IMREAD_GRAYSCALE), (target.nx, target.ny), method)
         corners = [[-1, float(x), float(y)] for x, y in c] if c is not None else []
         out[p.name] = {"corners": corners, "ms": 1000 * (time.perf_counter() - t0), "error": None, "has_id": False}
     return out
@@ -356,7 +354,7 @@ def evaluate_detection(model: str | None, cfg: EvalConfig, out: Path, progress: 
                 model, images, progress, mode="grid" if name == "learned" else "slots", polish=name.endswith("polish")
             )
         else:
-            preds[name] = run_geometry(name, images, progress=progress)
+            preds[name] = run_geometry(name, images, make_target(_render_cfg(cfg.fovs[0], cfg, ["kb4"]).target), progress=progress)
         (out / f"predictions_{name}.json").write_text(json.dumps(preds[name]))
     # Second pass: scores from the saved predictions.
     order = [n for n in DETECTORS if n in detectors or n in kept]

@@ -22,6 +22,10 @@ import cv2
 import numpy as np
 
 from calib_eval.detection.evaluation import EvalConfig, load_or_render, parse_size, score_image
+from cotrain.detect.detector import Detector
+from cotrain.detect.grid_config import GridConfig
+from cotrain.detect.grid_pass import grid_pass
+from cotrain.detect.images import load_image
 
 THRESHOLDS = (6, 8, 10, 12, 15, 18, 20, 22, 25, 30)
 DEGRADATIONS = ("none", "jpeg", "blur")
@@ -45,7 +49,6 @@ def degrade(grey: np.ndarray, how: str, seed: int = 0) -> np.ndarray:
 def grid_overrides(pairs: list[str]) -> dict[str, float | int]:
     """``["key=value", ...]`` -> GridConfig field overrides, each of its field's type. Unknown keys,
     ``min_margin`` (the table sweeps it) and values of the wrong type are errors."""
-    from cotrain.detect.grid_config import GridConfig
 
     fields = {f.name: type(f.default) for f in dataclasses.fields(GridConfig) if f.name != "min_margin"}
     out = {}
@@ -70,10 +73,6 @@ def margin_table(
     size: tuple[int, int] = (1280, 720),
 ) -> dict:
     from tqdm import tqdm
-
-    from cotrain.detect.detector import Detector
-    from cotrain.detect.grid_pass import grid_pass
-    from cotrain.detect.images import load_image
 
     meta = load_or_render(EvalConfig(seed=seed, width=size[0], height=size[1]), set_dir, progress)
     det = Detector(model)

@@ -1,19 +1,8 @@
 """Calibration targets: a :class:`Target` protocol and its kinds (the checkerboard)."""
 
-from cotrain.targets.base import (
-    KINDS,
-    Target,
-    TargetConfig,
-    TargetError,
-    describe,
-    load_target,
-    make_target,
-    same_target,
-    square_px,
-    target_from_json,
-    target_from_kalibr,
-)
 from cotrain.targets.checkerboard import ROTATIONS, Checkerboard, board_symmetries
+from cotrain.targets.descriptions import load_target, make_target, target_from_json, target_from_kalibr
+from cotrain.targets.target import KINDS, Target, TargetConfig, TargetError, describe, same_target, square_px
 
 __all__ = [
     "KINDS",

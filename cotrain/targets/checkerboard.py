@@ -13,7 +13,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from cotrain.targets.base import TargetConfig, TargetError
+from cotrain.targets.target import TargetConfig, TargetError
 
 # The board's in-plane quarter turns (lattice coordinates (a, b) -> R @ (a, b)).
 ROTATIONS = [np.array([[1, 0], [0, 1]]), np.array([[0, -1], [1, 0]]), np.array([[-1, 0], [0, -1]]), np.array([[0, 1], [-1, 0]])]

@@ -1,23 +1,16 @@
-"""What every calibration target is, and how targets are described in files.
+"""What every calibration target is: the :class:`Target` protocol and its config section.
 
-A :class:`Target` is the one home of what a calibration target is: corner ids and board
-coordinates, the printed texture the renderer warps, its symmetries, and how it is written to and
-read from the detection JSON and a Kalibr target yaml (docs/conventions.md). Renderer, training,
-detector, evaluation, sequences, selector and calibrator take a Target.
-
-Targets are described three ways, all read here:
-
-- our config section (``target:`` in a training config; :class:`TargetConfig`);
-- the detection JSON's ``"target"`` entry (:func:`target_from_json`, :meth:`Target.to_json`);
-- a Kalibr target yaml (``target_type: checkerboard``, ``targetCols`` / ``targetRows`` counting
-  inner corners, ``rowSpacingMeters`` / ``colSpacingMeters``; :func:`target_from_kalibr`).
+A Target is the one home of what a calibration target is: corner ids and board coordinates, the
+printed texture the renderer warps, its symmetries, and how it is written to the detection JSON
+and a Kalibr target yaml (docs/conventions.md). Renderer, training, detector, evaluation,
+sequences, selector and calibrator take a Target. Reading descriptions back:
+:mod:`cotrain.targets.descriptions`.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -78,77 +71,6 @@ class Target(Protocol):
 
     def to_kalibr(self) -> dict:
         """The target as a Kalibr target yaml mapping."""
-
-
-def make_target(cfg: TargetConfig | None = None) -> Target:
-    """The Target a config section describes."""
-    from cotrain.targets.checkerboard import Checkerboard
-
-    cfg = cfg or TargetConfig()
-    if cfg.kind == "checkerboard":
-        return Checkerboard(cfg)
-    raise TargetError(f"target.kind: unsupported target {cfg.kind!r} (known: {', '.join(KINDS)})")
-
-
-def _number(data: dict, key: str, where: str, kind: type = float, positive: bool = True):
-    if key not in data:
-        raise TargetError(f"{where}: missing {key!r}")
-    v = data[key]
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or (kind is int and not float(v).is_integer()):
-        raise TargetError(f"{where}: {key} must be {'an integer' if kind is int else 'a number'}, not {v!r}")
-    if positive and v <= 0:
-        raise TargetError(f"{where}: {key} must be positive, not {v!r}")
-    return kind(v)
-
-
-def target_from_json(data: dict, where: str = "target") -> Target:
-    """The Target of a detection JSON's ``"target"`` entry (docs/conventions.md)."""
-    if not isinstance(data, dict):
-        raise TargetError(f"{where}: expected a mapping, got {type(data).__name__}")
-    kind = data.get("kind", "checkerboard")
-    if kind != "checkerboard":
-        raise TargetError(f"{where}: unsupported target kind {kind!r} (known: {', '.join(KINDS)})")
-    cfg = TargetConfig(
-        kind=kind,
-        squares_x=_number(data, "squares_x", where, int),
-        squares_y=_number(data, "squares_y", where, int),
-        square_size=_number(data, "square_size", where) if "square_size" in data else TargetConfig.square_size,
-    )
-    return make_target(cfg)
-
-
-def target_from_kalibr(data: dict, where: str = "target yaml") -> Target:
-    """The Target of a Kalibr target yaml (``target_type: checkerboard``: inner corners counted)."""
-    kind = data.get("target_type")
-    if kind == "checkerboard":
-        cols = _number(data, "targetCols", where, int)
-        rows = _number(data, "targetRows", where, int)
-        dr = _number(data, "rowSpacingMeters", where)
-        dc = _number(data, "colSpacingMeters", where)
-        if not math.isclose(dr, dc, rel_tol=1e-6):
-            raise TargetError(f"{where}: rowSpacingMeters {dr} and colSpacingMeters {dc} differ (only square checkers are supported)")
-        return make_target(TargetConfig(squares_x=cols + 1, squares_y=rows + 1, square_size=dc))
-    raise TargetError(f"{where}: unsupported Kalibr target_type {kind!r} (supported: checkerboard)")
-
-
-def load_target(path: str | Path) -> Target:
-    """A target file: a Kalibr target yaml (``target_type: ...``), or our ``target:`` config section
-    (a file with a ``target:`` mapping, or the section's keys at the top level)."""
-    from cotrain.config import ConfigError, build, load_yaml
-
-    try:
-        data = load_yaml(path)
-    except ConfigError as e:
-        raise TargetError(str(e)) from None
-    if "target_type" in data:
-        return target_from_kalibr(data, str(path))
-    section = data.get("target", data)
-    if not isinstance(section, dict):
-        raise TargetError(f"{path}: 'target' must be a mapping")
-    try:
-        return make_target(build(TargetConfig, section, "target"))
-    except ConfigError as e:
-        raise TargetError(f"{path}: {e}") from None
 
 
 def same_target(a: Target, b: Target) -> bool:
