@@ -9,9 +9,9 @@ import sys
 import time
 from pathlib import Path
 
-from calib_eval.detection.evaluation import DEFAULT_DETECTORS, DETECTORS
+from calib_eval.detection import DEFAULT_DETECTORS, DETECTORS
 from cotrain.geometry import MODELS
-from cotrain.targets import Checkerboard, Target, TargetConfig, load_target
+from cotrain.targets import Target, load_target, target_from_flags
 
 
 def _target(path: str | None) -> Target | None:
@@ -149,13 +149,9 @@ def cmd_opencv_detect(a: argparse.Namespace) -> int:
 
     if not Path(a.images).is_dir():
         raise NotADirectoryError(f"{a.images}: not a folder of images")
-    if a.target and a.squares_x is not None:
-        raise ValueError("give the board either as --target or as --squares-x/--squares-y")
-    if a.target:
-        tgt = load_target(a.target)
-    elif a.squares_x is not None and a.squares_y is not None:
-        tgt = Checkerboard(TargetConfig(squares_x=a.squares_x, squares_y=a.squares_y, square_size=a.square_size, margin=0.0))
-    else:
+    size = 1.0 if a.square_size is None and a.squares_x is not None else a.square_size  # any unit: it only scales the poses
+    tgt = target_from_flags(a.target, a.squares_x, a.squares_y, size)
+    if tgt is None:
         raise ValueError("name the board: --target TARGET.yaml, or --squares-x X --squares-y Y")
     if a.model and not a.learned:
         raise ValueError("--model goes with --learned")
@@ -259,7 +255,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--target", help="target file: our target config or a Kalibr target yaml")
     s.add_argument("--squares-x", type=int, help="or: squares along the board's x axis")
     s.add_argument("--squares-y", type=int, help="... and along its y axis")
-    s.add_argument("--square-size", type=float, default=1.0, help="metres (any unit: it only scales the poses)")
+    s.add_argument("--square-size", type=float, help="with --squares-x/-y: metres (default 1: any unit, it only scales the poses)")
     s.add_argument("--sb", action="store_true", help="findChessboardCornersSB instead of findChessboardCorners + cornerSubPix")
     s.add_argument("--learned", action="store_true", help="our detector (network + grid pass) instead of OpenCV's")
     s.add_argument("--model", help="with --learned: ONNX model (default: the shipped model)")

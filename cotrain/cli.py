@@ -59,25 +59,17 @@ def cmd_export(args: argparse.Namespace) -> int:
 def cmd_detect(args: argparse.Namespace) -> int:
     from cotrain.detect.detector import Detector
     from cotrain.detect.images import expand_inputs
+    from cotrain.detect.onnx_model import OnnxModel
     from cotrain.io.detections import detect_files, write_json_atomic
-    from cotrain.targets import load_target
+    from cotrain.targets import target_from_flags
 
     if not (0.0 <= args.threshold <= 1.0):
         raise ValueError("--threshold must be in [0, 1]")
     paths = expand_inputs(args.inputs)
     if not paths:
         raise FileNotFoundError("no images found in the given paths")
-    if (args.squares_x is None) != (args.squares_y is None):
-        raise ValueError("give both --squares-x and --squares-y")
-    if args.target and (args.squares_x is not None or args.square_size is not None):
-        raise ValueError("give the board either as --target or as --squares-x/--squares-y/--square-size")
-    target = load_target(args.target) if args.target else {}
-    if args.squares_x is not None:
-        target.update(squares_x=args.squares_x, squares_y=args.squares_y)
-    if args.square_size is not None:
-        if args.square_size <= 0:
-            raise ValueError("--square-size must be positive")
-        target["square_size"] = args.square_size
+    base = OnnxModel(args.model).target if args.square_size is not None and args.squares_x is None else None
+    target = target_from_flags(args.target, args.squares_x, args.squares_y, args.square_size, base)
     det = Detector(
         args.model,
         threshold=args.threshold,

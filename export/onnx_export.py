@@ -34,8 +34,8 @@ class ExportWrapper(torch.nn.Module):
         super().__init__()
         self.model = model
 
-    def forward(self, image: torch.Tensor) -> tuple[torch.Tensor, ...]:
-        """The outputs of :data:`cotrain.model.outputs.OUTPUTS`, in that order."""
+    def named(self, image: torch.Tensor) -> dict[str, torch.Tensor]:
+        """The outputs of :mod:`cotrain.model.outputs`, by name."""
         o = self.model(image)
         cfg = self.model.cfg
         if o["board_col_logits"].shape[1] > 0:
@@ -45,16 +45,21 @@ class ExportWrapper(torch.nn.Module):
             rows = torch.arange(-1, cfg.grid_ny + 1, dtype=image.dtype, device=image.device)[None, :, None, None]
             lc = torch.log_softmax(-((o["board_uv"][:, :1] - cols) ** 2) / 0.5, 1)
             lr = torch.log_softmax(-((o["board_uv"][:, 1:] - rows) ** 2) / 0.5, 1)
-        return (
-            o["corners"],
-            torch.sigmoid(o["visibility_logit"]),
-            torch.sigmoid(o["confidence_logit"]),
-            o["learnability"],
-            torch.sigmoid(o["corner_logit"]),
-            torch.sigmoid(o["board_mask_logit"]),
-            lc,
-            lr,
-        )
+        return {
+            "corners": o["corners"],
+            "visibility": torch.sigmoid(o["visibility_logit"]),
+            "confidence": torch.sigmoid(o["confidence_logit"]),
+            "learnability": o["learnability"],
+            "corner_prob": torch.sigmoid(o["corner_logit"]),
+            "mask_prob": torch.sigmoid(o["board_mask_logit"]),
+            "col_logp": lc,
+            "row_logp": lr,
+        }
+
+    def forward(self, image: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """The named outputs as the graph returns them: in the order of :data:`OUTPUTS`."""
+        out = self.named(image)
+        return tuple(out[n] for n in OUTPUTS)
 
 
 class ExportError(ValueError):
@@ -112,11 +117,11 @@ def export_onnx(checkpoint: str | Path, out: str | Path, tol_px: float = 0.01, n
     # Parity on rendered images at the processing size.
     batch = render_batch(cfg.render, list(range(n_check)), seed=424242)
     sess = ort.InferenceSession(str(tmp), providers=["CPUExecutionProvider"])
-    got = sess.run(list(OUTPUTS), {INPUT: batch["image"].numpy().astype(np.float32)})
+    got = dict(zip(OUTPUTS, sess.run(list(OUTPUTS), {INPUT: batch["image"].numpy().astype(np.float32)})))
     with torch.no_grad():
-        ref = [t.numpy() for t in wrapper(batch["image"])]
-    dq = float(np.abs(got[0] - ref[0]).max())
-    dp = float(max(np.abs(g - r).max() for g, r in zip(got[1:], ref[1:])))
+        ref = {k: v.numpy() for k, v in wrapper.named(batch["image"]).items()}
+    dq = float(np.abs(got["corners"] - ref["corners"]).max())
+    dp = float(max(np.abs(got[n] - ref[n]).max() for n in OUTPUTS if n != "corners"))
     if not dq <= tol_px:
         tmp.unlink(missing_ok=True)
         raise ExportError(f"parity check failed: onnxruntime corners differ from PyTorch by {dq:.4f} px (> {tol_px} px)")

@@ -26,11 +26,9 @@ def camchain_dict(res: CalibrationResult, seq: Sequence) -> dict:
     out = {}
     for c, info in enumerate(seq.cameras):
         m = cameras.get_model(res.model[c])
-        x = [float(v) for v in res.intrinsics[c]]
-        if m.name == "kb4":
-            intr, dist = x[:4], x[4:]
-        else:
-            intr, dist = x, []
+        x = dict(zip(m.param_names, (float(v) for v in res.intrinsics[c])))
+        intr = [v for n, v in x.items() if n not in m.distortion_names]
+        dist = [x[n] for n in m.distortion_names]
         entry = {
             "camera_model": m.kalibr_model,
             "intrinsics": intr,

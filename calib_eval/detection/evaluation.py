@@ -19,6 +19,7 @@ Metrics (printed with the table):
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import statistics
@@ -29,12 +30,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from calib_eval.detection import DEFAULT_DETECTORS, DETECTORS
 from calib_eval.detection.opencv_baseline import find_chessboard
 from cotrain.detect.detector import Detector
 from cotrain.detect.images import ImageError, load_image
 from cotrain.geometry import cameras
 from cotrain.render.renderer import RenderConfig, render_batch
-from cotrain.targets import Checkerboard, make_target
+from cotrain.targets import Target, TargetConfig, make_target
 
 BENCH_VERSION = 1  # bump when the benchmark set changes: results are only comparable within a version
 PAPER = {  # Table: detection recall / mean error (px) of the paper
@@ -44,8 +46,6 @@ PAPER = {  # Table: detection recall / mean error (px) of the paper
     240: {"learned": (0.9263, 0.8277), "geometry": (0.6838, 0.8553)},
 }
 TOL_PX = 3.0
-DETECTORS = ["learned", "learned_slots", "learned_slots_polish", "opencv_sb", "opencv_classic"]  # table order
-DEFAULT_DETECTORS = ["learned", "learned_slots", "opencv_sb", "opencv_classic"]  # run when none are named
 
 
 @dataclass
@@ -57,6 +57,7 @@ class EvalConfig:
     min_square_px: float = 10.0  # detectable: local square at least this many pixels in the rendered frame
     width: int = 1280
     height: int = 720
+    target: TargetConfig = field(default_factory=TargetConfig)  # the board rendered and looked for
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -77,6 +78,7 @@ def _render_cfg(fov: float, cfg: EvalConfig, models: list[str], no_target: bool 
         kb4_k_scale=0.0,
         p_no_target=1.0 if no_target else 0.0,
         distance_range=(0.15, 1.2),
+        target=cfg.target,
     )
 
 
@@ -94,9 +96,9 @@ def render_benchmark(cfg: EvalConfig, out: Path, progress: bool = True) -> dict:
     labels = []
     for fov, kind, i in tqdm(jobs, desc="render benchmark", disable=not progress):
         if kind == "empty":
-            rc = _render_cfg(200, cfg, ["kb4", "ucm", "eucm", "ds"], no_target=True)
+            rc = _render_cfg(200, cfg, list(cameras.MODELS), no_target=True)
         else:
-            rc = _render_cfg(fov, cfg, ["kb4"] if kind == "kb4" else ["ucm", "eucm", "ds"])
+            rc = _render_cfg(fov, cfg, ["kb4"] if kind == "kb4" else [m for m in cameras.MODELS if m != "kb4"])
         seed = cfg.seed * 1000 + BENCH_VERSION * 100 + (fov // 10)
         b = render_batch(rc, [i], seed=seed)
         name = f"{'empty' if kind == 'empty' else f'fov{fov}'}_{i:03d}.png"
@@ -119,7 +121,7 @@ def render_benchmark(cfg: EvalConfig, out: Path, progress: bool = True) -> dict:
                 "radius": float(b["radius"][0]),
             }
         )
-    meta = {"version": BENCH_VERSION, "config": cfg.__dict__, "labels": labels}
+    meta = {"version": BENCH_VERSION, "config": dataclasses.asdict(cfg), "target": make_target(cfg.target).to_json(), "labels": labels}
     (out / "labels.json").write_text(json.dumps(meta))
     return meta
 
@@ -127,10 +129,12 @@ def render_benchmark(cfg: EvalConfig, out: Path, progress: bool = True) -> dict:
 # --------------------------------------------------------------------------------------------
 # Detectors
 # --------------------------------------------------------------------------------------------
-def run_learned(model: str | None, images: list[Path], progress: bool = True, mode: str = "grid", polish: bool = False) -> dict:
+def run_learned(
+    model: str | None, images: list[Path], target: Target, progress: bool = True, mode: str = "grid", polish: bool = False
+) -> dict:
     from tqdm import tqdm
 
-    det = Detector(model, polish=polish, mode=mode)
+    det = Detector(model, polish=polish, mode=mode, target=target)
     out = {}
     for p in tqdm(images, desc=f"learned ({det.mode}{' + polish' if polish else ''})", disable=not progress):
         t0 = time.perf_counter()
@@ -144,7 +148,7 @@ def run_learned(model: str | None, images: list[Path], progress: bool = True, mo
     return out
 
 
-def run_geometry(kind: str, images: list[Path], target: Checkerboard, progress: bool = True) -> dict:
+def run_geometry(kind: str, images: list[Path], target: Target, progress: bool = True) -> dict:
     """OpenCV detectors (``opencv_sb``, ``opencv_classic``) looking for ``target``; corners carry no
     identity we trust (id -1)."""
     from tqdm import tqdm
@@ -332,7 +336,7 @@ def load_or_render(cfg: EvalConfig, out: Path, progress: bool = True) -> dict:
     labels_path = out / "labels.json"
     if labels_path.is_file():
         meta = json.loads(labels_path.read_text())
-        if meta.get("version") == BENCH_VERSION and meta.get("config") == cfg.__dict__:
+        if meta.get("version") == BENCH_VERSION and meta.get("config") == dataclasses.asdict(cfg):
             return meta
     for stale in out.glob("predictions_*.json"):
         stale.unlink()  # from another set
@@ -345,16 +349,16 @@ def evaluate_detection(model: str | None, cfg: EvalConfig, out: Path, progress: 
     meta = load_or_render(cfg, out, progress)
     images = [out / "images" / lab["image"] for lab in meta["labels"]]
     detectors = detectors or DEFAULT_DETECTORS
+    board = make_target(cfg.target)
     # Detectors not run this time keep their saved predictions on this set in the table.
     kept = [n for n in DETECTORS if n not in detectors and (out / f"predictions_{n}.json").is_file()]
     preds = {}
     for name in detectors:
         if name.startswith("learned"):
-            preds[name] = run_learned(
-                model, images, progress, mode="grid" if name == "learned" else "slots", polish=name.endswith("polish")
-            )
+            mode = "grid" if name == "learned" else "slots"
+            preds[name] = run_learned(model, images, board, progress, mode=mode, polish=name.endswith("polish"))
         else:
-            preds[name] = run_geometry(name, images, make_target(_render_cfg(cfg.fovs[0], cfg, ["kb4"]).target), progress=progress)
+            preds[name] = run_geometry(name, images, board, progress=progress)
         (out / f"predictions_{name}.json").write_text(json.dumps(preds[name]))
     # Second pass: scores from the saved predictions.
     order = [n for n in DETECTORS if n in detectors or n in kept]

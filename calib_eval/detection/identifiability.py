@@ -1,6 +1,6 @@
 """How many detectable corners a detector could identify from the board's geometry alone.
 
-    python -m calib_eval.detection.identifiability [--set report/detection] [--target configs/default.yaml]
+    python -m calib_eval.detection.identifiability [--set report/detection] [--target TARGET.yaml]
 
 A partial view of a checkerboard can be ambiguous: a 4x3 patch of corners at one corner of a
 10x7 board looks the same as a 4x3 patch at the opposite corner turned by a half turn if the
@@ -27,11 +27,18 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
 
-from cotrain.targets import ROTATIONS  # the board's in-plane turns, as the detector's placements use them
+from cotrain.targets import (  # the board's in-plane turns, as the detector's placements use them
+    ROTATIONS,
+    Checkerboard,
+    TargetError,
+    load_target,
+    target_from_json,
+)
 
 STEPS = ((1, 0), (-1, 0), (0, 1), (0, -1))
 
@@ -93,14 +100,22 @@ def ceiling(labels: list[dict], nx: int, ny: int) -> dict:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m calib_eval.detection.identifiability", description=__doc__.splitlines()[0])
     ap.add_argument("--set", default="report/detection", help="rendered detection set (its labels.json)")
-    ap.add_argument("--nx", type=int, default=9, help="inner corners along the board's x side")
-    ap.add_argument("--ny", type=int, default=6, help="inner corners along the board's y side")
+    ap.add_argument("--target", help="the set's board, if its labels.json names none (our target config or a Kalibr yaml)")
     args = ap.parse_args(argv)
     path = Path(args.set) / "labels.json"
     if not path.is_file():
-        print(f"error: no labels.json in {args.set} (render a set with calib-eval detection first)")
+        print(f"error: no labels.json in {args.set} (render a set with calib-eval detection first)", file=sys.stderr)
         return 2
-    res = ceiling(json.loads(path.read_text())["labels"], args.nx, args.ny)
+    meta = json.loads(path.read_text())
+    try:
+        board = load_target(args.target) if args.target else target_from_json(meta.get("target", Checkerboard().to_json()))
+    except TargetError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    if not isinstance(board, Checkerboard):
+        print(f"error: identifiability is worked out for checkerboards, not {board.kind}", file=sys.stderr)
+        return 2
+    res = ceiling(meta["labels"], board.nx, board.ny)
     print(f"identifiable from geometry alone ({path}): share of detectable corners")
     print("| FoV | detectable corners | seen = detectable | seen = visible |\n|---|---|---|---|")
     for k, v in sorted(res.items(), key=lambda kv: (kv[0] == "all", kv[0])):

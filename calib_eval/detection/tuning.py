@@ -24,7 +24,6 @@ import numpy as np
 from calib_eval.detection.evaluation import EvalConfig, load_or_render, parse_size, score_image
 from cotrain.detect.detector import Detector
 from cotrain.detect.grid_config import GridConfig
-from cotrain.detect.grid_pass import grid_pass
 from cotrain.detect.images import load_image
 
 THRESHOLDS = (6, 8, 10, 12, 15, 18, 20, 22, 25, 30)
@@ -80,11 +79,7 @@ def margin_table(
     rows, total = [], 0
     for n, lab in enumerate(tqdm(meta["labels"], desc="grid pass", disable=not progress)):
         grey = degrade(load_image(set_dir / "images" / lab["image"]), how, seed=n)
-        box = det.letterbox(grey)
-        out = det.net.run(box.apply(grey)[None, None])
-        r = grid_pass(
-            grey, box.scale, out["corner_prob"][0, 0], out["mask_prob"][0, 0], out["col_logp"][0], out["row_logp"][0], det.nx, det.ny, gcfg
-        )
+        r = det.grid_result(grey, gcfg)
         if not lab["has_target"]:
             rows.append((r.margin, len(r.ids), len(r.ids), 0, 1))
             continue

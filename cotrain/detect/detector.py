@@ -24,12 +24,13 @@ import cv2
 import numpy as np
 
 from cotrain.detect.grid_config import GridConfig
-from cotrain.detect.grid_pass import grid_pass
+from cotrain.detect.grid_pass import GridResult, grid_pass
 from cotrain.detect.images import MIN_SIDE, ImageError, to_grey_float
 from cotrain.detect.onnx_model import OnnxModel
 from cotrain.detect.saddle import saddle_fit, smooth_for, window_half
 from cotrain.geometry.letterbox import Letterbox
-from cotrain.targets import Checkerboard, Target, target_from_json
+from cotrain.model.outputs import DENSE_OUTPUTS
+from cotrain.targets import Checkerboard, Target
 
 
 @dataclass
@@ -47,9 +48,8 @@ class Detection:
 class Detector:
     """The network (onnxruntime, CPU) and the grid pass: identified corners at input resolution.
 
-    ``target``: the checkerboard to find, a :class:`~cotrain.targets.Target` or a dict of fields
-    that differ from the model's (``squares_x``, ``squares_y``, ``square_size``); default the
-    board the model was trained on. On another board than the model's, the network's corner and
+    ``target``: the checkerboard to find (:class:`~cotrain.targets.Target`); default the board the
+    model was trained on. On another board than the model's, the network's corner and
     board maps still find the squares, but its column / row votes are for the other board, so the
     grid pass places the lattice from the geometry alone (colours, extent, margin; docs/detector.md).
     """
@@ -63,14 +63,12 @@ class Detector:
         polish: bool = False,
         mode: str = "grid",
         grid: GridConfig | None = None,
-        target: Target | dict | None = None,
+        target: Target | None = None,
     ):
         self.net = OnnxModel(model, threads)
         self.path = self.net.path
         self.input_size = self.net.input_size  # (H, W)
         trained = self.net.target
-        if isinstance(target, dict):
-            target = target_from_json({**trained.to_json(), **target}, "target")
         self.target: Target = target or trained
         if not isinstance(self.target, Checkerboard):
             raise ValueError(f"target: this detector finds checkerboards, not {self.target.kind}")
@@ -95,23 +93,36 @@ class Detector:
         h, w = grey.shape
         return Letterbox(w, h, self.input_size)
 
-    def detect(self, image: np.ndarray) -> Detection:
-        """Detect corners in one image (any size, 8/16-bit or float, grey or colour)."""
+    def _grey(self, image: np.ndarray) -> np.ndarray:
         grey = to_grey_float(image) if image.dtype != np.float32 or image.ndim != 2 else image
         h, w = grey.shape
         if min(h, w) < MIN_SIDE:
             raise ImageError(f"image too small ({w}x{h}); need at least {MIN_SIDE} px per side")
+        return grey
+
+    def _grid(self, grey: np.ndarray, box: Letterbox, out: dict[str, np.ndarray], cfg: GridConfig) -> GridResult:
+        logp_col, logp_row = out["col_logp"][0], out["row_logp"][0]
+        if not self.board_votes:
+            logp_col = np.zeros((self.nx + 2, *logp_col.shape[1:]), np.float32)
+            logp_row = np.zeros((self.ny + 2, *logp_row.shape[1:]), np.float32)
+        return grid_pass(grey, box.scale, out["corner_prob"][0, 0], out["mask_prob"][0, 0], logp_col, logp_row, self.target, cfg)
+
+    def grid_result(self, image: np.ndarray, grid: GridConfig | None = None) -> GridResult:
+        """The grid pass's whole result on one image (with its identity margin), under ``grid``
+        (default the detector's own settings)."""
+        grey = self._grey(image)
+        box = self.letterbox(grey)
+        out = self.net.run(box.apply(grey)[None, None], DENSE_OUTPUTS)
+        return self._grid(grey, box, out, grid or self.grid)
+
+    def detect(self, image: np.ndarray) -> Detection:
+        """Detect corners in one image (any size, 8/16-bit or float, grey or colour)."""
+        grey = self._grey(image)
         box = self.letterbox(grey)
         out = self.net.run(box.apply(grey)[None, None])
         det = self._postprocess(out, box, consistency=self.consistency and self.mode == "slots")
         if self.mode == "grid":
-            logp_col, logp_row = out["col_logp"][0], out["row_logp"][0]
-            if not self.board_votes:
-                logp_col = np.zeros((self.nx + 2, *logp_col.shape[1:]), np.float32)
-                logp_row = np.zeros((self.ny + 2, *logp_row.shape[1:]), np.float32)
-            g = grid_pass(
-                grey, box.scale, out["corner_prob"][0, 0], out["mask_prob"][0, 0], logp_col, logp_row, self.nx, self.ny, self.grid
-            )
+            g = self._grid(grey, box, out, self.grid)
             det.ids, det.xy, det.confidence = g.ids, g.xy, g.confidence
             det.visibility = np.ones(len(g.ids))
         elif self.polish and len(det.ids):

@@ -28,7 +28,7 @@ This pass turns them into identities the way a person would (docs/detector.md ha
 
 So one identity decision is made per board from all its corners, and a corner only gets an id if
 it is connected to the board's lattice. Thresholds: :class:`cotrain.detect.grid_config.GridConfig`.
-Pure functions over numpy arrays; pixels follow CONVENTIONS (centre of the top-left pixel at
+Pure functions over numpy arrays; pixels follow docs/conventions.md (centre of the top-left pixel at
 (0, 0)); input pixels map to the network's maps through the letterbox
 (:mod:`cotrain.geometry.letterbox`).
 """
@@ -46,6 +46,7 @@ from cotrain.detect.identity import assign_ids, canonical_ids, cell_darkness, co
 from cotrain.detect.lattice import Lattice, grow_lattice, refine_positions, skipped_corners, verify_lattice
 from cotrain.detect.saddle import fit_saddles, outside_circle, saddle_candidates, saddle_response, smooth_cached, window_half
 from cotrain.geometry.letterbox import CELLS, cell_mask_to_input, to_processing
+from cotrain.targets import Checkerboard
 
 
 @dataclass
@@ -114,8 +115,7 @@ def grid_pass(
     mask_prob: np.ndarray,
     logp_col: np.ndarray,
     logp_row: np.ndarray,
-    nx: int,
-    ny: int,
+    board: Checkerboard,
     cfg: GridConfig,
 ) -> GridResult:
     """Corners with ids from the network's dense outputs and the full-resolution image.
@@ -124,6 +124,7 @@ def grid_pass(
         grey: (H, W) float32 input image in [0, 1]; scale: processing pixels per input pixel.
         corner_prob: (h, w) class-agnostic corner probability and mask_prob: (h, w) board
         probability at 1/4 processing resolution; logp_col: (nx + 2, h, w), logp_row: (ny + 2, h, w)
+        for ``board`` (nx x ny inner corners)
         column / row log-probabilities.
     """
     empty = GridResult(np.zeros(0, int), np.zeros((0, 2)), np.zeros(0), float("nan"))
@@ -174,7 +175,7 @@ def grid_pass(
             continue  # a line of corners (or a diagonal) is not a checker lattice
         lc, lr = corner_votes(lat, logp_col, offset, scale, cfg), corner_votes(lat, logp_row, offset, scale, cfg)
         edges = edge_evidence(blur1, lat, cfg)
-        ids, _, margin, violated = assign_ids(lat.ab, lc, lr, dark, nx, ny, cfg, edges)
+        ids, _, margin, violated = assign_ids(lat.ab, lc, lr, dark, board, cfg, edges)
         if violated > max(cfg.max_violated_edges, cfg.max_violated_share * sum(e[3] for e in edges)):
             continue  # the board ends where the target goes on: another target, or a distractor
         if best is None or margin > best[0]:
@@ -185,7 +186,7 @@ def grid_pass(
     if margin < cfg.min_margin:
         return GridResult(np.zeros(0, int), np.zeros((0, 2)), np.zeros(0), float(margin))
     lat = refine_positions(lat, grey, cfg, smoothed, rim_dist)
-    ids = canonical_ids(ids, lat.xy, nx, ny)
+    ids = canonical_ids(ids, lat.xy, board)
     on = ids >= 0
     conf = np.full(len(ids), 1.0 - np.exp(-margin)) * np.where(lat.filled, cfg.filled_confidence, 1.0)
     order = np.argsort(ids[on])

@@ -10,7 +10,7 @@ an integer offset. :func:`assign_ids` scores every placement by
 - the board's white margin where the lattice stops (:func:`edge_evidence`);
 
 and the best one wins if it beats the runner-up by a margin. A board that looks the same turned
-(:func:`board_symmetries`, like 7 x 5 squares) is identified up to that turn, and
+(``Checkerboard.symmetries``, like 7 x 5 squares) is identified up to that turn, and
 :func:`canonical_ids` puts corner 0 nearest the image's top left.
 """
 
@@ -21,15 +21,16 @@ import numpy as np
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.lattice import STEPS, Lattice, value_at, values_at
 from cotrain.geometry.letterbox import CELLS, to_processing
-from cotrain.targets.checkerboard import ROTATIONS, board_symmetries
+from cotrain.targets.checkerboard import ROTATIONS, Checkerboard
 
 
-def canonical_ids(ids: np.ndarray, xy: np.ndarray, nx: int, ny: int) -> np.ndarray:
-    """For a symmetric board (:func:`board_symmetries`), the one of the equivalent id assignments
+def canonical_ids(ids: np.ndarray, xy: np.ndarray, board: Checkerboard) -> np.ndarray:
+    """For a symmetric board (``board.symmetries()``), the one of the equivalent id assignments
     that puts corner 0 nearest the image's top left (smallest x + y, where an affine fit of the
     corners' positions to their board coordinates places it), as OpenCV orders them; ids (K,)
     with -1 off the board, xy (K, 2) pixels."""
-    perms = board_symmetries(nx, ny)
+    perms = board.symmetries()
+    nx = board.nx
     on = ids >= 0
     if not perms or on.sum() < 3:
         return ids
@@ -171,8 +172,7 @@ def assign_ids(
     logp_col: np.ndarray,
     logp_row: np.ndarray,
     dark: dict[tuple[int, int], float],
-    nx: int,
-    ny: int,
+    board: Checkerboard,
     cfg: GridConfig,
     edges: list[tuple[int, int, int, float]] | None = None,
 ) -> tuple[np.ndarray, float, float, float]:
@@ -181,13 +181,15 @@ def assign_ids(
     Args:
         ab: (K, 2) lattice coordinates; logp_col: (K, nx + 2) / logp_row: (K, ny + 2) the network's
         log-probabilities of the corner column -1 .. nx / row -1 .. ny at each corner;
-        dark: cell darkness (see :func:`cell_darkness`); edges: margin evidence (see :func:`edge_evidence`).
+        dark: cell darkness (see :func:`cell_darkness`); board: the checkerboard (nx x ny inner
+        corners); edges: margin evidence (see :func:`edge_evidence`).
     Returns: ids (K,) (-1 where the placement puts a corner off the board), best score, margin
     over the best placement that gives any corner another id (turns of a symmetric board, see
-    :func:`board_symmetries`, do not count), and the margin evidence the best
+    ``board.symmetries()``, do not count), and the margin evidence the best
     placement contradicts (sum of e over corners whose missing outward neighbour it puts on the
     board: large when the lattice is a whole board of another size).
     """
+    nx, ny = board.nx, board.ny
     lc = np.maximum(logp_col, cfg.logp_floor)
     lr = np.maximum(logp_row, cfg.logp_floor)
     cells = np.array(list(dark.keys()), int).reshape(-1, 2)
@@ -234,7 +236,7 @@ def assign_ids(
     ids = ids_of(best)
     # On a symmetric board the turned placements give the same view: they are not competitors.
     on = ids >= 0
-    same = [ids] + [np.where(on, perm[np.where(on, ids, 0)], -1) for perm in board_symmetries(nx, ny)]
+    same = [ids] + [np.where(on, perm[np.where(on, ids, 0)], -1) for perm in board.symmetries()]
     runner = next((r for r in results[1:] if not any(np.array_equal(ids_of(r), v) for v in same)), None)
     margin = best[0] - runner[0] if runner is not None else np.inf
     violated = 0.0

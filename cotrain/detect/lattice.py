@@ -10,7 +10,7 @@
 - :func:`refine_positions`: the reported positions, fitted once more in a small window.
 
 Lattice axes are oriented so that a x b > 0 in the image (x right, y down), as the board's own
-i, j axes are when its printed side is seen. Pixels follow CONVENTIONS (centre of the top-left
+i, j axes are when its printed side is seen. Pixels follow docs/conventions.md (centre of the top-left
 pixel at (0, 0)).
 """
 

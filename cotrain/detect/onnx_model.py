@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from cotrain.model.outputs import DENSE_OUTPUTS, INPUT, SLOT_OUTPUTS
-from cotrain.targets import Target, TargetError, target_from_json
+from cotrain.targets import Checkerboard, Target, TargetError, target_from_json
 
 
 def default_model_path() -> Path:
@@ -47,7 +47,8 @@ class OnnxModel:
             raise ValueError(f"{self.path}: not a cotrain model (no cotrain.input_size metadata)")
         self.input_size: tuple[int, int] = tuple(json.loads(meta["cotrain.input_size"]))  # (H, W)
         try:
-            self.target: Target = target_from_json(json.loads(meta.get("cotrain.target", '{"squares_x": 10, "squares_y": 7}')))
+            trained = json.loads(meta["cotrain.target"]) if "cotrain.target" in meta else Checkerboard().to_json()
+            self.target: Target = target_from_json(trained)
         except (TargetError, json.JSONDecodeError) as e:
             raise ValueError(f"{self.path}: bad cotrain.target metadata ({e})") from None
         inputs = [i.name for i in self.session.get_inputs()]

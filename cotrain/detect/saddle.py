@@ -11,7 +11,7 @@
   size, and the image blurred for it (once per image and size);
 - :func:`outside_circle`: the black frame outside a fisheye's image circle.
 
-Pure functions over numpy arrays; pixels follow CONVENTIONS (centre of the top-left pixel at (0, 0)).
+Pure functions over numpy arrays; pixels follow docs/conventions.md (centre of the top-left pixel at (0, 0)).
 """
 
 from __future__ import annotations

@@ -227,6 +227,7 @@ class CameraModel:
     shape_names: tuple[str, ...]  # the projection-shape parameters (not fx, fy, cx, cy)
     kalibr_model: str  # camera_model in Kalibr's camchain.yaml
     kalibr_distortion: str  # distortion_model in camchain.yaml
+    distortion_names: tuple[str, ...]  # parameters Kalibr lists as distortion_coeffs (the rest are its intrinsics)
     bounds: dict[str, tuple[float, float]]  # valid range of each bounded parameter (solver increments are clamped to it)
     shape_ranges: dict[str, tuple[float, float]]  # uniform sampling range of each shape parameter for rendered cameras
 
@@ -262,6 +263,7 @@ MODELS: dict[str, CameraModel] = {
         ("k1", "k2", "k3", "k4"),
         "pinhole",
         "equidistant",
+        ("k1", "k2", "k3", "k4"),
         {"fx": (1.0, math.inf), "fy": (1.0, math.inf)},
         {"k1": (-0.06, 0.06), "k2": (-0.015, 0.015), "k3": (-0.004, 0.004), "k4": (-0.001, 0.001)},
     ),
@@ -273,6 +275,7 @@ MODELS: dict[str, CameraModel] = {
         ("xi",),
         "omni",
         "none",
+        (),
         {"xi": (0.0, 5.0), "fx": (1.0, math.inf), "fy": (1.0, math.inf)},
         {"xi": (0.6, 1.5)},
     ),
@@ -284,6 +287,7 @@ MODELS: dict[str, CameraModel] = {
         ("alpha", "beta"),
         "eucm",
         "none",
+        (),
         {"alpha": (1e-3, 0.999), "beta": (1e-3, math.inf), "fx": (1.0, math.inf), "fy": (1.0, math.inf)},
         {"alpha": (0.45, 0.7), "beta": (0.8, 1.3)},
     ),
@@ -295,6 +299,7 @@ MODELS: dict[str, CameraModel] = {
         ("xi", "alpha"),
         "ds",
         "none",
+        (),
         {"xi": (-1.0, 1.0), "alpha": (1e-3, 0.999), "fx": (1.0, math.inf), "fy": (1.0, math.inf)},
         {"xi": (-0.3, 0.05), "alpha": (0.45, 0.65)},
     ),

@@ -152,13 +152,15 @@ def load_sequence(seq: str | Path, tolerance_ms: float = 10.0, detect=None, targ
         rows = _read_timestamps(cd / "timestamps.csv")
         det_path = cd / "detections.json"
         if det_path.is_file():
+            source = str(det_path)
             dets, t = read_detections(det_path)
         elif detect is not None:
-            dets, t = parse_detections(detect([cd / "images" / r[2] for r in rows]), f"{cd.name} (detector)")
+            source = f"{cd.name} (detector)"
+            dets, t = parse_detections(detect([cd / "images" / r[2] for r in rows]), source)
         else:
             raise SequenceError(f"{cd}: no detections.json and no detector available")
         if t is not None:
-            targets.append((str(det_path), t))
+            targets.append((source, t))
         size = None
         for e in dets.values():
             if e.get("width") and e.get("height"):
@@ -167,13 +169,14 @@ def load_sequence(seq: str | Path, tolerance_ms: float = 10.0, detect=None, targ
         if size is None:
             raise SequenceError(f"{cd}: detections give no image size")
         cameras.append(CameraInfo(cd.name, *size))
-        per_cam.append((rows, dets))
+        per_cam.append((rows, dets, source))
 
     # Views from cam0's clock; other cameras join the nearest view within the tolerance.
     tol = int(tolerance_ms * 1e6)
-    times: list[int] = sorted({t for rows, _ in per_cam[:1] for _, t, _ in rows})
+    times: list[int] = sorted({t for rows, _, _ in per_cam[:1] for _, t, _ in rows})
+    board = _one_target(targets, target, str(seq))
     obs = []
-    for ci, (rows, dets) in enumerate(per_cam):
+    for ci, (rows, dets, source) in enumerate(per_cam):
         for _, t, name in rows:
             arr = np.asarray(times, dtype=np.int64)
             j = int(np.argmin(np.abs(arr - t))) if len(arr) else -1
@@ -189,6 +192,9 @@ def load_sequence(seq: str | Path, tolerance_ms: float = 10.0, detect=None, targ
             if not corners:
                 continue
             ids = np.array([c["id"] for c in corners], dtype=np.int64)
+            if ids.min() < 0 or ids.max() >= board.n_corners:
+                bad = int(ids.max() if ids.max() >= board.n_corners else ids.min())
+                raise SequenceError(f"{source}: {name} has corner id {bad}, not one of the {board.n_corners} of the {describe(board)}")
             q = np.array([[c["x"], c["y"]] for c in corners], dtype=np.float64)
             w = np.array([float(c.get("confidence", 1.0) or 1.0) for c in corners], dtype=np.float64)
             obs.append(Observation(ci, t, ids, q, np.clip(w, 1e-3, 1.0), name))
@@ -196,7 +202,7 @@ def load_sequence(seq: str | Path, tolerance_ms: float = 10.0, detect=None, targ
     arr = np.asarray(sorted(set(times)), dtype=np.int64)
     for o in obs:
         o.view = int(np.argmin(np.abs(arr - o.view)))
-    return Sequence(cameras, len(arr), obs, arr, _one_target(targets, target, str(seq)))
+    return Sequence(cameras, len(arr), obs, arr, board)
 
 
 def write_sequence(seq: Sequence, root: str | Path, model_name: str = "synthetic") -> Path:

@@ -233,7 +233,3 @@ class CornerNet(nn.Module):
             "learnability": learn,
             "confidence_logit": conf,
         }
-
-
-def build_model(cfg: ModelConfig) -> CornerNet:
-    return CornerNet(cfg)

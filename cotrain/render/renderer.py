@@ -34,7 +34,7 @@ from cotrain.targets import Target, TargetConfig, make_target, square_px
 class RenderConfig:
     height: int = 216  # output image height, pixels
     width: int = 384  # output image width, pixels
-    models: list[str] = field(default_factory=lambda: ["kb4", "ucm", "eucm", "ds"])  # camera families drawn
+    models: list[str] = field(default_factory=lambda: list(cameras.MODELS))  # camera families drawn
     model_weights: list[float] = field(default_factory=lambda: [0.4, 0.2, 0.2, 0.2])  # their probabilities
     fov_range: tuple[float, float] = (150.0, 250.0)  # FoV (deg) drawn uniformly
     radius_range: tuple[float, float] = (0.8, 1.9)  # image-circle radius / (min(h, w) / 2); >1 is cropped
@@ -99,8 +99,9 @@ def _sample_camera(cfg: RenderConfig, g: torch.Generator) -> tuple[str, Tensor, 
     principal = ((cfg.width - 1) / 2 + _u(g, -jit, jit), (cfg.height - 1) / 2 + _u(g, -jit, jit))
     params = None
     for _ in range(8):
-        ks = cfg.kb4_k_scale
-        shape = cameras.get_model(model).sample_shape(lambda lo, hi: _u(g, lo, hi), {k: ks for k in ("k1", "k2", "k3", "k4")})
+        m = cameras.get_model(model)
+        scale = {n: cfg.kb4_k_scale for n in m.distortion_names} if model == "kb4" else {}
+        shape = m.sample_shape(lambda lo, hi: _u(g, lo, hi), scale)
         try:
             params = cameras.make_camera(model, fov, cfg.width, cfg.height, radius, principal, **shape)
         except ValueError:

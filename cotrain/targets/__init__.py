@@ -1,7 +1,7 @@
 """Calibration targets: a :class:`Target` protocol and its kinds (the checkerboard)."""
 
 from cotrain.targets.checkerboard import ROTATIONS, Checkerboard, board_symmetries
-from cotrain.targets.descriptions import load_target, make_target, target_from_json, target_from_kalibr
+from cotrain.targets.descriptions import load_target, make_target, target_from_flags, target_from_json, target_from_kalibr
 from cotrain.targets.target import KINDS, Target, TargetConfig, TargetError, describe, same_target, square_px
 
 __all__ = [
@@ -17,6 +17,7 @@ __all__ = [
     "make_target",
     "same_target",
     "square_px",
+    "target_from_flags",
     "target_from_json",
     "target_from_kalibr",
 ]

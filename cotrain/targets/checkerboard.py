@@ -40,6 +40,9 @@ class Checkerboard:
     def __repr__(self) -> str:
         return f"Checkerboard({self.cfg.squares_x} x {self.cfg.squares_y} squares of {self.s:g} m)"
 
+    def __str__(self) -> str:
+        return f"checkerboard {self.cfg.squares_x} x {self.cfg.squares_y} squares of {self.s:g} m"
+
     @property
     def n_corners(self) -> int:
         return self.nx * self.ny

@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -67,6 +68,30 @@ def target_from_kalibr(data: dict, where: str = "target yaml") -> Target:
     raise TargetError(f"{where}: unsupported Kalibr target_type {kind!r} (supported: checkerboard)")
 
 
+def target_from_flags(
+    path: str | None, squares_x: int | None, squares_y: int | None, square_size: float | None, base: Target | None = None
+) -> Target | None:
+    """The board named on a command line: ``--target FILE``, or ``--squares-x X --squares-y Y``
+    [``--square-size S``], or ``--square-size S`` alone (``base``, a checkerboard, with that square
+    size). None when no flag names a board."""
+    if path and (squares_x is not None or squares_y is not None or square_size is not None):
+        raise TargetError("give the board either as --target or as --squares-x/--squares-y/--square-size")
+    if path:
+        return load_target(path)
+    if (squares_x is None) != (squares_y is None):
+        raise TargetError("give both --squares-x and --squares-y")
+    if square_size is not None and square_size <= 0:
+        raise TargetError("--square-size must be positive")
+    if squares_x is not None:
+        size = square_size if square_size is not None else (base.spacing if base is not None else TargetConfig.square_size)
+        return make_target(TargetConfig(squares_x=squares_x, squares_y=squares_y, square_size=size, margin=0.0))
+    if square_size is not None:
+        if not isinstance(base, Checkerboard):
+            raise TargetError("--square-size alone changes a checkerboard's square size; name the board too")
+        return make_target(dataclasses.replace(base.cfg, square_size=square_size))
+    return None
+
+
 def load_target(path: str | Path) -> Target:
     """A target file: a Kalibr target yaml (``target_type: ...``), or our ``target:`` config section
     (a file with a ``target:`` mapping, or the section's keys at the top level)."""
@@ -74,6 +99,8 @@ def load_target(path: str | Path) -> Target:
         data = load_yaml(path)
     except ConfigError as e:
         raise TargetError(str(e)) from None
+    if not data:
+        raise TargetError(f"{path}: describes no target (empty file)")
     if "target_type" in data:
         return target_from_kalibr(data, str(path))
     section = data.get("target", data)

@@ -90,10 +90,7 @@ def same_target(a: Target, b: Target) -> bool:
 
 def describe(target: Target) -> str:
     """A short human description, for messages: ``checkerboard 10 x 7 squares of 0.04 m``."""
-    j = target.to_json()
-    if j["kind"] == "checkerboard":
-        return f"checkerboard {j['squares_x']} x {j['squares_y']} squares of {j['square_size']:g} m"
-    return str(j)
+    return str(target)
 
 
 def square_px(model: str, params: Tensor, T_cam_board: Tensor, target: Target) -> Tensor:

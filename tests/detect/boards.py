@@ -2,7 +2,10 @@
 
 import numpy as np
 
-NX, NY = 9, 6  # inner corners of the default 10 x 7 board
+from cotrain.targets import Checkerboard
+
+BOARD = Checkerboard()  # the default 10 x 7 board
+NX, NY = BOARD.nx, BOARD.ny  # its inner corners
 
 
 def board_image(sq: int = 30, org: tuple[int, int] = (40, 36), size: tuple[int, int] = (200, 170)) -> tuple[np.ndarray, np.ndarray]:

@@ -14,6 +14,7 @@ from cotrain.detect.images import expand_inputs, load_image
 from cotrain.io.detections import detect_files
 from cotrain.model.train import TrainConfig, finalize_config, train
 from cotrain.render.renderer import render_batch
+from cotrain.targets import Checkerboard, TargetConfig
 from tests.paths import TINY
 
 
@@ -225,7 +226,7 @@ def test_detect_another_board(tmp_path, tiny_onnx, capsys):
     args = ["detect", "--model", str(tiny_onnx), str(img), "--out", str(out)]
     assert cotrain_cli([*args, "--squares-x", "7", "--squares-y", "5", "--square-size", "0.03"]) == 0
     assert json.loads(out.read_text())["target"].items() >= {"squares_x": 7, "squares_y": 5, "square_size": 0.03}.items()
-    det = Detector(tiny_onnx, target={"squares_x": 7, "squares_y": 5})
+    det = Detector(tiny_onnx, target=Checkerboard(TargetConfig(squares_x=7, squares_y=5)))
     assert (det.nx, det.ny, det.board_votes) == (6, 4, False)
     assert Detector(tiny_onnx).board_votes
     capsys.readouterr()

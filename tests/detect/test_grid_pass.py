@@ -7,7 +7,7 @@ import torch.nn.functional as F
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.grid_pass import grid_pass
 from cotrain.render.renderer import RenderConfig, render_batch
-from tests.detect.boards import NX, NY, board_image
+from tests.detect.boards import BOARD, NX, NY, board_image
 
 
 def _oracle_maps(batch: dict, k: int, scale: float, h: int, w: int, noise: float, rng: np.random.Generator):
@@ -44,7 +44,7 @@ def test_grid_pass_on_rendered_images_with_oracle_network_maps():
     for k in range(10):
         grey = batch["image"][k, 0].numpy()
         maps = _oracle_maps(batch, k, scale, h, w, 0.5, rng)
-        r = grid_pass(grey, scale, *maps, NX, NY, GridConfig())
+        r = grid_pass(grey, scale, *maps, BOARD, GridConfig())
         q = batch["corners_raw"][k].numpy()  # where every id projects, visible or not
         det = batch["visible"][k].numpy() & (batch["learnability"][k].numpy() > 0.2)
         n_det += det.sum()
@@ -58,7 +58,7 @@ def test_grid_pass_on_rendered_images_with_oracle_network_maps():
     assert n_hit / n_det > 0.6
     assert np.median(errs) < 0.15
     # No board: the network's maps are empty, so nothing is reported.
-    empty = grid_pass(batch["image"][0, 0].numpy(), scale, np.zeros((h, w)), np.zeros((h, w)), *maps[2:], NX, NY, GridConfig())
+    empty = grid_pass(batch["image"][0, 0].numpy(), scale, np.zeros((h, w)), np.zeros((h, w)), *maps[2:], BOARD, GridConfig())
     assert len(empty.ids) == 0
 
 
@@ -78,12 +78,12 @@ def test_board_margin_pins_a_partial_view():
     lc = np.where(np.arange(-1, NX + 1)[:, None, None] == col[None], 0.2, 0.8 / (NX + 1))
     lr = np.where(np.arange(-1, NY + 1)[:, None, None] == row[None], 0.2, 0.8 / (NY + 1))
     ones = np.ones((h, w))
-    with_edges = grid_pass(img, scale, ones, ones, np.log(lc), np.log(lr), NX, NY, GridConfig(min_margin=-np.inf))
+    with_edges = grid_pass(img, scale, ones, ones, np.log(lc), np.log(lr), BOARD, GridConfig(min_margin=-np.inf))
     assert set(with_edges.ids) == set(np.nonzero(inside)[0])
     # Corners whose fit window is cut by the image border are fitted from the part that is seen:
     # a small bias, bounded here; the others are exact.
     err = np.linalg.norm(with_edges.xy - q[with_edges.ids], axis=1)
     cut = (H - 1 - q[with_edges.ids, 1] < 16) | (W - 1 - q[with_edges.ids, 0] < 16)  # window + blur reach the border
     assert cut.any() and err[cut].max() < 0.3 and err[~cut].max() < 0.1
-    no_edges = grid_pass(img, scale, ones, ones, np.log(lc), np.log(lr), NX, NY, GridConfig(edge_weight=0.0, min_margin=-np.inf))
+    no_edges = grid_pass(img, scale, ones, ones, np.log(lc), np.log(lr), BOARD, GridConfig(edge_weight=0.0, min_margin=-np.inf))
     assert with_edges.margin > no_edges.margin + 10

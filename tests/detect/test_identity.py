@@ -4,10 +4,11 @@ import numpy as np
 import pytest
 
 from cotrain.detect.grid_config import GridConfig
-from cotrain.detect.identity import ROTATIONS, assign_ids, board_symmetries, canonical_ids, edge_evidence
+from cotrain.detect.identity import assign_ids, canonical_ids, edge_evidence
 from cotrain.detect.lattice import Lattice
 from cotrain.detect.saddle import smooth_for
-from tests.detect.boards import NX, NY, board_image
+from cotrain.targets import ROTATIONS, Checkerboard, TargetConfig, board_symmetries
+from tests.detect.boards import BOARD, NX, NY, board_image
 
 
 def _board_ab() -> tuple[np.ndarray, np.ndarray]:
@@ -28,7 +29,7 @@ def test_whole_board_is_identified_by_geometry_alone(rot):
         dark[tuple(quad.min(0))] = 1.0 if b else -1.0
     flat_c = np.full((len(ab), NX + 2), -np.log(NX + 2))
     flat_r = np.full((len(ab), NY + 2), -np.log(NY + 2))
-    got, _, margin, _ = assign_ids(ab, flat_c, flat_r, dark, NX, NY, GridConfig())
+    got, _, margin, _ = assign_ids(ab, flat_c, flat_r, dark, BOARD, GridConfig())
     np.testing.assert_array_equal(got, ids)
     assert margin > 10
 
@@ -42,7 +43,7 @@ def test_partial_lattice_follows_the_network_votes():
     lr = np.full((len(ab), NY + 2), np.log(0.05))
     lc[np.arange(len(ab)), ij[sel, 0] + 1] = np.log(0.5)
     lr[np.arange(len(ab)), ij[sel, 1] + 1] = np.log(0.5)
-    got, _, margin, _ = assign_ids(ab, lc, lr, {}, NX, NY, GridConfig())
+    got, _, margin, _ = assign_ids(ab, lc, lr, {}, BOARD, GridConfig())
     np.testing.assert_array_equal(got, ids[sel])
     assert margin > 5
 
@@ -87,7 +88,8 @@ def test_symmetric_board_is_placed_up_to_its_half_turn(rot):
     """A whole 7 x 5 board (symmetric under a half turn) with uninformative votes: the half-turned
     placement is the same view, not a competitor, so the margin is large; the reported ids are the
     ones that put id 0 towards the image's top left."""
-    nx, ny = 6, 4
+    board = Checkerboard(TargetConfig(squares_x=7, squares_y=5))
+    nx, ny = board.nx, board.ny
     ids = np.arange(nx * ny)
     ij = np.stack([ids % nx, ids // nx], 1)
     ab = ij @ ROTATIONS[rot]
@@ -96,13 +98,13 @@ def test_symmetric_board_is_placed_up_to_its_half_turn(rot):
         for j in range(ny - 1):
             quad = np.array([[i, j], [i + 1, j], [i, j + 1], [i + 1, j + 1]]) @ ROTATIONS[rot]
             dark[tuple(quad.min(0))] = 1.0 if (i + j) % 2 == 0 else -1.0
-    got, _, margin, _ = assign_ids(ab, np.zeros((len(ab), nx + 2)), np.zeros((len(ab), ny + 2)), dark, nx, ny, GridConfig())
+    got, _, margin, _ = assign_ids(ab, np.zeros((len(ab), nx + 2)), np.zeros((len(ab), ny + 2)), dark, board, GridConfig())
     assert margin > 10
     assert np.array_equal(got, ids) or np.array_equal(got, board_symmetries(nx, ny)[0][ids])
     xy = 40.0 * ab  # the lattice as the image shows it (a x b > 0, x right, y down)
-    canon = canonical_ids(got, xy, nx, ny)
+    canon = canonical_ids(got, xy, board)
     assert np.array_equal(np.sort(canon), ids)
     k0, k1 = int(np.nonzero(canon == 0)[0][0]), int(np.nonzero(canon == nx * ny - 1)[0][0])
     assert xy[k0].sum() < xy[k1].sum()  # id 0 is the end of the board nearer the top left
     # An asymmetric board keeps its ids.
-    np.testing.assert_array_equal(canonical_ids(np.array([0, 1, -1]), np.zeros((3, 2)), 9, 6), [0, 1, -1])
+    np.testing.assert_array_equal(canonical_ids(np.array([0, 1, -1]), np.zeros((3, 2)), BOARD), [0, 1, -1])

@@ -9,6 +9,7 @@ import yaml
 from calib_eval.cli import run as calib_cli
 from cotrain.detect.detector import Detector
 from cotrain.detect.images import load_image
+from cotrain.targets import Checkerboard, TargetConfig
 from tests.paths import SHARED
 
 REAL = SHARED / "real" / "boofcv_fisheye_chessboard"
@@ -43,7 +44,7 @@ def test_detector_runs_on_real_images():
     """The shipped model on every real frame, told the board (5 x 7 squares, 24 corners): arrays of
     the documented shapes, pixels inside, and the board found with (nearly) all its corners in
     (nearly) every frame (measured: all 24 in all 26 frames)."""
-    det = Detector(threads=1, target={"squares_x": 5, "squares_y": 7})
+    det = Detector(threads=1, target=Checkerboard(TargetConfig(squares_x=5, squares_y=7)))
     frames = sorted((REAL / "images").glob("*.jpg"))
     assert len(frames) == 26
     counts = []

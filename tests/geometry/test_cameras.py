@@ -148,14 +148,18 @@ def test_model_owns_bounds_and_sampling(model):
     m = cameras.get_model(model)
     assert set(m.shape_ranges) == set(m.shape_names)
     assert {"fx", "fy"} <= set(m.bounds)
-    x = torch.full((2, m.n_params), -10.0, dtype=torch.float64)
-    c = m.clamp(x)
-    for name, (lo, _hi) in m.bounds.items():
-        assert bool((c[:, m.index(name)] == lo).all())
+    low, high = (
+        m.clamp(torch.full((2, m.n_params), -10.0, dtype=torch.float64)),
+        m.clamp(torch.full((2, m.n_params), 1e6, dtype=torch.float64)),
+    )
+    for name, (lo, hi) in m.bounds.items():
+        assert bool((low[:, m.index(name)] == lo).all())
+        assert bool((high[:, m.index(name)] == min(hi, 1e6)).all())
     free = [n for n in m.param_names if n not in m.bounds]
-    assert all(bool((c[:, m.index(n)] == -10).all()) for n in free)
-    draws = [m.sample_shape(lambda lo, hi: hi) for _ in range(2)]
-    assert draws[0] == {n: m.shape_ranges[n][1] for n in m.shape_names}
+    assert all(bool((low[:, m.index(n)] == -10).all()) for n in free)
+    assert m.sample_shape(lambda lo, hi: hi) == {n: m.shape_ranges[n][1] for n in m.shape_names}
+    scaled = m.sample_shape(lambda lo, hi: lo, {n: 0.5 for n in m.shape_names})
+    assert scaled == {n: 0.5 * m.shape_ranges[n][0] for n in m.shape_names}
     # The default camera and the middle of the sampling ranges lie inside the bounds.
     mid = {n: sum(m.shape_ranges[n]) / 2 for n in m.shape_names}
     for shape in ({}, mid):

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from calib_eval.benchmark.rigs import SynthSpec, make_sequence, paper_config
+from calib_eval.calibration.calibrator import CalibConfig, calibrate
 from calib_eval.cli import run as calib_cli
 from cotrain.io.sequence import SequenceError, load_sequence, write_sequence
 from cotrain.targets import Checkerboard, TargetConfig, same_target
@@ -24,18 +25,37 @@ def test_round_trip_keeps_target_and_observations(synth_seq):
     back = load_sequence(root)
     assert same_target(back.target, Checkerboard())
     assert len(back.observations) == len(seq.observations)
-    a, b = seq.observations[0], back.observations[0]
-    assert np.array_equal(a.ids, b.ids) and np.allclose(a.q, b.q)
+    by_key = {(o.cam, o.view): o for o in back.observations}
+    for a in seq.observations:
+        b = by_key[(a.cam, a.view)]
+        assert np.array_equal(a.ids, b.ids) and np.allclose(a.q, b.q)
     assert back.subset({(b.cam, b.view)}).target is back.target
 
 
-def test_other_board_is_read_from_the_detections(tmp_path):
+def test_other_board_is_read_from_the_detections_and_calibrated(tmp_path):
+    """An 8 x 6 board of 3 cm squares: the detections name it, and the calibrator, given no flag,
+    recovers the rig at that scale (a wrong board would scale the baseline or fail)."""
     board = Checkerboard(TargetConfig(squares_x=8, squares_y=6, square_size=0.03))
-    seq, _ = make_sequence(paper_config("FoV200_60"), SynthSpec(n_frames=8, target=board.cfg), seed=4)
+    rig = paper_config("FoV200_60")
+    seq, gt = make_sequence(rig, SynthSpec(n_frames=80, target=board.cfg), seed=4)
     root = write_sequence(seq, tmp_path / "seq")
     det = json.loads((root / "cam0" / "detections.json").read_text())
     assert det["target"] == board.to_json()
-    assert same_target(load_sequence(root).target, board)
+    back = load_sequence(root)
+    assert same_target(back.target, board)
+    res = calibrate(back, CalibConfig(model=rig.model, fov=rig.fov))
+    assert res.success, res.reason
+    t_err = np.linalg.norm(res.T_cam_rig[1][:3, 3] - gt.T_cam_rig[1][:3, 3])
+    assert t_err < 1e-3, t_err
+
+
+def test_corner_ids_beyond_the_target_are_one_line(tmp_path, synth_seq):
+    _, root = synth_seq
+    small = Checkerboard(TargetConfig(squares_x=4, squares_y=4))
+    bare = _copy_with(root, tmp_path / "bare", lambda cam, det: det.pop("target"))
+    with pytest.raises(SequenceError, match="corner id") as e:
+        load_sequence(bare, target=small)
+    assert "\n" not in str(e.value)
 
 
 def test_contradicting_target_is_one_line(synth_seq):

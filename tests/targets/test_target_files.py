@@ -13,6 +13,7 @@ from cotrain.targets import (
     TargetError,
     load_target,
     same_target,
+    target_from_flags,
     target_from_json,
     target_from_kalibr,
 )
@@ -65,6 +66,7 @@ def test_our_config_section_both_ways(tmp_path):
         ("target:\n  squares_x: 1\n  squares_y: 7\n", "at least 2"),
         ("target:\n  colour: red\n", "unknown key"),
         ("[1, 2]\n", "top level must be a mapping"),
+        ("", "describes no target"),
     ],
 )
 def test_bad_target_files_are_one_line(tmp_path, text, msg):
@@ -100,3 +102,23 @@ def test_grid_coordinates():
     uv, inside = b.grid_coordinates(torch.tensor([[0.04, 0.04], [0.08, 0.12], [-0.01, 0.1]], dtype=torch.float64))
     np.testing.assert_allclose(uv.numpy(), [[0, 0], [1, 2], [-1.25, 1.5]])
     assert inside.tolist() == [True, True, False]
+
+
+def test_board_from_command_line_flags(tmp_path):
+    f = tmp_path / "k.yaml"
+    f.write_text("target_type: checkerboard\ntargetCols: 6\ntargetRows: 4\nrowSpacingMeters: 0.03\ncolSpacingMeters: 0.03\n")
+    assert target_from_flags(None, None, None, None) is None
+    assert same_target(target_from_flags(str(f), None, None, None), Checkerboard(TargetConfig(squares_x=7, squares_y=5, square_size=0.03)))
+    assert target_from_flags(None, 7, 5, 0.03).to_json() == {"kind": "checkerboard", "squares_x": 7, "squares_y": 5, "square_size": 0.03}
+    # The base board's square size is kept for another layout, and --square-size alone resizes the base.
+    base = Checkerboard(TargetConfig(square_size=0.05))
+    assert target_from_flags(None, 7, 5, None, base).spacing == 0.05
+    assert same_target(target_from_flags(None, None, None, 0.02, base), Checkerboard(TargetConfig(square_size=0.02)))
+    for args, msg in [
+        ((str(f), 7, 5, None), "either"),
+        ((None, 7, None, None), "both"),
+        ((None, 7, 5, -1.0), "positive"),
+        ((None, None, None, 0.02), "name the board"),
+    ]:
+        with pytest.raises(TargetError, match=msg):
+            target_from_flags(*args)
