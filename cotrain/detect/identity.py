@@ -30,13 +30,12 @@ def canonical_ids(ids: np.ndarray, xy: np.ndarray, board: Checkerboard) -> np.nd
     corners' positions to their board coordinates places it), as OpenCV orders them; ids (K,)
     with -1 off the board, xy (K, 2) pixels."""
     perms = board.symmetries()
-    nx = board.nx
     on = ids >= 0
     if not perms or on.sum() < 3:
         return ids
 
     def corner0(v: np.ndarray) -> float:
-        A = np.stack([v % nx, v // nx, np.ones_like(v)], 1).astype(np.float64)
+        A = np.concatenate([board.ij_of(v), np.ones_like(v)[:, None]], 1).astype(np.float64)
         coef = np.linalg.lstsq(A, xy[on], rcond=None)[0]  # (3, 2): pixel = i c0 + j c1 + c2
         return float(coef[2].sum())
 
@@ -229,9 +228,7 @@ def assign_ids(
     best = results[0]
 
     def ids_of(res: tuple[float, int, int, int]) -> np.ndarray:
-        ij = ab @ ROTATIONS[res[1]].T + [res[2], res[3]]
-        on = (ij[:, 0] >= 0) & (ij[:, 0] < nx) & (ij[:, 1] >= 0) & (ij[:, 1] < ny)
-        return np.where(on, ij[:, 1] * nx + ij[:, 0], -1)
+        return board.id_of(ab @ ROTATIONS[res[1]].T + [res[2], res[3]])
 
     ids = ids_of(best)
     # On a symmetric board the turned placements give the same view: they are not competitors.

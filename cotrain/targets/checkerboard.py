@@ -75,6 +75,17 @@ class Checkerboard:
         j, i = torch.meshgrid(torch.arange(self.ny), torch.arange(self.nx), indexing="ij")
         return torch.stack([i.reshape(-1), j.reshape(-1)], dim=-1)
 
+    def ij_of(self, ids):
+        """(...) corner ids -> (..., 2) grid indices (i, j) (numpy or torch)."""
+        i, j = ids % self.nx, ids // self.nx
+        return np.stack([i, j], -1) if isinstance(ids, np.ndarray) else torch.stack([i, j], -1)
+
+    def id_of(self, ij):
+        """(..., 2) grid indices (i, j) -> (...) corner ids, -1 off the board (numpy)."""
+        ij = np.asarray(ij)
+        on = (ij[..., 0] >= 0) & (ij[..., 0] < self.nx) & (ij[..., 1] >= 0) & (ij[..., 1] < self.ny)
+        return np.where(on, ij[..., 1] * self.nx + ij[..., 0], -1)
+
     def points(self, dtype: torch.dtype = torch.float64) -> Tensor:
         """(N, 3) board-frame coordinates (metres) of the inner corners, row i = corner id i."""
         ij = self.grid_ij().to(dtype)
