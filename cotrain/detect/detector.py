@@ -105,7 +105,7 @@ class Detector:
         if not self.board_votes:
             logp_col = np.zeros((self.nx + 2, *logp_col.shape[1:]), np.float32)
             logp_row = np.zeros((self.ny + 2, *logp_row.shape[1:]), np.float32)
-        return grid_pass(grey, box.scale, out["corner_prob"][0, 0], out["mask_prob"][0, 0], logp_col, logp_row, self.target, cfg)
+        return grid_pass(grey, box, out["corner_prob"][0, 0], out["mask_prob"][0, 0], logp_col, logp_row, self.target, cfg)
 
     def grid_result(self, image: np.ndarray, grid: GridConfig | None = None) -> GridResult:
         """The grid pass's whole result on one image (with its identity margin), under ``grid``

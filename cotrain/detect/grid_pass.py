@@ -45,7 +45,7 @@ from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.identity import assign_ids, canonical_ids, cell_darkness, corner_votes, edge_evidence
 from cotrain.detect.lattice import Lattice, grow_lattice, refine_positions, skipped_corners, verify_lattice
 from cotrain.detect.saddle import fit_saddles, outside_circle, saddle_candidates, saddle_response, smooth_cached, window_half
-from cotrain.geometry.letterbox import CELLS, cell_mask_to_input, to_processing
+from cotrain.geometry.letterbox import CELLS, Letterbox
 from cotrain.targets import Checkerboard
 
 
@@ -57,20 +57,20 @@ class GridResult:
     margin: float  # identity margin of the placement (nats); nan when no lattice was found
 
 
-def search_region(prob: np.ndarray, shape: tuple[int, int], scale: float, cfg: GridConfig) -> np.ndarray:
-    """Full-resolution (H, W) = ``shape`` bool region from a (h, w) 1/4-processing-resolution
+def search_region(prob: np.ndarray, box: Letterbox, cfg: GridConfig) -> np.ndarray:
+    """Full-resolution (H, W) bool region of the input image from a (h, w) 1/4-processing-resolution
     probability map: cells above ``cfg.region_threshold``, grown by ``cfg.region_grow_cells``,
-    mapped back through the letterbox of ``scale``."""
+    mapped back through the letterbox."""
     k = 2 * cfg.region_grow_cells + 1
     m = cv2.dilate((prob > cfg.region_threshold).astype(np.uint8), np.ones((k, k), np.uint8))
-    return cell_mask_to_input(m, scale, shape)
+    return box.cell_mask_to_input(m)
 
 
 def find_candidates(
     grey: np.ndarray,
     roi: np.ndarray,
     offset: np.ndarray,
-    scale: float,
+    box: Letterbox,
     corner_prob: np.ndarray,
     cfg: GridConfig,
     smoothed: dict[int, np.ndarray],
@@ -96,7 +96,7 @@ def find_candidates(
         m = halves == h
         xy[m], ok[m], axes[m] = fit_saddles(grey, smoothed, xy0[m], int(h), cfg, rim_dist)
     # Seeds in order of saddle response times the network's corner score there.
-    score = resp * (CELLS.sample(corner_prob[None], to_processing(xy + offset, scale))[:, 0] + cfg.seed_score_floor)
+    score = resp * (CELLS.sample(corner_prob[None], box.to_processing(xy + offset))[:, 0] + cfg.seed_score_floor)
     keep = np.nonzero(ok)[0]
     keep = keep[np.argsort(-score[keep])]
     # Merge candidates that converged onto the same saddle: the better-scored one stays.
@@ -110,7 +110,7 @@ def find_candidates(
 
 def grid_pass(
     grey: np.ndarray,
-    scale: float,
+    box: Letterbox,
     corner_prob: np.ndarray,
     mask_prob: np.ndarray,
     logp_col: np.ndarray,
@@ -121,7 +121,7 @@ def grid_pass(
     """Corners with ids from the network's dense outputs and the full-resolution image.
 
     Args:
-        grey: (H, W) float32 input image in [0, 1]; scale: processing pixels per input pixel.
+        grey: (H, W) float32 input image in [0, 1]; box: its letterbox into the processing size.
         corner_prob: (h, w) class-agnostic corner probability and mask_prob: (h, w) board
         probability at 1/4 processing resolution; logp_col: (nx + 2, h, w), logp_row: (ny + 2, h, w)
         for ``board`` (nx x ny inner corners)
@@ -130,7 +130,7 @@ def grid_pass(
     empty = GridResult(np.zeros(0, int), np.zeros((0, 2)), np.zeros(0), float("nan"))
     # Work on the crop around the network's corner / board region (all full-resolution filtering
     # scales with its area); crop pixels + offset = input pixels.
-    roi = search_region(np.maximum(corner_prob, mask_prob), grey.shape, scale, cfg)
+    roi = search_region(np.maximum(corner_prob, mask_prob), box, cfg)
     allowed = ~outside_circle(grey)
     allowed[[0, -1], :] = False  # the image's own border is a rim too
     allowed[:, [0, -1]] = False
@@ -146,7 +146,7 @@ def grid_pass(
     rim_dist = cv2.distanceTransform(allowed.astype(np.uint8), cv2.DIST_L2, 3)
     smoothed: dict[int, np.ndarray] = {}
     response = saddle_response(grey)
-    xy, axes = find_candidates(grey, roi, offset, scale, corner_prob, cfg, smoothed, rim_dist, response)
+    xy, axes = find_candidates(grey, roi, offset, box, corner_prob, cfg, smoothed, rim_dist, response)
     if len(xy) < cfg.min_corners:
         return empty
     # Grow from several seeds (distractors can hold the strongest saddles); a lattice must lie on
@@ -167,13 +167,13 @@ def grid_pass(
         lat = verify_lattice(lat, grey, cfg, smoothed, rim_dist)
         if len(lat.ab) < cfg.min_corners or skipped_corners(lat, response, cfg) > cfg.max_skipped:
             continue
-        if CELLS.sample(mask_prob[None], to_processing(lat.xy + offset, scale))[:, 0].mean() < cfg.min_board_prob:
+        if CELLS.sample(mask_prob[None], box.to_processing(lat.xy + offset))[:, 0].mean() < cfg.min_board_prob:
             continue
         blur1 = smooth_cached(smoothed, grey, -1)
         dark = cell_darkness(blur1, lat)
         if len(dark) < cfg.min_cells:
             continue  # a line of corners (or a diagonal) is not a checker lattice
-        lc, lr = corner_votes(lat, logp_col, offset, scale, cfg), corner_votes(lat, logp_row, offset, scale, cfg)
+        lc, lr = corner_votes(lat, logp_col, offset, box, cfg), corner_votes(lat, logp_row, offset, box, cfg)
         edges = edge_evidence(blur1, lat, cfg)
         ids, _, margin, violated = assign_ids(lat.ab, lc, lr, dark, board, cfg, edges)
         if violated > max(cfg.max_violated_edges, cfg.max_violated_share * sum(e[3] for e in edges)):

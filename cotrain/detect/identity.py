@@ -20,7 +20,7 @@ import numpy as np
 
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.lattice import STEPS, Lattice, value_at, values_at
-from cotrain.geometry.letterbox import CELLS, to_processing
+from cotrain.geometry.letterbox import CELLS, Letterbox
 from cotrain.targets.checkerboard import ROTATIONS, Checkerboard
 
 
@@ -52,7 +52,7 @@ def canonical_ids(ids: np.ndarray, xy: np.ndarray, board: Checkerboard) -> np.nd
 # --------------------------------------------------------------------------------------------
 # Evidence
 # --------------------------------------------------------------------------------------------
-def corner_votes(lat: Lattice, logp: np.ndarray, offset: np.ndarray, scale: float, cfg: GridConfig) -> np.ndarray:
+def corner_votes(lat: Lattice, logp: np.ndarray, offset: np.ndarray, box: Letterbox, cfg: GridConfig) -> np.ndarray:
     """Log-probabilities (K, C) of a dense column / row map ``logp`` (C, h, w) (1/4 processing
     resolution) for every lattice corner: the mean over the corner and the four points
     ``cfg.vote_offset`` of a step away along the diagonals (all of them are nearest to this
@@ -66,7 +66,7 @@ def corner_votes(lat: Lattice, logp: np.ndarray, offset: np.ndarray, scale: floa
             n1, n2 = where.get((a + da, b)), where.get((a, b + db))
             if n1 is not None and n2 is not None:
                 pts.append(lat.xy[k] + cfg.vote_offset * (lat.xy[n1] - lat.xy[k]) + cfg.vote_offset * (lat.xy[n2] - lat.xy[k]))
-        acc[k] = CELLS.sample(logp, to_processing(np.array(pts) + offset, scale)).mean(0)
+        acc[k] = CELLS.sample(logp, box.to_processing(np.array(pts) + offset)).mean(0)
     return acc
 
 

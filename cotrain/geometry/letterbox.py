@@ -70,7 +70,7 @@ class Letterbox:
 
     def to_processing(self, x):
         """(..., 2) input pixels -> processing pixels."""
-        return to_processing(x, self.scale)
+        return (x + 0.5) * self.scale - 0.5
 
     def to_input(self, q):
         """(..., 2) processing pixels -> input pixels."""
@@ -88,23 +88,12 @@ class Letterbox:
 
     def cell_mask_to_input(self, mask: np.ndarray, cells: CellGrid = CELLS) -> np.ndarray:
         """A (h, w) uint8 mask over cells -> (height, width) bool mask over input pixels (nearest cell)."""
-        return cell_mask_to_input(mask, self.scale, (self.height, self.width), cells)
-
-
-# The same maps for a known scale (processing pixels per input pixel), where the processing
-# canvas is not at hand (the detector's grid pass gets only the scale).
-def to_processing(x, scale: float):
-    """(..., 2) input pixels -> processing pixels of a letterbox of ``scale``: ``(x + 0.5) s - 0.5``."""
-    return (x + 0.5) * scale - 0.5
-
-
-def cell_mask_to_input(mask: np.ndarray, scale: float, shape: tuple[int, int], cells: CellGrid = CELLS) -> np.ndarray:
-    """A (h, w) uint8 mask over cells -> (H, W) = ``shape`` bool mask over the input pixels of a
-    letterbox of ``scale`` (nearest cell)."""
-    # cell = (((x + 0.5) s - 0.5) - offset) / stride = k x + t
-    k = scale / cells.stride
-    t = (0.5 * scale - (0.5 + cells.offset)) / cells.stride
-    M = np.array([[k, 0, t], [0, k, t]], np.float64)
-    H, W = shape
-    full = cv2.warpAffine(mask, M, (W, H), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
-    return full > 0
+        # cell = (((x + 0.5) s - 0.5) - offset) / stride = k x + t
+        s = self.scale
+        k = s / cells.stride
+        t = (0.5 * s - (0.5 + cells.offset)) / cells.stride
+        M = np.array([[k, 0, t], [0, k, t]], np.float64)
+        full = cv2.warpAffine(
+            mask, M, (self.width, self.height), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE
+        )
+        return full > 0

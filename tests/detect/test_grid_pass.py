@@ -6,6 +6,7 @@ import torch.nn.functional as F
 
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.grid_pass import grid_pass
+from cotrain.geometry.letterbox import Letterbox
 from cotrain.render.renderer import RenderConfig, render_batch
 from tests.detect.boards import BOARD, NX, NY, board_image
 
@@ -38,13 +39,15 @@ def test_grid_pass_on_rendered_images_with_oracle_network_maps():
     cfg = RenderConfig(height=360, width=640, p_no_target=0.0)
     batch = render_batch(cfg, list(range(10)), seed=77)
     rng = np.random.default_rng(0)
-    scale, h, w = 0.6, 54, 96  # processing 384 x 216
+    box, h, w = Letterbox(640, 360, (216, 384)), 54, 96
+    scale = box.scale
+    assert scale == 0.6
     n_det = n_hit = n_bad = 0
     errs = []
     for k in range(10):
         grey = batch["image"][k, 0].numpy()
         maps = _oracle_maps(batch, k, scale, h, w, 0.5, rng)
-        r = grid_pass(grey, scale, *maps, BOARD, GridConfig())
+        r = grid_pass(grey, box, *maps, BOARD, GridConfig())
         q = batch["corners_raw"][k].numpy()  # where every id projects, visible or not
         det = batch["visible"][k].numpy() & (batch["learnability"][k].numpy() > 0.2)
         n_det += det.sum()
@@ -58,7 +61,7 @@ def test_grid_pass_on_rendered_images_with_oracle_network_maps():
     assert n_hit / n_det > 0.6
     assert np.median(errs) < 0.15
     # No board: the network's maps are empty, so nothing is reported.
-    empty = grid_pass(batch["image"][0, 0].numpy(), scale, np.zeros((h, w)), np.zeros((h, w)), *maps[2:], BOARD, GridConfig())
+    empty = grid_pass(batch["image"][0, 0].numpy(), box, np.zeros((h, w)), np.zeros((h, w)), *maps[2:], BOARD, GridConfig())
     assert len(empty.ids) == 0
 
 
@@ -70,7 +73,8 @@ def test_board_margin_pins_a_partial_view():
     H, W = img.shape
     inside = (q[:, 0] < W - 8) & (q[:, 1] < H - 8)
     h, w = 54, 96
-    scale = min(384 / W, 216 / H)
+    box = Letterbox(W, H, (216, 384))
+    scale = box.scale
     ys, xs = np.mgrid[0:h, 0:w]
     xin, yin = (xs * 4 + 1.5 + 0.5) / scale - 0.5, (ys * 4 + 1.5 + 0.5) / scale - 0.5  # input pixel of each cell
     col = np.clip(np.rint((xin - 40) / 30 - 1), -1, NX).astype(int)
@@ -78,12 +82,12 @@ def test_board_margin_pins_a_partial_view():
     lc = np.where(np.arange(-1, NX + 1)[:, None, None] == col[None], 0.2, 0.8 / (NX + 1))
     lr = np.where(np.arange(-1, NY + 1)[:, None, None] == row[None], 0.2, 0.8 / (NY + 1))
     ones = np.ones((h, w))
-    with_edges = grid_pass(img, scale, ones, ones, np.log(lc), np.log(lr), BOARD, GridConfig(min_margin=-np.inf))
+    with_edges = grid_pass(img, box, ones, ones, np.log(lc), np.log(lr), BOARD, GridConfig(min_margin=-np.inf))
     assert set(with_edges.ids) == set(np.nonzero(inside)[0])
     # Corners whose fit window is cut by the image border are fitted from the part that is seen:
     # a small bias, bounded here; the others are exact.
     err = np.linalg.norm(with_edges.xy - q[with_edges.ids], axis=1)
     cut = (H - 1 - q[with_edges.ids, 1] < 16) | (W - 1 - q[with_edges.ids, 0] < 16)  # window + blur reach the border
     assert cut.any() and err[cut].max() < 0.3 and err[~cut].max() < 0.1
-    no_edges = grid_pass(img, scale, ones, ones, np.log(lc), np.log(lr), BOARD, GridConfig(edge_weight=0.0, min_margin=-np.inf))
+    no_edges = grid_pass(img, box, ones, ones, np.log(lc), np.log(lr), BOARD, GridConfig(edge_weight=0.0, min_margin=-np.inf))
     assert with_edges.margin > no_edges.margin + 10
