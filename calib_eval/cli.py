@@ -10,7 +10,8 @@ import time
 from pathlib import Path
 
 from calib_eval.detection import DEFAULT_DETECTORS, DETECTORS
-from cotrain.geometry import MODELS
+from cotrain.geometry import MODELS, model_from_name
+from cotrain.geometry.cameras import KALIBR_NAMES
 from cotrain.targets import Target, load_target, target_from_flags
 
 
@@ -88,14 +89,20 @@ def cmd_calibrate(a: argparse.Namespace) -> int:
     from cotrain.io.sequence import load_sequence
 
     t0 = time.time()
+    if a.model and a.models:
+        raise ValueError("give --model (one for every camera) or --models (one per camera), not both")
+    names = a.models or [a.model or "kb4"]
+    models = [model_from_name(n) for n in names]  # a one-line error for a model we do not support
     seq = load_sequence(a.seq, a.tolerance_ms, target=_target(a.target))
+    if a.models and len(models) != len(seq.cameras):
+        raise ValueError(f"--models names {len(models)} camera models; {a.seq} has {len(seq.cameras)} cameras")
     order, extra = None, {}
     if a.select:
         sel = select(seq, _selector_cfg(a))
         seq = seq.subset(sel.keep)
         order = sel.order
         extra["selection"] = sel.summary()
-    cfg = CalibConfig(model=a.model, fov=a.fov, no_init=a.no_init)
+    cfg = CalibConfig(model=models[0], models=models if a.models else [], fov=a.fov, no_init=a.no_init)
     res = calibrate(seq, cfg, order)
     chain, report = write_outputs(res, seq, a.out, {**extra, "total_runtime_s": time.time() - t0})
     if res.success:
@@ -208,7 +215,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("calibrate", help="calibrate a multi-fisheye rig; writes camchain.yaml and report.json")
     seq_args(s)
-    s.add_argument("--model", default="kb4", choices=list(MODELS))
+    names = ", ".join([*MODELS, *KALIBR_NAMES])
+    s.add_argument("--model", help=f"camera model of every camera (default kb4): {names}")
+    s.add_argument(
+        "--models", nargs="+", metavar="MODEL", help="one camera model per camera, Kalibr's names accepted (e.g. ds-none pinhole-equi)"
+    )
     s.add_argument("--select", action="store_true", help="use the selector's frames (anchors first)")
     s.add_argument("--no-init", action="store_true", help="skip intrinsic initialisation (BA-only ablation)")
     s.add_argument("--out", required=True)

@@ -33,7 +33,8 @@ from cotrain.targets import Target
 
 @dataclass
 class CalibConfig:
-    model: str = "kb4"  # camera family for every camera (kb4, ucm, eucm, ds)
+    model: str = "kb4"  # camera family for every camera (kb4, ucm, eucm, ds, or Kalibr's pinhole-equi, omni-none, ...)
+    models: list[str] = field(default_factory=list)  # one family per camera (a mixed rig); empty: ``model`` for all
     fov: float = 200.0  # rough FoV (deg) from the lens data sheet
     huber_px: float = 1.0  # Huber kernel threshold (px)
     init_steps: list[int] = field(default_factory=lambda: [3, 4, 5, 6, 8, 10, 13, 16, 20, 25, 30])  # progressive prefix sizes
@@ -117,7 +118,7 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
     t0 = time.time()
     board = seq.target
     C = len(seq.cameras)
-    models = [cfg.model] * C
+    models = list(cfg.models or [cfg.model] * C)  # as given; our names once resolved below
     frames: dict[str, list[int]] = {}
     gammas: list[list[float]] = [[] for _ in range(C)]
     stages: list[dict] = []
@@ -126,7 +127,7 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
         return CalibrationResult(
             False,
             reason,
-            models,
+            list(models),
             [np.asarray(x) for x in (intr or [])],
             T_cr if T_cr is not None else np.tile(np.eye(4), (C, 1, 1)),
             {},
@@ -137,8 +138,10 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
             stages,
         )
 
+    if len(models) != C:
+        return fail(f"{len(models)} camera models given for {C} cameras")
     try:
-        cameras.get_model(cfg.model)
+        models[:] = [cameras.model_from_name(n) for n in models]
     except ValueError as e:
         return fail(str(e))
     if board is None:
@@ -161,24 +164,24 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
     try:
         for c in range(C):
             info = seq.cameras[c]
-            guess = initial_guess(cfg.model, cfg.fov, info.width, info.height, cfg.shared_intrinsics_guess_radius)
-            guess = focal_search(cfg.model, guess, obs_by_cam[c], board)
+            guess = initial_guess(models[c], cfg.fov, info.width, info.height, cfg.shared_intrinsics_guess_radius)
+            guess = focal_search(models[c], guess, obs_by_cam[c], board)
             if cfg.no_init:
                 x, pc_, res = guess, {}, None
                 frames.setdefault("init", []).append(0)
             else:
-                x, pc_, g, res = _intrinsic_stage(cfg.model, guess, obs_by_cam[c], board, cfg, progressive=True)
+                x, pc_, g, res = _intrinsic_stage(models[c], guess, obs_by_cam[c], board, cfg, progressive=True)
                 gammas[c] = g
                 frames.setdefault("init", []).append(len(obs_by_cam[c]))
                 stages.append({"stage": "init", "camera": c, "rms_px": res.rms[0], "iterations": res.iterations, "reason": res.reason})
             if not cfg.no_init:
                 # Stage 2: refinement over all views, then outlier rejection and a final pass.
-                x, pc_, _, res = _intrinsic_stage(cfg.model, x, obs_by_cam[c], board, cfg, progressive=False)
-                keep = _reject_outliers(obs_by_cam[c], pc_, cfg.model, x, board, cfg)
+                x, pc_, _, res = _intrinsic_stage(models[c], x, obs_by_cam[c], board, cfg, progressive=False)
+                keep = _reject_outliers(obs_by_cam[c], pc_, models[c], x, board, cfg)
                 removed = sum(len(o.ids) for o in obs_by_cam[c]) - sum(len(o.ids) for o in keep)
                 obs_by_cam[c] = keep
                 if removed:
-                    x, pc_, _, res = _intrinsic_stage(cfg.model, x, keep, board, cfg, progressive=False)
+                    x, pc_, _, res = _intrinsic_stage(models[c], x, keep, board, cfg, progressive=False)
                 frames.setdefault("refine", []).append(len(keep))
                 stages.append({"stage": "refine", "camera": c, "rms_px": res.rms[0], "iterations": res.iterations, "reason": res.reason})
                 if res.rms[0] > cfg.max_rms_px * 3:
@@ -192,7 +195,7 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
     T_cam_rig = np.tile(np.eye(4), (C, 1, 1))
     if cfg.no_init:
         for c in range(C):
-            cam_poses[c] = {o.view: T for o in obs_by_cam[c] if (T := view_pose(cfg.model, intr[c], o, board)) is not None}
+            cam_poses[c] = {o.view: T for o in obs_by_cam[c] if (T := view_pose(models[c], intr[c], o, board)) is not None}
     known = {0}
     while len(known) < C:
         added = False

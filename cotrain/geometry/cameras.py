@@ -313,6 +313,28 @@ DEFAULT_SHAPE: dict[str, dict[str, float]] = {
 }
 
 
+# Kalibr's camera model strings (kalibr_calibrate_cameras --models) and what we make of them.
+KALIBR_NAMES: dict[str, str] = {"pinhole-equi": "kb4", "omni-none": "ucm", "eucm-none": "eucm", "ds-none": "ds"}
+KALIBR_UNSUPPORTED: dict[str, str] = {
+    "pinhole-radtan": "radial-tangential distortion does not reach beyond 90 degrees; for a fisheye use pinhole-equi",
+    "pinhole-fov": "the FOV (ATAN) model is not supported; use pinhole-equi, ds-none or eucm-none",
+    "omni-radtan": "omni with radtan distortion is not supported; use omni-none or ds-none",
+}
+
+
+def model_from_name(name: str) -> str:
+    """Our model name from ours (kb4, ucm, eucm, ds) or Kalibr's (pinhole-equi, omni-none,
+    eucm-none, ds-none); a one-line ValueError with the reason for anything else."""
+    if name in MODELS:
+        return name
+    if name in KALIBR_NAMES:
+        return KALIBR_NAMES[name]
+    if name in KALIBR_UNSUPPORTED:
+        raise ValueError(f"camera model {name!r}: {KALIBR_UNSUPPORTED[name]}")
+    known = ", ".join([*MODELS, *KALIBR_NAMES])
+    raise ValueError(f"unknown camera model {name!r}; choose one of {known}")
+
+
 def get_model(name: str) -> CameraModel:
     """Look a camera family up by name (kb4, ucm, eucm, ds)."""
     try:

@@ -7,12 +7,15 @@ import math
 
 import numpy as np
 import pytest
+import torch
+import yaml
 
 from calib_eval.benchmark.rigs import SynthSpec, make_sequence, paper_config
 from calib_eval.calibration.calibrator import CalibConfig, calibrate
 from calib_eval.calibration.selector import SelectorConfig, isotropy_score, radial_span_score, select
 from calib_eval.cli import run as calib_cli
 from cotrain.geometry import cameras
+from cotrain.io.sequence import write_sequence
 
 
 def _errors(res, gt, model):
@@ -129,3 +132,37 @@ def test_bad_sequence_folders_are_one_line_errors(tmp_path, capsys):
     assert calib_cli(["select", str(seq), "--fov", "200"]) == 2  # corrupt detections
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 5 and all(line.startswith("calib-eval select: error:") for line in err)
+
+
+def test_mixed_rig_with_kalibr_model_names(tmp_path, capsys):
+    """A stereo rig of a Kannala-Brandt and a UCM camera, calibrated with Kalibr's model strings
+    (pinhole-equi, omni-none): each camera gets its own family, camchain.yaml says them in Kalibr's
+    terms, and the rig comes back. Unsupported or miscounted models are one-line errors."""
+    rig = paper_config("FoV200_60")
+    seq, gt = make_sequence(rig, SynthSpec(n_frames=120), seed=5)
+    # Re-project the second camera's observations with a UCM camera of the same FoV.
+    ucm = cameras.make_camera("ucm", rig.fov, rig.width, rig.height, xi=1.1)
+    for o in seq.observations:
+        if o.cam == 1:
+            T = gt.T_cam_rig[1] @ gt.T_rig_board[o.view]
+            pc = seq.target.points().numpy()[o.ids] @ T[:3, :3].T + T[:3, 3]
+            q, _ = cameras.project("ucm", torch.from_numpy(pc), ucm)
+            o.q = q.numpy() + np.random.default_rng(o.view).normal(scale=0.3, size=q.shape)
+    root = write_sequence(seq, tmp_path / "seq")
+    out = tmp_path / "out"
+    assert calib_cli(["calibrate", str(root), "--fov", "200", "--models", "pinhole-equi", "omni-none", "--out", str(out)]) == 0
+    chain = yaml.safe_load((out / "camchain.yaml").read_text())
+    assert (chain["cam0"]["camera_model"], chain["cam0"]["distortion_model"]) == ("pinhole", "equidistant")
+    assert (chain["cam1"]["camera_model"], chain["cam1"]["distortion_model"]) == ("omni", "none")
+    assert len(chain["cam0"]["intrinsics"]) == 4 and len(chain["cam0"]["distortion_coeffs"]) == 4
+    xi, fx = chain["cam1"]["intrinsics"][:2]
+    assert abs(xi - 1.1) < 0.05 and abs(fx / float(ucm[1]) - 1) < 0.01
+    T10 = np.array(chain["cam1"]["T_cn_cnm1"])
+    assert np.linalg.norm(T10[:3, 3] - gt.T_cam_rig[1][:3, 3]) < 1e-3
+    capsys.readouterr()
+    base = ["calibrate", str(root), "--fov", "200", "--out", str(tmp_path / "x")]
+    assert calib_cli([*base, "--models", "pinhole-radtan", "ds-none"]) == 2
+    assert calib_cli([*base, "--models", "ds-none"]) == 2
+    assert calib_cli([*base, "--model", "ds", "--models", "ds-none", "ds-none"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 3 and "pinhole-equi" in err[0] and "2 cameras" in err[1] and "not both" in err[2]
