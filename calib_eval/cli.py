@@ -56,11 +56,36 @@ def _selector_cfg(a: argparse.Namespace):
     )
 
 
-def cmd_select(a: argparse.Namespace) -> int:
-    from calib_eval.calibration.selector import select
+def _sequence(a: argparse.Namespace, cache: Path | None):
+    """The sequence of ``select`` / ``calibrate``: the folder given, or one made from ``--bag``
+    (images and our detections cached in ``cache``, default beside the bag)."""
     from cotrain.io.sequence import load_sequence
 
-    seq = load_sequence(a.seq, a.tolerance_ms, target=_target(a.target))
+    if (a.seq is None) == (a.bag is None):
+        raise ValueError("give a sequence folder or --bag REC --topics T0 T1 ... (one of them)")
+    if a.bag is None:
+        if a.topics:
+            raise ValueError("--topics goes with --bag")
+        return load_sequence(a.seq, a.tolerance_ms, target=_target(a.target))
+    from cotrain.detect.detector import Detector
+    from cotrain.io.bags import sequence_from_bag
+
+    if not a.topics:
+        raise ValueError("--bag needs --topics (one image topic per camera)")
+    target = _target(a.target)
+    det = Detector(a.detector, target=target)
+    folder, read = sequence_from_bag(a.bag, a.topics, cache or Path(str(a.bag).rstrip("/") + ".sequence"), det)
+    skipped = sum(read["skipped"])
+    how = "cached detections" if read["cached"] else "detected"
+    counts = ", ".join(f"{t} {n} images" for t, n in zip(a.topics, read["images"]))
+    print(f"{a.bag}: {counts} ({how}; {skipped} undecodable skipped) -> {folder}")
+    return load_sequence(folder, a.tolerance_ms, target=target)
+
+
+def cmd_select(a: argparse.Namespace) -> int:
+    from calib_eval.calibration.selector import select
+
+    seq = _sequence(a, Path(a.cache) if a.cache else None)
     sel = select(seq, _selector_cfg(a))
     rows = [
         {
@@ -76,7 +101,7 @@ def cmd_select(a: argparse.Namespace) -> int:
         }
         for s in sorted(sel.scores, key=lambda s: (s.cam, s.order if s.order >= 0 else 10**9, s.view))
     ]
-    out = Path(a.out) if a.out else Path(a.seq) / "selection.json"
+    out = Path(a.out) if a.out else Path(a.seq or ".") / "selection.json"
     out.write_text(json.dumps({"summary": sel.summary(), "frames": rows}, indent=1))
     print(f"selected {len(sel.keep)} of {len(sel.scores)} observations: {sel.summary()} -> {out}")
     return 0
@@ -86,16 +111,15 @@ def cmd_calibrate(a: argparse.Namespace) -> int:
     from calib_eval.calibration.calibrator import CalibConfig, calibrate
     from calib_eval.calibration.camchain import write_outputs
     from calib_eval.calibration.selector import select
-    from cotrain.io.sequence import load_sequence
 
     t0 = time.time()
     if a.model and a.models:
         raise ValueError("give --model (one for every camera) or --models (one per camera), not both")
     names = a.models or [a.model or "kb4"]
     models = [model_from_name(n) for n in names]  # a one-line error for a model we do not support
-    seq = load_sequence(a.seq, a.tolerance_ms, target=_target(a.target))
+    seq = _sequence(a, Path(a.cache) if a.cache else Path(a.out) / "sequence")
     if a.models and len(models) != len(seq.cameras):
-        raise ValueError(f"--models names {len(models)} camera models; {a.seq} has {len(seq.cameras)} cameras")
+        raise ValueError(f"--models names {len(models)} camera models; the sequence has {len(seq.cameras)} cameras")
     order, extra = None, {}
     if a.select:
         sel = select(seq, _selector_cfg(a))
@@ -197,7 +221,11 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=cmd_synth)
 
     def seq_args(s: argparse.ArgumentParser) -> None:
-        s.add_argument("seq", help="sequence folder (cam0/, cam1/, ... with timestamps.csv and detections.json)")
+        s.add_argument("seq", nargs="?", help="sequence folder (cam0/, cam1/, ... with timestamps.csv and detections.json)")
+        s.add_argument("--bag", help="instead of SEQ: a ROS1 .bag or ROS2 bag folder (read with rosbags, no ROS install)")
+        s.add_argument("--topics", nargs="+", metavar="TOPIC", help="with --bag: one image topic per camera, cam0 first")
+        s.add_argument("--cache", help="with --bag: folder for the images and detections (default: OUT/sequence, or BAG.sequence)")
+        s.add_argument("--detector", help="with --bag: ONNX model for the corners (default: the shipped model)")
         s.add_argument("--fov", type=float, required=True, help="rough FoV in degrees (lens data sheet)")
         s.add_argument("--target", help="target file (our target config or a Kalibr target yaml); only where the detections name none")
         s.add_argument("--tolerance-ms", type=float, default=10.0, help="time matching tolerance between cameras")

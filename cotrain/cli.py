@@ -65,8 +65,12 @@ def cmd_detect(args: argparse.Namespace) -> int:
 
     if not (0.0 <= args.threshold <= 1.0):
         raise ValueError("--threshold must be in [0, 1]")
-    paths = expand_inputs(args.inputs)
-    if not paths:
+    if bool(args.inputs) == bool(args.bag):
+        raise ValueError("give images or folders, or --bag REC --topics T0 T1 ... (one of them)")
+    if bool(args.topics) != bool(args.bag):
+        raise ValueError("--bag and --topics go together")
+    paths = expand_inputs(args.inputs) if args.inputs else []
+    if args.inputs and not paths:
         raise FileNotFoundError("no images found in the given paths")
     base = OnnxModel(args.model).target if args.square_size is not None and args.squares_x is None else None
     target = target_from_flags(args.target, args.squares_x, args.squares_y, args.square_size, base)
@@ -78,8 +82,17 @@ def cmd_detect(args: argparse.Namespace) -> int:
         mode="slots" if args.slots else "grid",
         target=target,
     )
+    if args.bag:
+        from cotrain.io.bags import sequence_from_bag
+
+        out = Path(args.out) if args.out else Path(str(args.bag).rstrip("/") + ".sequence")
+        folder, read = sequence_from_bag(args.bag, args.topics, out, det)
+        counts = ", ".join(f"{t} {n} images" for t, n in zip(args.topics, read["images"]))
+        cached = " (cached)" if read["cached"] else ""
+        print(f"{args.bag}: {counts}, {sum(read['skipped'])} undecodable skipped -> sequence folder {folder}{cached}")
+        return 0
     data = detect_files(paths, det, Path(args.draw) if args.draw else None)
-    out = Path(args.out)
+    out = Path(args.out or "detections.json")
     write_json_atomic(data, out)
     n_err = sum(1 for e in data["images"] if e["error"])
     n_found = sum(len(e["corners"]) for e in data["images"])
@@ -130,9 +143,11 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=cmd_export)
 
     s = sub.add_parser("detect", help="detect corners in images with the ONNX model (onnxruntime, CPU)")
-    s.add_argument("inputs", nargs="+", metavar="IMAGES_OR_FOLDERS")
+    s.add_argument("inputs", nargs="*", metavar="IMAGES_OR_FOLDERS")
+    s.add_argument("--bag", help="instead of images: a ROS1 .bag or ROS2 bag folder; writes a sequence folder with detections")
+    s.add_argument("--topics", nargs="+", metavar="TOPIC", help="with --bag: one image topic per camera, cam0 first")
     s.add_argument("--model", help="ONNX model (default: the shipped model)")
-    s.add_argument("--out", default="detections.json")
+    s.add_argument("--out", help="detection JSON (default detections.json); with --bag the sequence folder (default BAG.sequence)")
     s.add_argument("--threshold", type=float, default=0.5, help="with --slots: visibility probability to report a corner")
     s.add_argument("--draw", help="folder for overlays of the detections")
     s.add_argument(

@@ -1,0 +1,163 @@
+"""ROS bags as sequence folders: ROS1 ``.bag`` and ROS2 (``.db3`` / ``.mcap``) read with ``rosbags``
+(pure Python, no ROS install).
+
+    bag_to_sequence("rec.bag", ["/cam0/image_raw", "/cam1/image_raw"], "out/sequence")
+
+writes ``out/sequence/camN/images/<stamp>.png`` and ``timestamps.csv`` (the header stamps, so the
+sequence loader matches cameras by them), one camera per topic in the given order. Messages are
+streamed: a 10 GB bag is never held in memory. ``sensor_msgs/Image`` (mono8, mono16, rgb8, bgr8,
+rgba8, bgra8 and the bayer encodings OpenCV converts) and ``sensor_msgs/CompressedImage`` are
+read; a message that cannot be decoded is skipped and counted.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
+_BAYER = {
+    "bayer_rggb8": cv2.COLOR_BayerRG2GRAY,
+    "bayer_bggr8": cv2.COLOR_BayerBG2GRAY,
+    "bayer_gbrg8": cv2.COLOR_BayerGB2GRAY,
+    "bayer_grbg8": cv2.COLOR_BayerGR2GRAY,
+}
+
+
+class BagError(ValueError):
+    """A bag that cannot be used (one-line message)."""
+
+
+@dataclass
+class BagSummary:
+    """What :func:`bag_to_sequence` read."""
+
+    images: list[int] = field(default_factory=list)  # images written per camera
+    skipped: list[int] = field(default_factory=list)  # undecodable messages per camera
+    reasons: dict[str, int] = field(default_factory=dict)  # why messages were skipped, with counts
+
+
+def decode_image(msg, msgtype: str) -> np.ndarray:
+    """A deserialised sensor_msgs Image / CompressedImage -> uint8 or uint16 grey (H, W).
+    Raises ValueError with the reason."""
+    if msgtype.endswith("CompressedImage"):
+        img = cv2.imdecode(np.frombuffer(bytes(msg.data), np.uint8), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise ValueError(f"undecodable {msg.format or 'compressed'} image")
+        return img if img.ndim == 2 else cv2.cvtColor(img[..., :3], cv2.COLOR_BGR2GRAY)
+    enc, h, w = msg.encoding.lower(), int(msg.height), int(msg.width)
+    data = np.frombuffer(bytes(msg.data), np.uint8)
+    depth = {"mono8": 1, "mono16": 2, "rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4, **dict.fromkeys(_BAYER, 1)}.get(enc)
+    if depth is None:
+        raise ValueError(f"unsupported encoding {msg.encoding!r}")
+    step = int(msg.step) or w * depth
+    if h == 0 or w == 0 or step < w * depth or len(data) < step * h:
+        raise ValueError(f"{w}x{h} {enc} image with {len(data)} bytes")
+    rows = data[: step * h].reshape(h, step)[:, : w * depth]
+    if enc == "mono16":
+        return rows.copy().view(">u2" if msg.is_bigendian else "<u2").reshape(h, w).astype(np.uint16)
+    if enc in _BAYER:
+        return cv2.cvtColor(np.ascontiguousarray(rows), _BAYER[enc])
+    img = rows.reshape(h, w, depth)
+    if enc == "mono8":
+        return img[..., 0].copy()
+    code = cv2.COLOR_RGB2GRAY if enc.startswith("rgb") else cv2.COLOR_BGR2GRAY
+    return cv2.cvtColor(np.ascontiguousarray(img[..., :3]), code)
+
+
+def bag_to_sequence(bag: str | Path, topics: list[str], out: str | Path, progress: bool = True) -> BagSummary:
+    """Stream the image topics of ``bag`` into a sequence folder at ``out`` (see the module
+    docstring). A missing topic or a bag without images is a :class:`BagError`."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.highlevel.anyreader import AnyReaderError
+    from tqdm import tqdm
+
+    path = Path(bag)
+    if not path.exists():
+        raise BagError(f"{bag}: no such bag")
+    if len(set(topics)) != len(topics):
+        raise BagError(f"--topics names a topic twice: {' '.join(topics)}")
+    out = Path(out)
+    try:
+        reader = AnyReader([path])
+        reader.open()
+    except (AnyReaderError, OSError, ValueError, KeyError) as e:
+        raise BagError(f"{bag}: not a readable ROS1 / ROS2 bag ({str(e).splitlines()[0] if str(e) else type(e).__name__})") from None
+    try:
+        image_topics = sorted({c.topic for c in reader.connections if c.msgtype in IMAGE_TYPES})
+        missing = [t for t in topics if t not in image_topics]
+        if missing:
+            have = ", ".join(image_topics) if image_topics else "none"
+            raise BagError(f"{bag}: no image topic {', '.join(missing)} (image topics in the bag: {have})")
+        conns = [c for c in reader.connections if c.topic in topics]
+        cam_of = {t: i for i, t in enumerate(topics)}
+        summary = BagSummary([0] * len(topics), [0] * len(topics))
+        rows: list[list[str]] = [["frame_id,timestamp_ns,filename"] for _ in topics]
+        for i in range(len(topics)):
+            (out / f"cam{i}" / "images").mkdir(parents=True, exist_ok=True)
+        total = sum(c.msgcount for c in conns)
+        for conn, t_bag, raw in tqdm(reader.messages(connections=conns), total=total, desc="bag", unit="msg", disable=not progress):
+            cam = cam_of[conn.topic]
+            try:
+                msg = reader.deserialize(raw, conn.msgtype)
+                grey = decode_image(msg, conn.msgtype)
+                stamp = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec) or int(t_bag)
+            except Exception as e:  # a corrupt message is skipped and counted, never the end of the run
+                summary.skipped[cam] += 1
+                why = str(e).splitlines()[0][:80] if str(e) else type(e).__name__
+                summary.reasons[why] = summary.reasons.get(why, 0) + 1
+                continue
+            name = f"{stamp:019d}.png"
+            cv2.imwrite(str(out / f"cam{cam}" / "images" / name), grey)
+            rows[cam].append(f"{summary.images[cam]},{stamp},{name}")
+            summary.images[cam] += 1
+    finally:
+        reader.close()
+    empty = [t for t, n in zip(topics, summary.images) if n == 0]
+    if empty:
+        raise BagError(f"{bag}: no decodable image on {', '.join(empty)}")
+    for i, r in enumerate(rows):
+        (out / f"cam{i}" / "timestamps.csv").write_text("\n".join(r) + "\n")
+    return summary
+
+
+def sequence_from_bag(bag: str | Path, topics: list[str], out: str | Path, detector, progress: bool = True) -> tuple[Path, dict]:
+    """A sequence folder with detections from the image topics of ``bag``, at ``out``: images and
+    timestamps from :func:`bag_to_sequence`, ``camN/detections.json`` from ``detector``
+    (a :class:`cotrain.detect.detector.Detector`). Both are cached: a second call for the same bag
+    (path, size, modification time), topics and target detects nothing again. Returns the folder
+    and what was read ({"images", "skipped", "reasons", "cached"})."""
+    from cotrain.io.detections import detect_files, write_json_atomic
+
+    path, out = Path(bag), Path(out)
+    if not path.exists():
+        raise BagError(f"{bag}: no such bag")
+    st = path.stat()
+    key = {
+        "bag": str(path.resolve()),
+        "size": st.st_size,
+        "mtime_ns": st.st_mtime_ns,
+        "topics": list(topics),
+        "target": detector.target.to_json(),
+    }
+    marker = out / "bag.json"
+    if marker.is_file():
+        cached = json.loads(marker.read_text())
+        if cached.get("key") == key and all((out / f"cam{i}" / "detections.json").is_file() for i in range(len(topics))):
+            return out, {**cached["read"], "cached": True}
+    marker.unlink(missing_ok=True)
+    summary = bag_to_sequence(path, topics, out, progress)
+    for i in range(len(topics)):
+        cam = out / f"cam{i}"
+        names = [line.split(",")[2] for line in (cam / "timestamps.csv").read_text().splitlines()[1:]]
+        det = detect_files([cam / "images" / n for n in names], detector, progress=progress)
+        for e in det["images"]:
+            e["path"] = f"cam{i}/images/{Path(e['path']).name}"
+        write_json_atomic(det, cam / "detections.json")
+    read = {"images": summary.images, "skipped": summary.skipped, "reasons": summary.reasons}
+    write_json_atomic({"key": key, "read": read}, marker)
+    return out, {**read, "cached": False}

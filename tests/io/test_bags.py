@@ -1,0 +1,178 @@
+"""ROS bags as input: images streamed out of ROS1 and ROS2 bags (raw and compressed) give the
+same calibration as the folder they were written from; bad bags give one-line errors."""
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+from rosbags.rosbag1 import Writer as Writer1
+from rosbags.rosbag2 import Writer as Writer2
+from rosbags.typesys import Stores, get_typestore
+
+from calib_eval.cli import run as calib_cli
+from calib_eval.pipeline import PipelineConfig, _render_rig_sequence
+from cotrain.io.bags import BagError, bag_to_sequence, decode_image
+
+T0 = 1_700_000_000_000_000_000  # header stamps of the bags: the folder's times plus this
+
+
+def _image_msg(ts, stamp: int, img: np.ndarray, encoding: str = "mono8", frame: str = "cam"):
+    S = ts.types
+    Header, Time = S["std_msgs/msg/Header"], S["builtin_interfaces/msg/Time"]
+    extra = {"seq": 0} if "seq" in Header.__dataclass_fields__ else {}  # ROS1's header counts messages
+    header = Header(stamp=Time(sec=stamp // 10**9, nanosec=stamp % 10**9), frame_id=frame, **extra)
+    if encoding == "png":
+        data = np.frombuffer(cv2.imencode(".png", img)[1].tobytes(), np.uint8)
+        return S["sensor_msgs/msg/CompressedImage"](header=header, format="png", data=data), "sensor_msgs/msg/CompressedImage"
+    h, w = img.shape[:2]
+    step = img.strides[0]
+    msg = S["sensor_msgs/msg/Image"](
+        header=header, height=h, width=w, encoding=encoding, is_bigendian=0, step=step, data=img.reshape(-1).view(np.uint8)
+    )
+    return msg, "sensor_msgs/msg/Image"
+
+
+def write_bag(path: Path, ros: int, cams: list[list[tuple[int, np.ndarray]]], encoding: str = "mono8", extra=None) -> Path:
+    """A bag with one image topic per camera (/camN/image_raw); ``extra(writer, ts)`` adds more."""
+    ts = get_typestore(Stores.ROS1_NOETIC if ros == 1 else Stores.ROS2_HUMBLE)
+    writer = Writer1(path) if ros == 1 else Writer2(path, version=9)
+    with writer:
+        msgtype = "sensor_msgs/msg/CompressedImage" if encoding == "png" else "sensor_msgs/msg/Image"
+        conns = [writer.add_connection(f"/cam{c}/image_raw", msgtype, typestore=ts) for c in range(len(cams))]
+        ser = ts.serialize_ros1 if ros == 1 else ts.serialize_cdr
+        for c, frames in enumerate(cams):
+            for stamp, img in frames:
+                msg, typ = _image_msg(ts, stamp, img, encoding, f"cam{c}")
+                writer.write(conns[c], stamp, ser(msg, typ))
+        if extra:
+            extra(writer, ts, ser)
+    return path
+
+
+@pytest.fixture(scope="module")
+def rig(tmp_path_factory):
+    """A rendered FoV 200 stereo rig (32 frames) as a sequence folder, calibrated from the folder."""
+    root = tmp_path_factory.mktemp("rig")
+    seq_dir = root / "seq"
+    _render_rig_sequence(PipelineConfig(calib_frames=32), seq_dir)
+    cams = []
+    for c in range(2):
+        rows = (seq_dir / f"cam{c}" / "timestamps.csv").read_text().splitlines()[1:]
+        cams.append(
+            [
+                (T0 + int(r.split(",")[1]), cv2.imread(str(seq_dir / f"cam{c}" / "images" / r.split(",")[2]), cv2.IMREAD_GRAYSCALE))
+                for r in rows
+            ]
+        )
+    from cotrain.detect.detector import Detector
+    from cotrain.io.detections import detect_files
+
+    det = Detector(threads=1)
+    for c in range(2):
+        names = [r.split(",")[2] for r in (seq_dir / f"cam{c}" / "timestamps.csv").read_text().splitlines()[1:]]
+        d = detect_files([seq_dir / f"cam{c}" / "images" / n for n in names], det, progress=False)
+        for e in d["images"]:
+            e["path"] = f"cam{c}/images/{Path(e['path']).name}"
+        (seq_dir / f"cam{c}" / "detections.json").write_text(json.dumps(d))
+    out = root / "folder_calib"
+    assert (
+        calib_cli(["calibrate", str(seq_dir), "--fov", "200", "--models", "pinhole-equi", "pinhole-equi", "--select", "--out", str(out)])
+        == 0
+    )
+    return cams, yaml.safe_load((out / "camchain.yaml").read_text())
+
+
+@pytest.mark.parametrize("ros, encoding", [(1, "mono8"), (2, "png")])
+def test_bag_calibration_matches_the_folder(rig, tmp_path, ros, encoding, capsys):
+    cams, folder_chain = rig
+    bag = write_bag(tmp_path / ("rec.bag" if ros == 1 else "rec"), ros, cams, encoding)
+    out = tmp_path / "calib"
+    args = ["calibrate", "--bag", str(bag), "--topics", "/cam0/image_raw", "/cam1/image_raw", "--fov", "200"]
+    args += ["--models", "pinhole-equi", "pinhole-equi", "--select", "--out", str(out)]
+    assert calib_cli(args) == 0
+    assert yaml.safe_load((out / "camchain.yaml").read_text()) == folder_chain
+    assert "detected" in capsys.readouterr().out
+    # A second run reuses the cached images and detections.
+    assert calib_cli(args) == 0
+    assert "cached detections" in capsys.readouterr().out
+    assert yaml.safe_load((out / "camchain.yaml").read_text()) == folder_chain
+
+
+def test_missing_topic_and_empty_bag_are_one_line(tmp_path, capsys):
+    img = np.full((40, 60), 128, np.uint8)
+    bag = write_bag(tmp_path / "two.bag", 1, [[(T0, img)], [(T0, img)]])
+    base = ["calibrate", "--fov", "200", "--out", str(tmp_path / "o")]
+    assert calib_cli([*base, "--bag", str(bag), "--topics", "/cam0/image_raw", "/left/image"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "/left/image" in err[0] and "/cam0/image_raw, /cam1/image_raw" in err[0]
+    empty = write_bag(tmp_path / "empty", 2, [])
+    assert calib_cli([*base, "--bag", str(empty), "--topics", "/cam0/image_raw"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "image topics in the bag: none" in err[0]
+    assert calib_cli([*base, "--bag", str(tmp_path / "nope.bag"), "--topics", "/cam0/image_raw"]) == 2
+    assert calib_cli([*base, str(tmp_path), "--bag", str(bag), "--topics", "/cam0/image_raw"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and "no such bag" in err[0] and "one of them" in err[1]
+
+
+def test_corrupt_message_is_skipped_and_counted(tmp_path):
+    img = np.tile(np.arange(60, dtype=np.uint8), (40, 1))
+
+    def broken(writer, ts, ser):
+        conn = [c for c in writer.connections if c.topic == "/cam0/image_raw"][0]
+        msg, typ = _image_msg(ts, T0 + 3, img)
+        msg.height = 400  # more rows than the data holds
+        writer.write(conn, T0 + 3, ser(msg, typ))
+
+    bag = write_bag(tmp_path / "r.bag", 1, [[(T0, img), (T0 + 1, img)]], extra=broken)
+    out = tmp_path / "seq"
+    summary = bag_to_sequence(bag, ["/cam0/image_raw"], out, progress=False)
+    assert summary.images == [2] and summary.skipped == [1] and sum(summary.reasons.values()) == 1
+    rows = (out / "cam0" / "timestamps.csv").read_text().splitlines()
+    assert [int(r.split(",")[1]) for r in rows[1:]] == [T0, T0 + 1]
+    assert np.array_equal(cv2.imread(str(out / "cam0" / "images" / rows[1].split(",")[2]), cv2.IMREAD_UNCHANGED), img)
+    with pytest.raises(BagError, match="twice"):
+        bag_to_sequence(bag, ["/cam0/image_raw", "/cam0/image_raw"], tmp_path / "x", progress=False)
+
+
+def test_decode_encodings():
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    rng = np.random.default_rng(0)
+    grey = rng.integers(0, 255, (6, 8), dtype=np.uint8)
+    bgr = np.dstack([grey, grey, grey])
+    for enc, img in [("mono8", grey), ("bgr8", bgr), ("rgb8", bgr[..., ::-1].copy()), ("bgra8", np.dstack([bgr, grey]))]:
+        msg, typ = _image_msg(ts, T0, img, enc)
+        np.testing.assert_array_equal(decode_image(msg, typ), grey)
+    deep = rng.integers(0, 65535, (6, 8), dtype=np.uint16)
+    msg, typ = _image_msg(ts, T0, deep, "mono16")
+    got = decode_image(msg, typ)
+    assert got.dtype == np.uint16 and np.array_equal(got, deep)
+    bayer = rng.integers(0, 255, (6, 8), dtype=np.uint8)
+    msg, typ = _image_msg(ts, T0, bayer, "bayer_rggb8")
+    assert decode_image(msg, typ).shape == (6, 8)
+    msg, typ = _image_msg(ts, T0, grey, "png")
+    np.testing.assert_array_equal(decode_image(msg, typ), grey)
+    msg, typ = _image_msg(ts, T0, grey, "yuv422")
+    with pytest.raises(ValueError, match="unsupported encoding"):
+        decode_image(msg, typ)
+
+
+def test_cotrain_detect_from_a_bag(rig, tmp_path, capsys):
+    """``cotrain detect --bag --topics`` writes the sequence folder the calibrator reads."""
+    from cotrain.cli import run as cotrain_cli
+    from cotrain.io.sequence import load_sequence
+
+    cams, _ = rig
+    bag = write_bag(tmp_path / "rec.bag", 1, [frames[:4] for frames in cams])
+    out = tmp_path / "seq"
+    assert cotrain_cli(["detect", "--bag", str(bag), "--topics", "/cam0/image_raw", "/cam1/image_raw", "--out", str(out)]) == 0
+    seq = load_sequence(out)
+    assert len(seq.cameras) == 2 and seq.n_views == 4 and len(seq.observations) >= 4
+    capsys.readouterr()
+    assert cotrain_cli(["detect", "--bag", str(bag)]) == 2
+    assert cotrain_cli(["detect", str(tmp_path), "--bag", str(bag), "--topics", "/cam0/image_raw"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and "together" in err[0] and "one of them" in err[1]
