@@ -46,6 +46,8 @@ class CalibConfig:
     max_rms_px: float = 2.0  # success needs every camera's final RMS below this
     no_init: bool = False  # skip stage 1 (the paper's BA-only two-stage ablation)
     shared_intrinsics_guess_radius: float = 0.0  # image-circle radius (px) of the initial guess; 0: half the shorter side
+    view_outlier_px: float = 3.0  # after the joint stage, an observation whose median corner error exceeds this ...
+    view_outlier_ratio: float = 5.0  # ... and this many times the median over observations drops its view (a wrong board)
 
 
 class CalibrationFailed(RuntimeError):
@@ -68,6 +70,7 @@ class CalibrationResult:
     gamma: list[list[float]]  # per camera, the conditioning trajectory of stage 1
     runtime_s: float
     stages: list[dict] = field(default_factory=list)
+    dropped: list[dict] = field(default_factory=list)  # views dropped as a whole: view, frame, cameras, reason
 
 
 def _intrinsic_stage(
@@ -219,20 +222,39 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
     for v in views:
         cands = [np.linalg.inv(T_cam_rig[c]) @ cam_poses[c][v] for c in range(C) if v in cam_poses[c]]
         T_rig_board[v] = cands[0] if len(cands) == 1 else average_pose(cands)
-    vi = {v: i for i, v in enumerate(views)}
-    used = [o for c in range(C) for o in obs_by_cam[c] if o.view in vi]
-    prob = Problem.build(used, board, vi)
-    Tb = torch.from_numpy(np.stack([T_rig_board[v] for v in views]))
-    intr_t, Tcr, Tb, res = solve(
-        prob,
-        models,
-        intr,
-        torch.from_numpy(T_cam_rig),
-        Tb,
-        opt_extr=C > 1,
-        iters=cfg.refine_iters * (2 if cfg.no_init else 1),
-        huber=cfg.huber_px,
-    )
+    dropped: list[dict] = []
+    Tcr = torch.from_numpy(T_cam_rig)
+    for _ in range(6):
+        # The joint stage; observations that disagree with the rig as a whole (a board placed with
+        # the wrong identity: consistent within itself, so per-camera stages absorb it into its
+        # pose) are dropped and the stage is run again.
+        views = sorted(T_rig_board)
+        vi = {v: i for i, v in enumerate(views)}
+        used = [o for c in range(C) for o in obs_by_cam[c] if o.view in vi]
+        prob = Problem.build(used, board, vi)
+        Tb = torch.from_numpy(np.stack([T_rig_board[v] for v in views]))
+        intr_t, Tcr, Tb, res = solve(
+            prob, models, intr, Tcr, Tb, opt_extr=C > 1, iters=cfg.refine_iters * (2 if cfg.no_init else 1), huber=cfg.huber_px
+        )
+        bad = _inconsistent_views(used, res.residuals.numpy(), cfg)
+        if not bad:
+            break
+        # A wrong board pulls its view's pose, and with it the other cameras' boards of that view:
+        # which of them is wrong cannot be told from one view, so the whole view goes.
+        worst = {}
+        for o, med in bad:
+            worst[o.view] = max(worst.get(o.view, 0.0), med)
+        for v, med in sorted(worst.items()):
+            cams = [seq.cameras[o.cam].name for o in used if o.view == v]
+            frame = next(o.frame for o in used if o.view == v)
+            dropped.append(
+                {"view": v, "frame": frame, "cameras": cams, "reason": f"board off the rig by {med:.1f} px (median corner error)"}
+            )
+        obs_by_cam = [[o for o in ob if o.view not in worst] for ob in obs_by_cam]
+        intr = list(intr_t)
+        seen = {o.view for ob in obs_by_cam for o in ob}
+        T_rig_board = {v: Tb[i].numpy() for v, i in vi.items() if v in seen}
+        stages.append({"stage": "full", "rms_px": res.rms, "iterations": res.iterations, "reason": f"dropped {len(worst)} views"})
     frames["full"] = [len(obs_by_cam[c]) for c in range(C)]
     stages.append({"stage": "full", "rms_px": res.rms, "iterations": res.iterations, "reason": res.reason})
     intr_np = [x.numpy() for x in intr_t]
@@ -241,9 +263,22 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
     worst = max(res.rms) if res.rms else float("nan")
     success = ok_finite and math.isfinite(worst) and worst <= cfg.max_rms_px
     reason = "ok" if success else (f"final RMS {worst:.2f} px exceeds {cfg.max_rms_px} px" if ok_finite else "non-finite parameters")
-    return CalibrationResult(
-        success, reason, models, intr_np, T_cr, {v: Tb[i].numpy() for v, i in vi.items()}, res.rms, frames, gammas, time.time() - t0, stages
-    )
+    T_rb = {v: Tb[i].numpy() for v, i in vi.items()}
+    return CalibrationResult(success, reason, models, intr_np, T_cr, T_rb, res.rms, frames, gammas, time.time() - t0, stages, dropped)
+
+
+def _inconsistent_views(used: list[Observation], err: np.ndarray, cfg: CalibConfig) -> list[tuple[Observation, float]]:
+    """Observations of the joint problem (in ``used`` order, ``err`` (O,) per-corner errors, px)
+    whose median corner error is above ``cfg.view_outlier_px`` and ``cfg.view_outlier_ratio``
+    times the median over observations: the whole board is off, not a few corners."""
+    meds, k = [], 0
+    for o in used:
+        meds.append(float(np.median(err[k : k + len(o.ids)])))
+        k += len(o.ids)
+    if not meds:
+        return []
+    thr = max(cfg.view_outlier_px, cfg.view_outlier_ratio * float(np.median(meds)))
+    return [(o, m) for o, m in zip(used, meds) if m > thr]
 
 
 def _reject_outliers(

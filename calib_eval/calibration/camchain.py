@@ -62,6 +62,7 @@ def write_outputs(res: CalibrationResult, seq: Sequence, out_dir: str | Path, ex
         "frames_per_stage": res.frames_per_stage,
         "conditioning_gamma": {seq.cameras[c].name: res.gamma[c] for c in range(len(seq.cameras))},
         "stages": res.stages,
+        "dropped_views": res.dropped,
         "runtime_s": res.runtime_s,
         **(extra or {}),
     }
