@@ -82,6 +82,19 @@ def _sequence(a: argparse.Namespace, cache: Path | None):
     return load_sequence(folder, a.tolerance_ms, target=target)
 
 
+def cmd_coverage(a: argparse.Namespace) -> int:
+    from calib_eval.calibration.coverage import coverage
+
+    seq = _sequence(a, Path(a.cache) if a.cache else None)
+    cov = coverage(seq)
+    for cc in cov.cameras:
+        print(f"{cc.name}: {cc.views} views, {cc.corners} corners, out to {cc.max_radius:.2f} of the image radius")
+    for (ca, cb), n in cov.shared_views.items():
+        print(f"{seq.cameras[ca].name} + {seq.cameras[cb].name}: {n} shared views")
+    print("\n".join(cov.advice) if cov.advice else "coverage is complete: every camera seen to its rim all round, every camera linked")
+    return 0
+
+
 def cmd_select(a: argparse.Namespace) -> int:
     from calib_eval.calibration.selector import select
 
@@ -235,6 +248,16 @@ def build_parser() -> argparse.ArgumentParser:
         s.add_argument("--max-anchors", type=int, default=0)
         s.add_argument("--max-covisible", type=int, default=0)
         s.add_argument("--max-monofill", type=int, default=0)
+
+    s = sub.add_parser("coverage", help="what a recording shows of each image circle, and what to capture next")
+    s.add_argument("seq", nargs="?", help="sequence folder (or --bag)")
+    s.add_argument("--bag", help="a ROS1 .bag or ROS2 bag folder instead of SEQ")
+    s.add_argument("--topics", nargs="+", metavar="TOPIC", help="with --bag: one image topic per camera, cam0 first")
+    s.add_argument("--cache", help="with --bag: folder for the images and detections (default BAG.sequence)")
+    s.add_argument("--detector", help="with --bag: ONNX model for the corners (default: the shipped model)")
+    s.add_argument("--target", help="target file, where the detections name none")
+    s.add_argument("--tolerance-ms", type=float, default=10.0, help="time matching tolerance between cameras")
+    s.set_defaults(func=cmd_coverage)
 
     s = sub.add_parser("select", help="score and select frames (anchors, co-visible, mono-fill)")
     seq_args(s)
