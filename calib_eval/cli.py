@@ -123,6 +123,7 @@ def cmd_select(a: argparse.Namespace) -> int:
 def cmd_calibrate(a: argparse.Namespace) -> int:
     from calib_eval.calibration.calibrator import CalibConfig, calibrate
     from calib_eval.calibration.camchain import write_outputs
+    from calib_eval.calibration.report_html import write_report_html
     from calib_eval.calibration.selector import select
 
     t0 = time.time()
@@ -142,9 +143,10 @@ def cmd_calibrate(a: argparse.Namespace) -> int:
     cfg = CalibConfig(model=models[0], models=models if a.models else [], fov=a.fov, no_init=a.no_init)
     res = calibrate(seq, cfg, order)
     chain, report = write_outputs(res, seq, a.out, {**extra, "total_runtime_s": time.time() - t0})
+    page = write_report_html(res, seq, a.out)
     if res.success:
         rms = ", ".join(f"{seq.cameras[c].name} {r:.3f}" for c, r in enumerate(res.rms_px))
-        print(f"calibration succeeded in {time.time() - t0:.1f} s (RMS px: {rms}) -> {chain}, {report}")
+        print(f"calibration succeeded in {time.time() - t0:.1f} s (RMS px: {rms}) -> {chain}, {report}, {page}")
         return 0
     print(f"calibration failed: {res.reason} (see {report})", file=sys.stderr)
     return 1

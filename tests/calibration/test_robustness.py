@@ -9,6 +9,7 @@ import torch
 from calib_eval.benchmark.benchmark import evaluate_result
 from calib_eval.benchmark.rigs import SynthSpec, make_sequence, paper_config
 from calib_eval.calibration.calibrator import CalibConfig, calibrate
+from calib_eval.calibration.report_html import pair_spread, write_report_html
 
 
 def _misidentify(seq, share: float, rng: np.random.Generator) -> set[int]:
@@ -37,7 +38,7 @@ def single_thread():
     torch.set_num_threads(n)
 
 
-def test_misidentified_boards_and_gross_corners(single_thread):
+def test_misidentified_boards_and_gross_corners(single_thread, tmp_path):
     rig = paper_config("FoV220_90")
     seq, gt = make_sequence(rig, SynthSpec(n_frames=160, outlier_rate=0.05), seed=3)
     injected = _misidentify(seq, 0.05, np.random.default_rng(0))
@@ -49,6 +50,13 @@ def test_misidentified_boards_and_gross_corners(single_thread):
     assert len(named & injected) >= 0.9 * len(injected)
     assert len(named - injected) <= 1  # clean views are kept
     assert all("board off the rig" in d["reason"] and d["cameras"] for d in res.dropped)
+    # The page a person looks at names them, with the advice and the rig's pairs; it is self-contained.
+    page = write_report_html(res, seq, tmp_path).read_text()
+    assert f"Dropped views ({len(res.dropped)})" in page and all(f"<td>{d['view']}</td>" in page for d in res.dropped)
+    assert "Calibration succeeded" in page and "cam0 - cam1" in page and "What to capture next" in page
+    assert page.count("data:image/png;base64,") >= 6 and 'src="http' not in page and "<link" not in page
+    pairs = pair_spread(res, seq)
+    assert pairs[(0, 1)][2] > 50 and pairs[(0, 1)][0] < 2.0 and pairs[(0, 1)][1] < 0.5  # mm / deg over the shared views
     # Without the view test the same sequence fails.
     off = calibrate(seq, CalibConfig(model=rig.model, fov=rig.fov, view_outlier_px=np.inf))
     assert not evaluate_result(off, gt, rig.fov)["strict"]
