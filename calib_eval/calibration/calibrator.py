@@ -224,7 +224,8 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
         T_rig_board[v] = cands[0] if len(cands) == 1 else average_pose(cands)
     dropped: list[dict] = []
     Tcr = torch.from_numpy(T_cam_rig)
-    for _ in range(6):
+    rounds = 6
+    for it in range(rounds + 1):
         # The joint stage; observations that disagree with the rig as a whole (a board placed with
         # the wrong identity: consistent within itself, so per-camera stages absorb it into its
         # pose) are dropped and the stage is run again.
@@ -236,7 +237,7 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
         intr_t, Tcr, Tb, res = solve(
             prob, models, intr, Tcr, Tb, opt_extr=C > 1, iters=cfg.refine_iters * (2 if cfg.no_init else 1), huber=cfg.huber_px
         )
-        bad = _inconsistent_views(used, res.residuals.numpy(), cfg)
+        bad = _inconsistent_views(used, res.residuals.numpy(), cfg) if it < rounds else []  # the last solve is final
         if not bad:
             break
         # A wrong board pulls its view's pose, and with it the other cameras' boards of that view:
@@ -251,6 +252,11 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
                 {"view": v, "frame": frame, "cameras": cams, "reason": f"board off the rig by {med:.1f} px (median corner error)"}
             )
         obs_by_cam = [[o for o in ob if o.view not in worst] for ob in obs_by_cam]
+        short = [seq.cameras[c].name for c in range(C) if len(obs_by_cam[c]) < cfg.min_views]
+        if short:
+            return fail(
+                f"{', '.join(short)}: fewer than {cfg.min_views} views agree with the rig ({len(dropped)} views dropped)", intr, T_cam_rig
+            )
         intr = list(intr_t)
         seen = {o.view for ob in obs_by_cam for o in ob}
         T_rig_board = {v: Tb[i].numpy() for v, i in vi.items() if v in seen}
@@ -260,7 +266,7 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
     intr_np = [x.numpy() for x in intr_t]
     T_cr = Tcr.numpy()
     ok_finite = all(np.isfinite(x).all() for x in intr_np) and np.isfinite(T_cr).all()
-    worst = max(res.rms) if res.rms else float("nan")
+    worst = max(res.rms) if res.rms and all(math.isfinite(x) for x in res.rms) else float("nan")
     success = ok_finite and math.isfinite(worst) and worst <= cfg.max_rms_px
     reason = "ok" if success else (f"final RMS {worst:.2f} px exceeds {cfg.max_rms_px} px" if ok_finite else "non-finite parameters")
     T_rb = {v: Tb[i].numpy() for v, i in vi.items()}

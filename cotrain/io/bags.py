@@ -13,6 +13,7 @@ read; a message that cannot be decoded is skipped and counted.
 from __future__ import annotations
 
 import json
+import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -21,10 +22,10 @@ import numpy as np
 
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 _BAYER = {
-    "bayer_rggb8": cv2.COLOR_BayerRG2GRAY,
-    "bayer_bggr8": cv2.COLOR_BayerBG2GRAY,
-    "bayer_gbrg8": cv2.COLOR_BayerGB2GRAY,
-    "bayer_grbg8": cv2.COLOR_BayerGR2GRAY,
+    "bayer_rggb8": cv2.COLOR_BayerRGGB2GRAY,
+    "bayer_bggr8": cv2.COLOR_BayerBGGR2GRAY,
+    "bayer_gbrg8": cv2.COLOR_BayerGBRG2GRAY,
+    "bayer_grbg8": cv2.COLOR_BayerGRBG2GRAY,
 }
 
 
@@ -73,7 +74,7 @@ def bag_to_sequence(bag: str | Path, topics: list[str], out: str | Path, progres
     """Stream the image topics of ``bag`` into a sequence folder at ``out`` (see the module
     docstring). A missing topic or a bag without images is a :class:`BagError`."""
     from rosbags.highlevel import AnyReader
-    from rosbags.highlevel.anyreader import AnyReaderError
+    from rosbags.typesys import Stores, get_typestore
     from tqdm import tqdm
 
     path = Path(bag)
@@ -83,9 +84,10 @@ def bag_to_sequence(bag: str | Path, topics: list[str], out: str | Path, progres
         raise BagError(f"--topics names a topic twice: {' '.join(topics)}")
     out = Path(out)
     try:
-        reader = AnyReader([path])
+        # ROS2 bags before Iron carry no message definitions: read them with Humble's types.
+        reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
         reader.open()
-    except (AnyReaderError, OSError, ValueError, KeyError) as e:
+    except Exception as e:  # rosbags' reader errors are plain Exceptions: a one-line reason, never a traceback
         raise BagError(f"{bag}: not a readable ROS1 / ROS2 bag ({str(e).splitlines()[0] if str(e) else type(e).__name__})") from None
     try:
         image_topics = sorted({c.topic for c in reader.connections if c.msgtype in IMAGE_TYPES})
@@ -100,7 +102,8 @@ def bag_to_sequence(bag: str | Path, topics: list[str], out: str | Path, progres
         for i in range(len(topics)):
             (out / f"cam{i}" / "images").mkdir(parents=True, exist_ok=True)
         total = sum(c.msgcount for c in conns)
-        for conn, t_bag, raw in tqdm(reader.messages(connections=conns), total=total, desc="bag", unit="msg", disable=not progress):
+        stream = tqdm(_messages(reader, conns, bag), total=total, desc="bag", unit="msg", disable=not progress)
+        for conn, t_bag, raw in stream:
             cam = cam_of[conn.topic]
             try:
                 msg = reader.deserialize(raw, conn.msgtype)
@@ -112,7 +115,8 @@ def bag_to_sequence(bag: str | Path, topics: list[str], out: str | Path, progres
                 summary.reasons[why] = summary.reasons.get(why, 0) + 1
                 continue
             name = f"{stamp:019d}.png"
-            cv2.imwrite(str(out / f"cam{cam}" / "images" / name), grey)
+            if not cv2.imwrite(str(out / f"cam{cam}" / "images" / name), grey):
+                raise OSError(f"{out / f'cam{cam}' / 'images' / name}: cannot write the image")
             rows[cam].append(f"{summary.images[cam]},{stamp},{name}")
             summary.images[cam] += 1
     finally:
@@ -123,6 +127,23 @@ def bag_to_sequence(bag: str | Path, topics: list[str], out: str | Path, progres
     for i, r in enumerate(rows):
         (out / f"cam{i}" / "timestamps.csv").write_text("\n".join(r) + "\n")
     return summary
+
+
+def _messages(reader, conns, bag):
+    """The reader's messages; a bag damaged part-way through is a BagError, not a traceback."""
+    n = 0
+    try:
+        for item in reader.messages(connections=conns):
+            n += 1
+            yield item
+    except Exception as e:
+        raise BagError(f"{bag}: damaged after {n} messages ({str(e).splitlines()[0] if str(e) else type(e).__name__})") from None
+
+
+def _bag_stamp(path: Path) -> list:
+    """Name, size and modification time of the bag, or of every file of a ROS2 bag folder."""
+    files = sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
+    return [[str(p.relative_to(path) if path.is_dir() else p.name), p.stat().st_size, p.stat().st_mtime_ns] for p in files]
 
 
 def sequence_from_bag(bag: str | Path, topics: list[str], out: str | Path, detector, progress: bool = True) -> tuple[Path, dict]:
@@ -136,20 +157,35 @@ def sequence_from_bag(bag: str | Path, topics: list[str], out: str | Path, detec
     path, out = Path(bag), Path(out)
     if not path.exists():
         raise BagError(f"{bag}: no such bag")
-    st = path.stat()
+    model = Path(detector.path)
     key = {
+        "format": 1,
         "bag": str(path.resolve()),
-        "size": st.st_size,
-        "mtime_ns": st.st_mtime_ns,
+        "files": _bag_stamp(path),
         "topics": list(topics),
+        "model": [str(model.resolve()), model.stat().st_size, model.stat().st_mtime_ns],
+        "detector": {
+            "mode": detector.mode,
+            "threshold": detector.threshold,
+            "consistency": detector.consistency,
+            "polish": detector.polish,
+        },
         "target": detector.target.to_json(),
     }
     marker = out / "bag.json"
     if marker.is_file():
-        cached = json.loads(marker.read_text())
+        try:
+            cached = json.loads(marker.read_text())
+        except (OSError, json.JSONDecodeError):
+            cached = {}  # an unreadable marker is a cache miss
         if cached.get("key") == key and all((out / f"cam{i}" / "detections.json").is_file() for i in range(len(topics))):
             return out, {**cached["read"], "cached": True}
+    elif out.is_dir() and any(out.iterdir()):
+        raise BagError(f"{out}: not empty and not made from a bag; choose another --cache / --out folder")
     marker.unlink(missing_ok=True)
+    for old in out.glob("cam*"):  # a previous extraction (other topics, another detector)
+        if old.is_dir() and old.name[3:].isdigit():
+            shutil.rmtree(old)
     summary = bag_to_sequence(path, topics, out, progress)
     for i in range(len(topics)):
         cam = out / f"cam{i}"

@@ -150,9 +150,12 @@ def test_decode_encodings():
     msg, typ = _image_msg(ts, T0, deep, "mono16")
     got = decode_image(msg, typ)
     assert got.dtype == np.uint16 and np.array_equal(got, deep)
-    bayer = rng.integers(0, 255, (6, 8), dtype=np.uint8)
-    msg, typ = _image_msg(ts, T0, bayer, "bayer_rggb8")
-    assert decode_image(msg, typ).shape == (6, 8)
+    # A flat colour (B, G, R) = (40, 120, 220) as an RGGB mosaic decodes to its grey value.
+    mosaic = np.zeros((8, 8), np.uint8)
+    mosaic[0::2, 0::2], mosaic[0::2, 1::2], mosaic[1::2, 0::2], mosaic[1::2, 1::2] = 220, 120, 120, 40
+    msg, typ = _image_msg(ts, T0, mosaic, "bayer_rggb8")
+    want = cv2.cvtColor(np.full((1, 1, 3), (40, 120, 220), np.uint8), cv2.COLOR_BGR2GRAY)[0, 0]
+    assert abs(int(decode_image(msg, typ)[4, 4]) - int(want)) <= 2
     msg, typ = _image_msg(ts, T0, grey, "png")
     np.testing.assert_array_equal(decode_image(msg, typ), grey)
     msg, typ = _image_msg(ts, T0, grey, "yuv422")
@@ -176,3 +179,53 @@ def test_cotrain_detect_from_a_bag(rig, tmp_path, capsys):
     assert cotrain_cli(["detect", str(tmp_path), "--bag", str(bag), "--topics", "/cam0/image_raw"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and "together" in err[0] and "one of them" in err[1]
+
+
+def test_cache_follows_topics_and_refuses_foreign_folders(tmp_path):
+    """Another set of topics re-extracts (no stale camera folder survives); an unreadable marker is
+    a cache miss; a folder that was not made from a bag is not overwritten."""
+    from cotrain.detect.detector import Detector
+    from cotrain.io.bags import sequence_from_bag
+
+    img = np.full((40, 60), 128, np.uint8)
+    bag = write_bag(tmp_path / "r.bag", 1, [[(T0, img)], [(T0, img)], [(T0, img)]])
+    det = Detector(threads=1)
+    out = tmp_path / "seq"
+    three = ["/cam0/image_raw", "/cam1/image_raw", "/cam2/image_raw"]
+    assert not sequence_from_bag(bag, three, out, det, progress=False)[1]["cached"]
+    assert sequence_from_bag(bag, three, out, det, progress=False)[1]["cached"]
+    assert not sequence_from_bag(bag, three[:2], out, det, progress=False)[1]["cached"]
+    assert sorted(p.name for p in out.glob("cam*")) == ["cam0", "cam1"]
+    (out / "bag.json").write_text("{not json")
+    assert not sequence_from_bag(bag, three[:2], out, det, progress=False)[1]["cached"]
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("keep")
+    with pytest.raises(BagError, match="not made from a bag"):
+        sequence_from_bag(bag, three[:2], mine, det, progress=False)
+
+
+def test_damaged_and_old_bags(tmp_path):
+    img = np.full((40, 60), 128, np.uint8)
+    frames = [(T0 + k, img) for k in range(50)]
+    bag = write_bag(tmp_path / "r.bag", 1, [frames])
+    data = bytearray(bag.read_bytes())
+    damaged = tmp_path / "d.bag"
+    damaged.write_bytes(bytes(data[: len(data) * 2 // 3]))  # cut part-way: the index is gone
+    with pytest.raises(BagError):
+        bag_to_sequence(damaged, ["/cam0/image_raw"], tmp_path / "x", progress=False)
+    # A ROS2 bag without message definitions (recorded before Iron) is read with Humble's types.
+    old = write_bag(tmp_path / "old", 2, [frames[:3]])
+    meta = old / "metadata.yaml"
+    m = yaml.safe_load(meta.read_text())
+    for t in m["rosbag2_bagfile_information"]["topics_with_message_count"]:
+        t["topic_metadata"].pop("message_definition", None)
+        t["topic_metadata"].pop("type_description_hash", None)
+    meta.write_text(yaml.safe_dump(m))
+    import sqlite3
+
+    db = next(old.glob("*.db3"))
+    with sqlite3.connect(db) as con:
+        if "message_definitions" in {r[0] for r in con.execute("select name from sqlite_master")}:
+            con.execute("delete from message_definitions")
+    assert bag_to_sequence(old, ["/cam0/image_raw"], tmp_path / "o", progress=False).images == [3]
