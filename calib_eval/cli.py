@@ -235,15 +235,19 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", required=True)
     s.set_defaults(func=cmd_synth)
 
-    def seq_args(s: argparse.ArgumentParser) -> None:
+    def source_args(s: argparse.ArgumentParser) -> None:
+        """Where the observations come from: a sequence folder, or a bag and its topics."""
         s.add_argument("seq", nargs="?", help="sequence folder (cam0/, cam1/, ... with timestamps.csv and detections.json)")
         s.add_argument("--bag", help="instead of SEQ: a ROS1 .bag or ROS2 bag folder (read with rosbags, no ROS install)")
         s.add_argument("--topics", nargs="+", metavar="TOPIC", help="with --bag: one image topic per camera, cam0 first")
         s.add_argument("--cache", help="with --bag: folder for the images and detections (default: OUT/sequence, or BAG.sequence)")
         s.add_argument("--detector", help="with --bag: ONNX model for the corners (default: the shipped model)")
-        s.add_argument("--fov", type=float, required=True, help="rough FoV in degrees (lens data sheet)")
         s.add_argument("--target", help="target file (our target config or a Kalibr target yaml); only where the detections name none")
         s.add_argument("--tolerance-ms", type=float, default=10.0, help="time matching tolerance between cameras")
+
+    def seq_args(s: argparse.ArgumentParser) -> None:
+        source_args(s)
+        s.add_argument("--fov", type=float, required=True, help="rough FoV in degrees (lens data sheet)")
         s.add_argument("--iso-gate", type=float, default=0.3)
         s.add_argument("--drs-numerator", type=float, default=110.0, help="s_drs gate = this / FoV")
         s.add_argument("--min-corners", type=int, default=8)
@@ -252,13 +256,7 @@ def build_parser() -> argparse.ArgumentParser:
         s.add_argument("--max-monofill", type=int, default=0)
 
     s = sub.add_parser("coverage", help="what a recording shows of each image circle, and what to capture next")
-    s.add_argument("seq", nargs="?", help="sequence folder (or --bag)")
-    s.add_argument("--bag", help="a ROS1 .bag or ROS2 bag folder instead of SEQ")
-    s.add_argument("--topics", nargs="+", metavar="TOPIC", help="with --bag: one image topic per camera, cam0 first")
-    s.add_argument("--cache", help="with --bag: folder for the images and detections (default BAG.sequence)")
-    s.add_argument("--detector", help="with --bag: ONNX model for the corners (default: the shipped model)")
-    s.add_argument("--target", help="target file, where the detections name none")
-    s.add_argument("--tolerance-ms", type=float, default=10.0, help="time matching tolerance between cameras")
+    source_args(s)
     s.set_defaults(func=cmd_coverage)
 
     s = sub.add_parser("select", help="score and select frames (anchors, co-visible, mono-fill)")
