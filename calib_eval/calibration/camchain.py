@@ -36,7 +36,7 @@ def camchain_dict(res: CalibrationResult, seq: Sequence) -> dict:
             "distortion_coeffs": dist,
             "resolution": [int(info.width), int(info.height)],
             "cam_overlaps": sorted(overlaps[c]),
-            "rostopic": f"/{info.name}/image_raw",
+            "rostopic": info.topic or f"/{info.name}/image_raw",
         }
         if c > 0:
             T = res.T_cam_rig[c] @ np.linalg.inv(res.T_cam_rig[c - 1])

@@ -40,6 +40,7 @@ class BagSummary:
     images: list[int] = field(default_factory=list)  # images written per camera
     skipped: list[int] = field(default_factory=list)  # undecodable messages per camera
     reasons: dict[str, int] = field(default_factory=dict)  # why messages were skipped, with counts
+    clock: list[str] = field(default_factory=list)  # per camera: "header" stamps, or "bag" time where the headers are 0
 
 
 def decode_image(msg, msgtype: str) -> np.ndarray:
@@ -97,7 +98,8 @@ def bag_to_sequence(bag: str | Path, topics: list[str], out: str | Path, progres
             raise BagError(f"{bag}: no image topic {', '.join(missing)} (image topics in the bag: {have})")
         conns = [c for c in reader.connections if c.topic in topics]
         cam_of = {t: i for i, t in enumerate(topics)}
-        summary = BagSummary([0] * len(topics), [0] * len(topics))
+        summary = BagSummary([0] * len(topics), [0] * len(topics), {}, [""] * len(topics))
+        seen: list[set[int]] = [set() for _ in topics]
         rows: list[list[str]] = [["frame_id,timestamp_ns,filename"] for _ in topics]
         for i in range(len(topics)):
             (out / f"cam{i}" / "images").mkdir(parents=True, exist_ok=True)
@@ -108,12 +110,19 @@ def bag_to_sequence(bag: str | Path, topics: list[str], out: str | Path, progres
             try:
                 msg = reader.deserialize(raw, conn.msgtype)
                 grey = decode_image(msg, conn.msgtype)
-                stamp = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec) or int(t_bag)
+                header = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+                # One clock per camera, chosen on its first image: the header stamps (capture
+                # time), or the bag's receive time where a driver leaves them at 0.
+                summary.clock[cam] = summary.clock[cam] or ("header" if header else "bag")
+                stamp = header if summary.clock[cam] == "header" else int(t_bag)
+                if stamp in seen[cam]:
+                    raise ValueError("duplicate stamp on its topic")
             except Exception as e:  # a corrupt message is skipped and counted, never the end of the run
                 summary.skipped[cam] += 1
                 why = str(e).splitlines()[0][:80] if str(e) else type(e).__name__
                 summary.reasons[why] = summary.reasons.get(why, 0) + 1
                 continue
+            seen[cam].add(stamp)
             name = f"{stamp:019d}.png"
             if not cv2.imwrite(str(out / f"cam{cam}" / "images" / name), grey):
                 raise OSError(f"{out / f'cam{cam}' / 'images' / name}: cannot write the image")
@@ -126,6 +135,7 @@ def bag_to_sequence(bag: str | Path, topics: list[str], out: str | Path, progres
         raise BagError(f"{bag}: no decodable image on {', '.join(empty)}")
     for i, r in enumerate(rows):
         (out / f"cam{i}" / "timestamps.csv").write_text("\n".join(r) + "\n")
+        (out / f"cam{i}" / "rostopic").write_text(topics[i] + "\n")  # camchain.yaml names it
     return summary
 
 

@@ -46,6 +46,7 @@ class CameraInfo:
     width: int
     height: int
     mask_radius: float | None = None  # usable fisheye radius about the image centre (px), if known
+    topic: str | None = None  # the ROS image topic it was recorded on (a sequence made from a bag)
 
 
 @dataclass
@@ -168,7 +169,8 @@ def load_sequence(seq: str | Path, tolerance_ms: float = 10.0, detect=None, targ
                 break
         if size is None:
             raise SequenceError(f"{cd}: detections give no image size")
-        cameras.append(CameraInfo(cd.name, *size))
+        topic = (cd / "rostopic").read_text().strip() if (cd / "rostopic").is_file() else None
+        cameras.append(CameraInfo(cd.name, *size, topic=topic))
         per_cam.append((rows, dets, source))
 
     # Views from cam0's clock; other cameras join the nearest view within the tolerance.

@@ -35,8 +35,9 @@ def _image_msg(ts, stamp: int, img: np.ndarray, encoding: str = "mono8", frame: 
     return msg, "sensor_msgs/msg/Image"
 
 
-def write_bag(path: Path, ros: int, cams: list[list[tuple[int, np.ndarray]]], encoding: str = "mono8", extra=None) -> Path:
-    """A bag with one image topic per camera (/camN/image_raw); ``extra(writer, ts)`` adds more."""
+def write_bag(path: Path, ros: int, cams: list[list[tuple[int, np.ndarray]]], encoding: str = "mono8", extra=None, delay: int = 0) -> Path:
+    """A bag with one image topic per camera (/camN/image_raw), received ``delay`` ns after the
+    header stamps; ``extra(writer, ts, ser)`` adds more."""
     ts = get_typestore(Stores.ROS1_NOETIC if ros == 1 else Stores.ROS2_HUMBLE)
     writer = Writer1(path) if ros == 1 else Writer2(path, version=9)
     with writer:
@@ -46,7 +47,7 @@ def write_bag(path: Path, ros: int, cams: list[list[tuple[int, np.ndarray]]], en
         for c, frames in enumerate(cams):
             for stamp, img in frames:
                 msg, typ = _image_msg(ts, stamp, img, encoding, f"cam{c}")
-                writer.write(conns[c], stamp, ser(msg, typ))
+                writer.write(conns[c], stamp + delay, ser(msg, typ))
         if extra:
             extra(writer, ts, ser)
     return path
@@ -229,3 +230,20 @@ def test_damaged_and_old_bags(tmp_path):
         if "message_definitions" in {r[0] for r in con.execute("select name from sqlite_master")}:
             con.execute("delete from message_definitions")
     assert bag_to_sequence(old, ["/cam0/image_raw"], tmp_path / "o", progress=False).images == [3]
+
+
+def test_header_stamps_their_fallback_and_duplicates(tmp_path):
+    """The header stamps are the clock (not the receive time); a topic whose headers are 0 falls
+    back to the bag's time as a whole; a repeated stamp is skipped and counted; camchain's
+    rostopic comes from the bag."""
+    img = np.full((40, 60), 128, np.uint8)
+    cams = [[(T0, img), (T0 + 50_000_000, img), (T0 + 50_000_000, img)], [(0, img), (0, img)]]
+    bag = write_bag(tmp_path / "r.bag", 1, cams, delay=7_000_000)
+    out = tmp_path / "seq"
+    summary = bag_to_sequence(bag, ["/cam0/image_raw", "/cam1/image_raw"], out, progress=False)
+    assert summary.clock == ["header", "bag"] and summary.images == [2, 1] and summary.skipped == [1, 1]
+    assert "duplicate stamp on its topic" in summary.reasons
+    t0 = [int(r.split(",")[1]) for r in (out / "cam0" / "timestamps.csv").read_text().splitlines()[1:]]
+    t1 = [int(r.split(",")[1]) for r in (out / "cam1" / "timestamps.csv").read_text().splitlines()[1:]]
+    assert t0 == [T0, T0 + 50_000_000] and t1 == [7_000_000]
+    assert (out / "cam1" / "rostopic").read_text().strip() == "/cam1/image_raw"
