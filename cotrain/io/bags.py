@@ -163,6 +163,7 @@ def sequence_from_bag(bag: str | Path, topics: list[str], out: str | Path, detec
     (path, size, modification time), topics and target detects nothing again. Returns the folder
     and what was read ({"images", "skipped", "reasons", "cached"})."""
     from cotrain.io.detections import detect_files, write_json_atomic
+    from cotrain.io.sequence import write_camera_detections
 
     path, out = Path(bag), Path(out)
     if not path.exists():
@@ -198,12 +199,7 @@ def sequence_from_bag(bag: str | Path, topics: list[str], out: str | Path, detec
             shutil.rmtree(old)
     summary = bag_to_sequence(path, topics, out, progress)
     for i in range(len(topics)):
-        cam = out / f"cam{i}"
-        names = [line.split(",")[2] for line in (cam / "timestamps.csv").read_text().splitlines()[1:]]
-        det = detect_files([cam / "images" / n for n in names], detector, progress=progress)
-        for e in det["images"]:
-            e["path"] = f"cam{i}/images/{Path(e['path']).name}"
-        write_json_atomic(det, cam / "detections.json")
+        write_camera_detections(out / f"cam{i}", lambda paths: detect_files(paths, detector, progress=progress))
     read = {"images": summary.images, "skipped": summary.skipped, "reasons": summary.reasons}
     write_json_atomic({"key": key, "read": read}, marker)
     return out, {**read, "cached": False}

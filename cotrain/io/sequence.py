@@ -16,12 +16,13 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from cotrain.targets import Target, TargetError, describe, same_target, target_from_json
+from cotrain.targets import Target, TargetError, same_target, target_from_json
 
 
 class SequenceError(ValueError):
@@ -104,9 +105,9 @@ def _one_target(found: list[tuple[str, Target]], given: Target | None, seq: str)
     """The sequence's target: what its detections name (all alike); ``given`` (a --target) must agree."""
     for where, t in found[1:]:
         if not same_target(t, found[0][1]):
-            raise SequenceError(f"{where}: target {describe(t)} differs from {found[0][0]}'s {describe(found[0][1])}")
+            raise SequenceError(f"{where}: target {t} differs from {found[0][0]}'s {found[0][1]}")
     if found and given is not None and not same_target(given, found[0][1]):
-        raise SequenceError(f"--target ({describe(given)}) contradicts the detections' target ({describe(found[0][1])}, {found[0][0]})")
+        raise SequenceError(f"--target ({given}) contradicts the detections' target ({found[0][1]}, {found[0][0]})")
     if found:
         return found[0][1]
     if given is None:
@@ -196,7 +197,7 @@ def load_sequence(seq: str | Path, tolerance_ms: float = 10.0, detect=None, targ
             ids = np.array([c["id"] for c in corners], dtype=np.int64)
             if ids.min() < 0 or ids.max() >= board.n_corners:
                 bad = int(ids.max() if ids.max() >= board.n_corners else ids.min())
-                raise SequenceError(f"{source}: {name} has corner id {bad}, not one of the {board.n_corners} of the {describe(board)}")
+                raise SequenceError(f"{source}: {name} has corner id {bad}, not one of the {board.n_corners} of the {board}")
             q = np.array([[c["x"], c["y"]] for c in corners], dtype=np.float64)
             w = np.array([float(c.get("confidence", 1.0) or 1.0) for c in corners], dtype=np.float64)
             obs.append(Observation(ci, t, ids, q, np.clip(w, 1e-3, 1.0), name))
@@ -257,8 +258,19 @@ def images_to_sequence(paths: list[Path], seq_dir: str | Path, detect) -> Path:
             dst.write_bytes(p.read_bytes())
         lines.append(f"{k},{k * 100_000_000},{p.name}")
     (cam / "timestamps.csv").write_text("\n".join(lines) + "\n")
-    det = detect([cam / "images" / p.name for p in paths])
-    for e in det["images"]:
-        e["path"] = f"cam0/images/{Path(e['path']).name}"
-    (cam / "detections.json").write_text(json.dumps(det))
+    write_camera_detections(cam, detect)
     return Path(seq_dir)
+
+
+def write_camera_detections(cam: Path, detect) -> Path:
+    """``cam/detections.json`` from ``detect(image_paths) -> detection JSON dict`` over the images
+    that ``cam/timestamps.csv`` lists, with paths relative to the sequence (written atomically)."""
+    names = [r[2] for r in _read_timestamps(cam / "timestamps.csv")]
+    det = detect([cam / "images" / n for n in names])
+    for e in det["images"]:
+        e["path"] = f"{cam.name}/images/{Path(e['path']).name}"
+    out = cam / "detections.json"
+    tmp = out.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(det))
+    os.replace(tmp, out)
+    return out

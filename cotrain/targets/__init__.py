@@ -2,7 +2,7 @@
 
 from cotrain.targets.checkerboard import ROTATIONS, Checkerboard, board_symmetries
 from cotrain.targets.descriptions import load_target, make_target, target_from_flags, target_from_json, target_from_kalibr
-from cotrain.targets.target import KINDS, Target, TargetConfig, TargetError, describe, same_target, square_px
+from cotrain.targets.target import KINDS, Target, TargetConfig, TargetError, same_target, square_px
 
 __all__ = [
     "KINDS",
@@ -12,7 +12,6 @@ __all__ = [
     "TargetConfig",
     "TargetError",
     "board_symmetries",
-    "describe",
     "load_target",
     "make_target",
     "same_target",

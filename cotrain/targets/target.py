@@ -88,11 +88,6 @@ def same_target(a: Target, b: Target) -> bool:
     return True
 
 
-def describe(target: Target) -> str:
-    """A short human description, for messages: ``checkerboard 10 x 7 squares of 0.04 m``."""
-    return str(target)
-
-
 def square_px(model: str, params: Tensor, T_cam_board: Tensor, target: Target) -> Tensor:
     """Local size of the target's square in pixels at every corner: the smaller singular value of
     the board -> image map over one ``target.spacing`` (central differences). 0 where any of the

@@ -1,7 +1,6 @@
 """ROS bags as input: images streamed out of ROS1 and ROS2 bags (raw and compressed) give the
 same calibration as the folder they were written from; bad bags give one-line errors."""
 
-import json
 from pathlib import Path
 
 import cv2
@@ -70,14 +69,11 @@ def rig(tmp_path_factory):
         )
     from cotrain.detect.detector import Detector
     from cotrain.io.detections import detect_files
+    from cotrain.io.sequence import write_camera_detections
 
     det = Detector(threads=1)
     for c in range(2):
-        names = [r.split(",")[2] for r in (seq_dir / f"cam{c}" / "timestamps.csv").read_text().splitlines()[1:]]
-        d = detect_files([seq_dir / f"cam{c}" / "images" / n for n in names], det, progress=False)
-        for e in d["images"]:
-            e["path"] = f"cam{c}/images/{Path(e['path']).name}"
-        (seq_dir / f"cam{c}" / "detections.json").write_text(json.dumps(d))
+        write_camera_detections(seq_dir / f"cam{c}", lambda paths: detect_files(paths, det, progress=False))
     out = root / "folder_calib"
     assert (
         calib_cli(["calibrate", str(seq_dir), "--fov", "200", "--models", "pinhole-equi", "pinhole-equi", "--select", "--out", str(out)])
