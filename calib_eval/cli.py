@@ -134,22 +134,44 @@ def cmd_calibrate(a: argparse.Namespace) -> int:
     seq = _sequence(a, Path(a.cache) if a.cache else Path(a.out) / "sequence")
     if a.models and len(models) != len(seq.cameras):
         raise ValueError(f"--models names {len(models)} camera models; the sequence has {len(seq.cameras)} cameras")
-    order, extra = None, {}
+    order, extra, anchors = None, {}, None
     if a.select:
         sel = select(seq, _selector_cfg(a))
         seq = seq.subset(sel.keep)
         order = sel.order
         extra["selection"] = sel.summary()
+        anchors = {c: [s.view for s in sel.scores if s.cam == c and s.stage == "anchor"] for c in range(len(seq.cameras))}
     cfg = CalibConfig(model=models[0], models=models if a.models else [], fov=a.fov, no_init=a.no_init)
     res = calibrate(seq, cfg, order)
     chain, report = write_outputs(res, seq, a.out, {**extra, "total_runtime_s": time.time() - t0})
-    page = write_report_html(res, seq, a.out)
+    page = write_report_html(res, seq, a.out, anchors)
     if res.success:
         rms = ", ".join(f"{seq.cameras[c].name} {r:.3f}" for c, r in enumerate(res.rms_px))
         print(f"calibration succeeded in {time.time() - t0:.1f} s (RMS px: {rms}) -> {chain}, {report}, {page}")
         return 0
     print(f"calibration failed: {res.reason} (see {report})", file=sys.stderr)
     return 1
+
+
+def cmd_compare(a: argparse.Namespace) -> int:
+    from calib_eval.calibration.calibrator import CalibConfig
+    from calib_eval.calibration.compare import compare, write_comparison
+    from calib_eval.calibration.mrcal_peer import MrcalConfig
+    from calib_eval.calibration.selector import select
+
+    model = model_from_name(a.model)
+    out = Path(a.out)
+    seq = _sequence(a, Path(a.cache) if a.cache else out / "sequence")
+    order = None
+    if not a.all_frames:
+        sel = select(seq, _selector_cfg(a))
+        seq, order = seq.subset(sel.keep), sel.order
+    print(f"calibrating {len(seq.observations)} observations with ours ({model}) and with mrcal ...", flush=True)
+    cmp = compare(seq, a.fov, CalibConfig(model=model, fov=a.fov), order, MrcalConfig(lensmodel=a.mrcal_lensmodel), out / "mrcal")
+    md, js = write_comparison(cmp, out)
+    print(cmp.table())
+    print(f"-> {md}, {js}; mrcal's corners file, log and models in {out / 'mrcal'}")
+    return 0 if cmp.ours.success else 1
 
 
 def cmd_detection(a: argparse.Namespace) -> int:
@@ -176,6 +198,16 @@ def cmd_benchmark(a: argparse.Namespace) -> int:
         return 0
     run_benchmark(configs, a.trials, Path(a.out), workers=a.workers, frames=a.frames, variants=a.variants, model=a.model)
     return 0
+
+
+def cmd_robustness(a: argparse.Namespace) -> int:
+    from calib_eval.benchmark.robustness import RobustnessConfig, run_robustness
+
+    if a.frames < 10:
+        raise ValueError("--frames must be at least 10")
+    cfg = RobustnessConfig(rig=a.config, frames=a.frames, misidentified=a.misidentified, gross=a.gross, seed=a.seed, detector=a.detector)
+    s = run_robustness(cfg, Path(a.out))
+    return 0 if s["rows"]["corrupted"]["within_tolerances"] else 1
 
 
 def cmd_analysis(a: argparse.Namespace) -> int:
@@ -276,6 +308,14 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", required=True)
     s.set_defaults(func=cmd_calibrate)
 
+    s = sub.add_parser("compare", help="ours and mrcal (mrcal-calibrate-cameras, where installed) on the same detections")
+    seq_args(s)
+    s.add_argument("--model", default="kb4", help=f"our camera model for every camera (default kb4): {names}")
+    s.add_argument("--mrcal-lensmodel", default="", help="mrcal's lens model (default: splined stereographic over --fov)")
+    s.add_argument("--all-frames", action="store_true", help="every frame for both (default: the selector's frames for both)")
+    s.add_argument("--out", required=True, help="folder for compare.md, compare.json and mrcal's files")
+    s.set_defaults(func=cmd_compare)
+
     s = sub.add_parser("detection", help="per-FoV detection evaluation against geometry-based detectors")
     s.add_argument("--model", help="ONNX model (default: the shipped model)")
     s.add_argument("--fov", type=int, nargs="+", default=[180, 200, 220, 240])
@@ -305,12 +345,26 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--frames", type=int, default=480)
     s.add_argument("--model", default="ds", choices=list(MODELS), help="camera model the calibrator fits")
     s.add_argument(
-        "--variants", nargs="+", default=["all", "selector", "random", "ba_only"], choices=["all", "selector", "random", "ba_only"]
+        "--variants",
+        nargs="+",
+        default=["all", "selector", "random", "ba_only"],
+        choices=["all", "selector", "random", "ba_only", "mrcal"],
+        help="mrcal: the peer mrcal-calibrate-cameras on the selector's frames, where installed",
     )
     s.add_argument("--workers", type=int, default=0, help="parallel processes (0 = one per CPU core)")
     s.add_argument("--merge-only", type=int, default=0, metavar="WORLD", help="only merge the shards of a WORLD-rank run")
     s.add_argument("--out", default="report/benchmark")
     s.set_defaults(func=cmd_benchmark)
+
+    s = sub.add_parser("robustness", help="rendered rig with misidentified boards and gross corners: clean, corrupted, view test off")
+    s.add_argument("--config", default="FoV220_90", help="FoV<deg>_<yaw> rig")
+    s.add_argument("--frames", type=int, default=160)
+    s.add_argument("--misidentified", type=float, default=0.05, help="share of views with a misidentified board")
+    s.add_argument("--gross", type=float, default=0.05, help="share of corners made gross outliers")
+    s.add_argument("--seed", type=int, default=7)
+    s.add_argument("--detector", help="ONNX model (default: the shipped model)")
+    s.add_argument("--out", default="report/robustness")
+    s.set_defaults(func=cmd_robustness)
 
     s = sub.add_parser("opencv-detect", help="one-camera sequence folder from images, with OpenCV's (--learned: our) chessboard detections")
     s.add_argument("images", help="folder of images")

@@ -21,7 +21,8 @@ import cv2
 import numpy as np
 
 from calib_eval.benchmark.benchmark import evaluate_result
-from calib_eval.benchmark.rigs import SynthSpec, make_sequence, paper_config
+from calib_eval.benchmark.rendered import render_rig_sequence
+from calib_eval.benchmark.rigs import paper_config
 from calib_eval.calibration.calibrator import CalibConfig, calibrate
 from calib_eval.calibration.camchain import write_outputs
 from calib_eval.calibration.selector import SelectorConfig, select
@@ -33,8 +34,6 @@ from cotrain.detect.onnx_model import default_model_path
 from cotrain.io.detections import detect_files, write_json_atomic
 from cotrain.io.sequence import load_sequence
 from cotrain.model.train import TrainConfig, finalize_config, train
-from cotrain.render.renderer import RenderConfig, Scene, render_scene, sample_generator
-from cotrain.targets import make_target
 from export.onnx_export import export_onnx
 
 
@@ -65,32 +64,6 @@ class PipelineConfig:
 
 def _stage(name: str) -> None:
     print(f"\n=== {name} ===", flush=True)
-
-
-def _render_rig_sequence(cfg: PipelineConfig, seq_dir: Path) -> tuple:
-    """Render the synthetic rig's views as images (the renderer's appearance model) and write the
-    sequence folder (images + timestamps). Returns (sequence of ground-truth observations, gt)."""
-    import torch
-    from tqdm import tqdm
-
-    rig = paper_config(cfg.calib_rig)
-    seq, gt = make_sequence(rig, SynthSpec(n_frames=cfg.calib_frames, noise_px=0.0), seed=11)
-    rc = RenderConfig(height=rig.height, width=rig.width, p_occluder=0.0, p_no_target=0.0, p_motion=0.0, max_blur_sigma=0.6)
-    board = make_target(rc.target)
-    radius = rig.height / 2.0 * 1.1  # make_rig's image circle
-    for c in range(len(gt.params)):
-        d = seq_dir / f"cam{c}"
-        (d / "images").mkdir(parents=True, exist_ok=True)
-        lines = ["frame_id,timestamp_ns,filename"]
-        for k in tqdm(range(cfg.calib_frames), desc=f"render cam{c}", unit="img"):
-            T = torch.from_numpy(gt.T_cam_rig[c] @ gt.T_rig_board[k])
-            scene = Scene([gt.model[c]], [torch.from_numpy(gt.params[c])], torch.tensor([rig.fov]), torch.tensor([radius]), T[None])
-            out = render_scene(rc, board, scene, [sample_generator(5000 + c, k)])
-            name = f"{k:06d}.png"
-            cv2.imwrite(str(d / "images" / name), (out["image"][0, 0].numpy() * 255).round().astype(np.uint8))
-            lines.append(f"{k},{k * 50_000_000},{name}")
-        (d / "timestamps.csv").write_text("\n".join(lines) + "\n")
-    return seq, gt, rig
 
 
 def run_pipeline(cfg: PipelineConfig, from_scratch: bool = False) -> int:
@@ -149,7 +122,8 @@ def run_pipeline(cfg: PipelineConfig, from_scratch: bool = False) -> int:
     seq_dir = out / "calibration" / "sequence"
     if seq_dir.exists():
         shutil.rmtree(seq_dir)
-    _, gt, rig = _render_rig_sequence(cfg, seq_dir)
+    rig = paper_config(cfg.calib_rig)
+    _, gt = render_rig_sequence(rig, cfg.calib_frames, seq_dir, seed=11)
     for cam_dir in sorted(seq_dir.glob("cam*")):
         paths = sorted((cam_dir / "images").glob("*.png"))
         data = detect_files(paths, det)

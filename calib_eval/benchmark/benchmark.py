@@ -6,7 +6,10 @@ baseline) is calibrated four ways on the same observations:
 - ``all``: every frame, the staged pipeline (Kalibr-style);
 - ``selector``: CO-Calib, the selector's frames with anchors first;
 - ``random``: a random subset of views of the selector's size;
-- ``ba_only``: every frame, without intrinsic initialisation (the BA-only two-stage ablation).
+- ``ba_only``: every frame, without intrinsic initialisation (the BA-only two-stage ablation);
+- ``mrcal``: mrcal 2.2's ``mrcal-calibrate-cameras`` (a peer, where installed) on the selector's
+  frames, the same detections as ``selector``
+  (:mod:`calib_eval.calibration.mrcal_peer`); where it fails, its own message is kept per trial.
 
 Success: the pipeline ends normally with every camera's RMS <= 2 px (the pipeline's own verdict).
 Strict success: success, every calibrated camera within 2 px RMS of the true one over 95 % of the FoV
@@ -33,17 +36,20 @@ import numpy as np
 
 from calib_eval.benchmark.rigs import SynthSpec, make_sequence, paper_config
 from calib_eval.calibration.calibrator import CalibConfig, calibrate
+from calib_eval.calibration.compare import error_rays, mrcal_valid, pixel_difference, pose_difference, project_rays
+from calib_eval.calibration.mrcal_peer import calibrate_mrcal
 from calib_eval.calibration.selector import SelectorConfig, select
-from cotrain.geometry import cameras, rotation_angle_deg
 
 PAPER_CONFIGS = [f"FoV{f}_{y}" for f in (180, 200, 220, 240) for y in (0, 60, 90, 120)]
 ALL_CONFIGS = PAPER_CONFIGS + ["FoV220_hex"]
-VARIANTS = ["all", "selector", "random", "ba_only"]
+VARIANTS = ["all", "selector", "random", "ba_only"]  # ours; "mrcal" runs where asked for
+ALL_VARIANTS = [*VARIANTS, "mrcal"]
 VARIANT_NAMES = {
     "all": "All frames (Kalibr-style)",
     "selector": "CO-Calib (selector)",
     "random": "Random subset",
     "ba_only": "BA-only two-stage",
+    "mrcal": "mrcal 2.2 (selector's frames)",
 }
 STRICT = {"intr_px": 2.0, "ext_mm": 5.0, "ext_deg": 0.5, "ate_mm": 50.0}
 # Paper Table IV/V: SR (%), ATE t/r (mm/deg), Ext t/r (mm/deg); Kalibr is the all-frames row.
@@ -73,28 +79,11 @@ PAPER_SR = {  # per configuration: Kalibr, CO-Calib, random, BA-only success rat
 }
 
 
-def _pose_errors(T: np.ndarray, T_gt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Translation (mm) and rotation (deg) errors of poses (K, 4, 4) against ground truth."""
-    import torch
-
-    dR = torch.from_numpy(T[:, :3, :3] @ np.swapaxes(T_gt[:, :3, :3], -1, -2))
-    return 1000 * np.linalg.norm(T[:, :3, 3] - T_gt[:, :3, 3], axis=-1), rotation_angle_deg(dR).numpy()
-
-
 def projection_difference(model: str, params: np.ndarray, gt_model: str, gt_params: np.ndarray, fov: float, n: int = 400) -> float:
     """RMS pixel difference between two cameras over rays up to 95 % of the half FoV: a
     model-independent intrinsic error (the calibrated family may differ from the true one)."""
-    import torch
-
-    rng = np.random.default_rng(0)
-    th = np.sqrt(rng.random(n)) * math.radians(fov) / 2 * 0.95
-    ph = rng.random(n) * 2 * math.pi
-    v = torch.from_numpy(np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], -1))
-    q1, ok1 = cameras.project(model, v, torch.from_numpy(np.asarray(params, dtype=np.float64)))
-    q2, ok2 = cameras.project(gt_model, v, torch.from_numpy(np.asarray(gt_params, dtype=np.float64)))
-    if not bool((ok1 & ok2).all()):
-        return float("inf")
-    return float((q1 - q2).norm(dim=-1).pow(2).mean().sqrt())
+    v = error_rays(fov, n)
+    return pixel_difference(*project_rays(model, params, v), *project_rays(gt_model, gt_params, v))
 
 
 def evaluate_result(res, gt, fov: float) -> dict:
@@ -104,9 +93,9 @@ def evaluate_result(res, gt, fov: float) -> dict:
         out["strict"] = False
         return out
     intr_px = max(projection_difference(res.model[c], res.intrinsics[c], gt.model[c], gt.params[c], fov) for c in range(len(gt.params)))
-    ext_t, ext_r = _pose_errors(np.asarray(res.T_cam_rig)[1:], gt.T_cam_rig[1:])
+    ext_t, ext_r = pose_difference(np.asarray(res.T_cam_rig)[1:], gt.T_cam_rig[1:])
     views = sorted(res.T_rig_board)
-    ate_t, ate_r = _pose_errors(np.stack([res.T_rig_board[v] for v in views]), gt.T_rig_board[views])
+    ate_t, ate_r = pose_difference(np.stack([res.T_rig_board[v] for v in views]), gt.T_rig_board[views])
     out.update(
         {
             "intr_px": float(intr_px),
@@ -115,6 +104,35 @@ def evaluate_result(res, gt, fov: float) -> dict:
             "ate_mm": float(np.mean(ate_t)),
             "ate_deg": float(np.mean(ate_r)),
             "rms_px": res.rms_px,
+        }
+    )
+    out["strict"] = is_strict(out)
+    return out
+
+
+def evaluate_mrcal(seq, gt, fov: float) -> dict:
+    """mrcal's tool on ``seq``, scored by the same criteria as ours (success also needs its RMS <= 2 px)."""
+    v = error_rays(fov)
+    m = calibrate_mrcal(seq, fov, rays=v)
+    out = {"available": m.available, "success": False, "reason": m.reason, "stage": m.stage, "runtime_s": m.runtime_s}
+    out.update({"rms_px": m.rms_px, "outliers": m.outliers})
+    if m.success and not m.rms_px <= STRICT["intr_px"]:
+        out["reason"] = f"final RMS {m.rms_px:.2f} px > {STRICT['intr_px']} px"
+    if not m.success or out["reason"]:
+        out["strict"] = False
+        return out
+    out["success"] = True
+    intr_px = max(pixel_difference(q, mrcal_valid(q), *project_rays(gt.model[c], gt.params[c], v)) for c, q in enumerate(m.q_rays))
+    ext_t, ext_r = pose_difference(m.T_cam_rig[1:], gt.T_cam_rig[1:])
+    views = sorted(m.T_rig_board)
+    ate_t, ate_r = pose_difference(np.stack([m.T_rig_board[k] for k in views]), gt.T_rig_board[views])
+    out.update(
+        {
+            "intr_px": float(intr_px),
+            "ext_mm": float(np.mean(ext_t)),
+            "ext_deg": float(np.mean(ext_r)),
+            "ate_mm": float(np.mean(ate_t)),
+            "ate_deg": float(np.mean(ate_r)),
         }
     )
     out["strict"] = is_strict(out)
@@ -165,6 +183,11 @@ def run_trial(
             res = calibrate(seq, CalibConfig(model=model, fov=rig.fov))
         elif v == "selector":
             res = calibrate(seq.subset(sel.keep), CalibConfig(model=model, fov=rig.fov), order=sel.order)
+        elif v == "mrcal":
+            r = evaluate_mrcal(seq.subset(sel.keep), gt, rig.fov)
+            r["wall_s"] = time.time() - t0
+            out[v] = r
+            continue
         elif v == "random":
             rng = np.random.default_rng(seed)
             n_views = len({view for _, view in sel.keep})
@@ -194,6 +217,7 @@ def _summarise(trials: list[dict], variants: list[str]) -> dict:
         f = lambda k: float(np.mean([r[k] for r in strict])) if strict else float("nan")  # noqa: E731
         return {
             "n": len(rs),
+            "available": all(r.get("available", True) for r in rs),
             "sr": 100 * np.mean([r["success"] for r in rs]) if rs else float("nan"),
             "strict_sr": 100 * np.mean([r.get("strict", False) for r in rs]) if rs else float("nan"),
             "ate_mm": f("ate_mm"),
@@ -213,11 +237,16 @@ def _table(summary: dict, variants: list[str], trials: int) -> str:
         "| configuration | method | SR | strict SR | ATE t/r (mm/deg) | Ext. t/r (mm/deg) | paper SR |",
         "|---|---|---|---|---|---|---|",
     ]
-    idx = {v: i for i, v in enumerate(["all", "selector", "random", "ba_only"])}
+    idx = {v: i for i, v in enumerate(VARIANTS)}
     for cfg in [c for c in ALL_CONFIGS if c in summary] + ["overall"]:
         for v in variants:
             s = summary[cfg][v]
-            if cfg == "overall":
+            if not s["available"]:
+                lines.append(f"| {cfg} | {VARIANT_NAMES[v]} | not installed | | | | |")
+                continue
+            if v not in idx:
+                p = ""
+            elif cfg == "overall":
                 p = f"{PAPER_OVERALL[v][0]:.1f}%"
             else:
                 p = f"{PAPER_SR[cfg][idx[v]]}%" if cfg in PAPER_SR else ""
@@ -232,6 +261,7 @@ def _table(summary: dict, variants: list[str], trials: int) -> str:
             f"{VARIANT_NAMES[v]} {PAPER_OVERALL[v][0]}%, {PAPER_OVERALL[v][1]}/{PAPER_OVERALL[v][2]}, "
             f"{PAPER_OVERALL[v][3]}/{PAPER_OVERALL[v][4]}"
             for v in variants
+            if v in PAPER_OVERALL
         ),
         "",
         "Success: the pipeline ends normally with every camera's RMS <= 2 px. Strict success: success, projections within "
@@ -240,6 +270,35 @@ def _table(summary: dict, variants: list[str], trials: int) -> str:
         "ATE and Ext. are means over strict successes; the criteria are the same for every method. The overall row covers the 16 "
         "paper configurations (not the hex rig).",
     ]
+    return "\n".join(lines)
+
+
+def failure_table(trials: list[dict], variant: str) -> str:
+    """Per configuration, how often ``variant`` failed, at which stage, with which message, and the
+    median RMS the tool had reached when it stopped."""
+    rows: dict[tuple[str, str, str], list[float]] = {}
+    n: dict[str, int] = {}
+    for t in trials:
+        r = t.get(variant)
+        if r is None or not r.get("available", True):
+            continue
+        n[t["config"]] = n.get(t["config"], 0) + 1
+        if r.get("success"):
+            continue
+        key = (t["config"], r.get("stage", "") or "-", (r.get("reason") or "?").replace("|", "/")[:140])
+        rows.setdefault(key, []).append(r.get("rms_px", math.nan))
+    if not rows:
+        return ""
+    lines = [
+        f"### Where {VARIANT_NAMES[variant]} fails",
+        "",
+        "| configuration | failed | last stage | message | median RMS reached (px) |",
+        "|---|---|---|---|---|",
+    ]
+    order = lambda k: (ALL_CONFIGS.index(k[0]) if k[0] in ALL_CONFIGS else 99, -len(rows[k]))  # noqa: E731
+    for k in sorted(rows, key=order):
+        rms = [x for x in rows[k] if x is not None and math.isfinite(x)]
+        lines.append(f"| {k[0]} | {len(rows[k])}/{n[k[0]]} | {k[1]} | `{k[2]}` | {np.median(rms) if rms else math.nan:.2f} |")
     return "\n".join(lines)
 
 
@@ -298,6 +357,8 @@ def merge(out: Path, world: int, trials: int, variants: list[str], model: str = 
     all_trials.sort(key=lambda t: (ALL_CONFIGS.index(t["config"]) if t["config"] in ALL_CONFIGS else 99, t["trial"]))
     summary = _summarise(all_trials, variants)
     table = _table(summary, variants, trials)
+    if "mrcal" in variants:
+        table += "\n\n" + (failure_table(all_trials, "mrcal") or "mrcal succeeded in every trial.")
     (out / "trials.json").write_text(json.dumps(all_trials))
     (out / "results.json").write_text(
         json.dumps({"summary": summary, "elapsed_s": elapsed, "trials": trials, "strict": STRICT, "calibration_model": model}, indent=1)

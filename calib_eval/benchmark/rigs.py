@@ -61,9 +61,14 @@ def paper_config(name: str) -> RigSpec:
     return RigSpec(fov=fov, yaws_deg=[0.0, float(yaw_part)])
 
 
+def rig_radius(spec: RigSpec) -> float:
+    """Image-circle radius (px) of the rig's cameras: ``spec.radius``, or 1.1 x half the height."""
+    return spec.radius if spec.radius is not None else spec.height / 2.0 * 1.1
+
+
 def make_rig(spec: RigSpec) -> tuple[list[str], list[torch.Tensor], np.ndarray]:
     """Camera parameters and T_cam_rig (cam0 = rig). Cameras sit on a ring (or a line for 2)."""
-    radius = spec.radius if spec.radius is not None else spec.height / 2.0 * 1.1
+    radius = rig_radius(spec)
     params = [cameras.make_camera(spec.model, spec.fov, spec.width, spec.height, radius, **spec.shape) for _ in spec.yaws_deg]
     n = len(spec.yaws_deg)
     T = []

@@ -47,7 +47,8 @@ class CalibConfig:
     no_init: bool = False  # skip stage 1 (the paper's BA-only two-stage ablation)
     shared_intrinsics_guess_radius: float = 0.0  # image-circle radius (px) of the initial guess; 0: half the shorter side
     view_outlier_px: float = 3.0  # after the joint stage, an observation whose median corner error exceeds this ...
-    view_outlier_ratio: float = 5.0  # ... and this many times the median over observations drops its view (a wrong board)
+    view_outlier_ratio: float = 5.0  # ... and this many times its camera's median over observations drops its view (a wrong board)
+    view_outlier_cap_px: float = 10.0  # ... the threshold never exceeds this (a camera whose median is itself off)
 
 
 class CalibrationFailed(RuntimeError):
@@ -71,6 +72,7 @@ class CalibrationResult:
     runtime_s: float
     stages: list[dict] = field(default_factory=list)
     dropped: list[dict] = field(default_factory=list)  # views dropped as a whole: view, frame, cameras, reason
+    rejected: dict[tuple[int, int], np.ndarray] = field(default_factory=dict)  # (cam, view) -> corner ids dropped as outliers
 
 
 def _intrinsic_stage(
@@ -164,6 +166,7 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
     # Stages 1 and 2, per camera.
     intr: list[Tensor] = []
     cam_poses: list[dict[int, np.ndarray]] = []
+    rejected: dict[tuple[int, int], np.ndarray] = {}
     try:
         for c in range(C):
             info = seq.cameras[c]
@@ -182,6 +185,11 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
                 x, pc_, _, res = _intrinsic_stage(models[c], x, obs_by_cam[c], board, cfg, progressive=False)
                 keep = _reject_outliers(obs_by_cam[c], pc_, models[c], x, board, cfg)
                 removed = sum(len(o.ids) for o in obs_by_cam[c]) - sum(len(o.ids) for o in keep)
+                kept_ids = {o.view: o.ids for o in keep}
+                for o in obs_by_cam[c]:
+                    gone = np.setdiff1d(o.ids, kept_ids.get(o.view, []))
+                    if len(gone):
+                        rejected[(c, o.view)] = gone
                 obs_by_cam[c] = keep
                 if removed:
                     x, pc_, _, res = _intrinsic_stage(models[c], x, keep, board, cfg, progressive=False)
@@ -270,21 +278,25 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
     success = ok_finite and math.isfinite(worst) and worst <= cfg.max_rms_px
     reason = "ok" if success else (f"final RMS {worst:.2f} px exceeds {cfg.max_rms_px} px" if ok_finite else "non-finite parameters")
     T_rb = {v: Tb[i].numpy() for v, i in vi.items()}
-    return CalibrationResult(success, reason, models, intr_np, T_cr, T_rb, res.rms, frames, gammas, time.time() - t0, stages, dropped)
+    return CalibrationResult(
+        success, reason, models, intr_np, T_cr, T_rb, res.rms, frames, gammas, time.time() - t0, stages, dropped, rejected
+    )
 
 
 def _inconsistent_views(used: list[Observation], err: np.ndarray, cfg: CalibConfig) -> list[tuple[Observation, float]]:
     """Observations of the joint problem (in ``used`` order, ``err`` (O,) per-corner errors, px)
     whose median corner error is above ``cfg.view_outlier_px`` and ``cfg.view_outlier_ratio``
-    times the median over observations: the whole board is off, not a few corners."""
+    times the median over the same camera's observations (capped at ``cfg.view_outlier_cap_px``):
+    the whole board is off, not a few corners."""
     meds, k = [], 0
     for o in used:
         meds.append(float(np.median(err[k : k + len(o.ids)])))
         k += len(o.ids)
     if not meds:
         return []
-    thr = max(cfg.view_outlier_px, cfg.view_outlier_ratio * float(np.median(meds)))
-    return [(o, m) for o, m in zip(used, meds) if m > thr]
+    cam_median = {c: float(np.median([m for o, m in zip(used, meds) if o.cam == c])) for c in {o.cam for o in used}}
+    thr = {c: max(cfg.view_outlier_px, min(cfg.view_outlier_cap_px, cfg.view_outlier_ratio * m)) for c, m in cam_median.items()}
+    return [(o, m) for o, m in zip(used, meds) if m > thr[o.cam]]
 
 
 def _reject_outliers(

@@ -63,6 +63,9 @@ def write_outputs(res: CalibrationResult, seq: Sequence, out_dir: str | Path, ex
         "conditioning_gamma": {seq.cameras[c].name: res.gamma[c] for c in range(len(seq.cameras))},
         "stages": res.stages,
         "dropped_views": res.dropped,
+        "rejected_corners": {
+            seq.cameras[c].name: int(sum(len(ids) for (cam, _), ids in res.rejected.items() if cam == c)) for c in range(len(seq.cameras))
+        },
         "runtime_s": res.runtime_s,
         **(extra or {}),
     }

@@ -27,13 +27,13 @@ from cotrain.geometry import cameras, rotation_angle_deg
 from cotrain.io.sequence import Observation, Sequence
 
 
-def residuals(res: CalibrationResult, seq: Sequence) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Per camera: corner pixels (M, 2) and residual vectors observed - predicted (M, 2) of the
-    observations whose view the calibration kept."""
+def residuals(res: CalibrationResult, seq: Sequence) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Per camera: corner pixels (M, 2), residual vectors observed - predicted (M, 2) and (M,) which
+    corners the calibration rejected as outliers, over the observations whose view it kept."""
     P = seq.target.points().numpy()
     out = []
     for c in range(len(seq.cameras)):
-        qs, rs = [], []
+        qs, rs, xs = [], [], []
         for o in seq.by_camera(c):
             T_rb = res.T_rig_board.get(o.view)
             if T_rb is None:
@@ -44,7 +44,23 @@ def residuals(res: CalibrationResult, seq: Sequence) -> list[tuple[np.ndarray, n
             ok = ok.numpy()
             qs.append(o.q[ok])
             rs.append(o.q[ok] - q.numpy()[ok])
-        out.append((np.concatenate(qs) if qs else np.zeros((0, 2)), np.concatenate(rs) if rs else np.zeros((0, 2))))
+            xs.append(np.isin(o.ids, res.rejected.get((c, o.view), []))[ok])
+        if not qs:
+            out.append((np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, bool)))
+            continue
+        out.append((np.concatenate(qs), np.concatenate(rs), np.concatenate(xs)))
+    return out
+
+
+def anchor_spans(seq: Sequence, anchors: dict[int, list[int]]) -> dict[int, tuple[int, float, float]]:
+    """Per camera: the number of anchor views and the radial span (lowest, highest corner radius,
+    fractions of the image radius R of :func:`coverage`) their corners cover together."""
+    cov = coverage(seq)
+    out = {}
+    for c, views in anchors.items():
+        obs = [o for o in seq.by_camera(c) if o.view in set(views)]
+        r = np.concatenate([cov.cameras[c].radius_of(o.q) for o in obs]) if obs else np.zeros(0)
+        out[c] = (len(obs), float(r.min(initial=math.nan)) if len(r) else math.nan, float(r.max(initial=math.nan)) if len(r) else math.nan)
     return out
 
 
@@ -91,15 +107,18 @@ def _png(fig) -> str:
     return f'<img alt="plot" src="data:image/png;base64,{base64.b64encode(buf.getvalue()).decode()}">'
 
 
-def write_report_html(res: CalibrationResult, seq: Sequence, out_dir: str | Path) -> Path:
-    """Write ``out_dir/report.html``; returns its path."""
+def write_report_html(res: CalibrationResult, seq: Sequence, out_dir: str | Path, anchors: dict[int, list[int]] | None = None) -> Path:
+    """Write ``out_dir/report.html``; returns its path. ``anchors``: per camera, the selector's
+    anchor views (their radial span is shown)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     cov = coverage(seq)
-    res_per_cam = residuals(res, seq) if res.T_rig_board else [(np.zeros((0, 2)), np.zeros((0, 2)))] * len(seq.cameras)
+    empty = (np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, bool))
+    res_per_cam = residuals(res, seq) if res.T_rig_board else [empty] * len(seq.cameras)
+    spans = anchor_spans(seq, anchors) if anchors else {}
     e = html.escape
     verdict = "succeeded" if res.success else f"failed: {res.reason}"
     parts = [
@@ -112,18 +131,24 @@ def write_report_html(res: CalibrationResult, seq: Sequence, out_dir: str | Path
         "<h2>What to capture next</h2><ul class='advice'>",
         *(f"<li>{e(a)}</li>" for a in cov.advice),
         "</ul>" if cov.advice else "<li>nothing: every camera is seen to its rim all round, and every camera is linked</li></ul>",
-        "<h2>Cameras</h2><table><tr><th>camera</th><th>model</th><th>RMS px</th><th>views used</th><th>out to (of R)</th></tr>",
+        "<h2>Cameras</h2><table><tr><th>camera</th><th>model</th><th>RMS px</th><th>views used</th><th>corners rejected</th>"
+        "<th>out to (of R)</th><th>widest single view (of R)</th><th>anchors: views, radial span (of R)</th></tr>",
     ]
     used = res.frames_per_stage.get("full", [0] * len(seq.cameras))
     for c, info in enumerate(seq.cameras):
         rms = res.rms_px[c] if c < len(res.rms_px) else math.nan
+        cc = cov.cameras[c]
+        n_rej = int(res_per_cam[c][2].sum())
+        span = f"{spans[c][0]}, {spans[c][1]:.2f} - {spans[c][2]:.2f}" if c in spans else "no selection"
         parts.append(
             f"<tr><td>{e(info.name)}</td><td>{e(res.model[c])}</td><td>{rms:.3f}</td>"
-            f"<td>{used[c] if c < len(used) else 0}</td><td>{cov.cameras[c].max_radius:.2f}</td></tr>"
+            f"<td>{used[c] if c < len(used) else 0}</td><td>{n_rej}</td><td>{cc.max_radius:.2f}</td>"
+            f"<td>{cc.widest_view:.2f}</td><td>{span}</td></tr>"
         )
     parts.append("</table>")
     for c, info in enumerate(seq.cameras):
-        q, r = res_per_cam[c]
+        q_all, r_all, rej = res_per_cam[c]
+        q, r = q_all[~rej], r_all[~rej]
         parts.append(f"<h3>{e(info.name)}</h3><div class='row'>")
         fig, ax = plt.subplots(figsize=(6, 3.6))
         if len(q):
@@ -139,28 +164,27 @@ def write_report_html(res: CalibrationResult, seq: Sequence, out_dir: str | Path
                 scale=1 / scale,
                 cmap="viridis",
             )
+        if rej.any():
+            ax.scatter(q_all[rej, 0], q_all[rej, 1], s=12, marker="x", color="red", label=f"rejected as outliers ({int(rej.sum())})")
+            ax.legend(loc="lower right", fontsize=7)
         ax.set_xlim(0, info.width)
         ax.set_ylim(info.height, 0)
         ax.set_aspect("equal")
-        ax.set_title("residual vectors (x20) over the image")
+        ax.set_title("residual vectors (x20) of the corners used")
         parts.append(_png(fig))
         plt.close(fig)
         fig, ax = plt.subplots(figsize=(4, 3.6))
         ax.hist(np.linalg.norm(r, axis=1), bins=40, color="tab:blue")
         ax.set_xlabel("residual (px)")
-        ax.set_title("residual histogram")
+        ax.set_title("residuals of the corners used")
         parts.append(_png(fig))
         plt.close(fig)
         fig, ax = plt.subplots(figsize=(4.2, 3.6))
         cc = cov.cameras[c]
         pts = np.concatenate([o.q for o in seq.by_camera(c)]) if seq.by_camera(c) else np.zeros((0, 2))
         ax.scatter(pts[:, 0], pts[:, 1], s=1, alpha=0.3)
-        R = max(
-            min(info.width, info.height) / 2,
-            float(np.linalg.norm(pts - [(info.width - 1) / 2, (info.height - 1) / 2], axis=1).max(initial=0)),
-        )
         for f in RINGS[1:]:
-            ax.add_patch(plt.Circle(((info.width - 1) / 2, (info.height - 1) / 2), f * R, fill=False, ls="--", color="gray"))
+            ax.add_patch(plt.Circle(((info.width - 1) / 2, (info.height - 1) / 2), f * cc.R, fill=False, ls="--", color="gray"))
         ax.set_xlim(0, info.width)
         ax.set_ylim(info.height, 0)
         ax.set_aspect("equal")

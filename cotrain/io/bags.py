@@ -203,3 +203,47 @@ def sequence_from_bag(bag: str | Path, topics: list[str], out: str | Path, detec
     read = {"images": summary.images, "skipped": summary.skipped, "reasons": summary.reasons}
     write_json_atomic({"key": key, "read": read}, marker)
     return out, {**read, "cached": False}
+
+
+def image_message(ts, stamp: int, img: np.ndarray, encoding: str = "mono8", frame: str = "cam"):
+    """A ``sensor_msgs/Image`` (``encoding``) or, for ``encoding="png"``, a ``CompressedImage`` of
+    ``img`` stamped ``stamp`` (ns), built with typestore ``ts``; returns (message, its type)."""
+    S = ts.types
+    Header, Time = S["std_msgs/msg/Header"], S["builtin_interfaces/msg/Time"]
+    extra = {"seq": 0} if "seq" in Header.__dataclass_fields__ else {}  # ROS1's header counts messages
+    header = Header(stamp=Time(sec=stamp // 10**9, nanosec=stamp % 10**9), frame_id=frame, **extra)
+    if encoding == "png":
+        data = np.frombuffer(cv2.imencode(".png", img)[1].tobytes(), np.uint8)
+        return S["sensor_msgs/msg/CompressedImage"](header=header, format="png", data=data), "sensor_msgs/msg/CompressedImage"
+    h, w = img.shape[:2]
+    step = img.strides[0]
+    msg = S["sensor_msgs/msg/Image"](
+        header=header, height=h, width=w, encoding=encoding, is_bigendian=0, step=step, data=img.reshape(-1).view(np.uint8)
+    )
+    return msg, "sensor_msgs/msg/Image"
+
+
+def write_image_bag(
+    path: Path, ros: int, cams: list[list[tuple[int, np.ndarray]]], encoding: str = "mono8", extra=None, delay: int = 0
+) -> Path:
+    """A ROS1 ``.bag`` (``ros=1``) or ROS2 bag folder (``ros=2``) with one image topic per camera
+    (/camN/image_raw) from ``cams[c] = [(stamp_ns, image), ...]``, received ``delay`` ns after the
+    header stamps; ``extra(writer, ts, ser)`` adds more. For tests and benchmarks: a bag from a
+    sequence folder."""
+    from rosbags.rosbag1 import Writer as Writer1
+    from rosbags.rosbag2 import Writer as Writer2
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS1_NOETIC if ros == 1 else Stores.ROS2_HUMBLE)
+    writer = Writer1(path) if ros == 1 else Writer2(path, version=9)
+    with writer:
+        msgtype = "sensor_msgs/msg/CompressedImage" if encoding == "png" else "sensor_msgs/msg/Image"
+        conns = [writer.add_connection(f"/cam{c}/image_raw", msgtype, typestore=ts) for c in range(len(cams))]
+        ser = ts.serialize_ros1 if ros == 1 else ts.serialize_cdr
+        for c, frames in enumerate(cams):
+            for stamp, img in frames:
+                msg, typ = image_message(ts, stamp, img, encoding, f"cam{c}")
+                writer.write(conns[c], stamp + delay, ser(msg, typ))
+        if extra:
+            extra(writer, ts, ser)
+    return path

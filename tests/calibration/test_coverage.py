@@ -47,3 +47,38 @@ def test_missing_sector_and_unlinked_cameras():
     cov = coverage(seq)
     assert cov.shared_views[(0, 1)] == 3
     assert any("cam0 and cam1: only 3 views where both see the board" in a for a in cov.advice)
+
+
+def test_cropped_rim_is_not_asked_for_and_a_stray_corner_does_not_grow_the_circle():
+    """A circle much larger than the sensor's height: its top and bottom rim are off the sensor, so
+    no advice asks for corners there; one stray corner far out does not move R."""
+    seq, _ = make_sequence(paper_config("FoV220_90"), SynthSpec(n_frames=120), seed=2)
+    for cam in seq.cameras:
+        cam.mask_radius = 640.0
+    cov = coverage(seq)
+    cam0 = cov.cameras[0]
+    assert cam0.R == 640.0
+    assert not cam0.reachable[2] and not cam0.reachable[6]  # bottom and top: off the sensor
+    assert cam0.reachable[0] and cam0.reachable[4]  # right and left: on it
+    assert not any(("top" in a or "bottom" in a) and "near the rim" in a for a in cov.advice)
+    # A stray corner 2000 px out.
+    seq2, _ = make_sequence(paper_config("FoV220_90"), SynthSpec(n_frames=120), seed=2)
+    before = coverage(seq2).cameras[0]
+    o = seq2.by_camera(0)[0]
+    o.q = o.q.copy()
+    o.q[0] = [2600.0, 359.5]
+    after = coverage(seq2).cameras[0]
+    assert abs(after.R - before.R) < 1.0 and after.max_radius <= 1.0  # (the 99.5th percentile moves by one corner)
+
+
+def test_narrow_views_are_told_to_span_the_radius(capsys, tmp_path):
+    """Every view confined to a thin ring of the image: the advice asks for views reaching from the
+    middle toward the rim, which anchor the intrinsic initialisation."""
+    seq, _ = make_sequence(paper_config("FoV220_90"), SynthSpec(n_frames=160), seed=2)
+    centre = np.array([639.5, 359.5])
+    ring = lambda cam, q: (cam == 1) | (np.abs(np.linalg.norm(q - centre, axis=1) - 250) < 40)  # noqa: E731
+    seq = _restricted(seq, ring)
+    cov = coverage(seq)
+    assert cov.cameras[1].widest_view > 0.5 and cov.cameras[0].widest_view < 0.3
+    assert any(a.startswith("cam0: no single view spans more than 0.") for a in cov.advice)
+    assert not any(a.startswith("cam1: no single view spans") for a in cov.advice)

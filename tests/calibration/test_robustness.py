@@ -8,26 +8,9 @@ import torch
 
 from calib_eval.benchmark.benchmark import evaluate_result
 from calib_eval.benchmark.rigs import SynthSpec, make_sequence, paper_config
+from calib_eval.benchmark.robustness import misidentify
 from calib_eval.calibration.calibrator import CalibConfig, calibrate
 from calib_eval.calibration.report_html import pair_spread, write_report_html
-
-
-def _misidentify(seq, share: float, rng: np.random.Generator) -> set[int]:
-    """In ``share`` of the co-visible views, one camera's board shifted by a column (every other
-    one) or turned by a half turn; returns the views."""
-    board = seq.target
-    by_view = seq.by_view()
-    covisible = sorted(v for v, obs in by_view.items() if len(obs) > 1)
-    views = rng.choice(covisible, size=max(1, round(share * len(by_view))), replace=False)
-    for k, v in enumerate(views):
-        o = by_view[v][rng.integers(len(by_view[v]))]
-        if k % 2 == 0:
-            i, j = o.ids % board.nx, o.ids // board.nx
-            keep = i + 1 < board.nx
-            o.ids, o.q, o.weight = (j * board.nx + i + 1)[keep], o.q[keep], o.weight[keep]
-        else:
-            o.ids = board.n_corners - 1 - o.ids
-    return {int(v) for v in views}
 
 
 @pytest.fixture(scope="module")
@@ -41,7 +24,7 @@ def single_thread():
 def test_misidentified_boards_and_gross_corners(single_thread, tmp_path):
     rig = paper_config("FoV220_90")
     seq, gt = make_sequence(rig, SynthSpec(n_frames=160, outlier_rate=0.05), seed=3)
-    injected = _misidentify(seq, 0.05, np.random.default_rng(0))
+    injected = misidentify(seq, 0.05, np.random.default_rng(0))
     res = calibrate(seq, CalibConfig(model=rig.model, fov=rig.fov))
     assert res.success, res.reason
     r = evaluate_result(res, gt, rig.fov)
@@ -54,6 +37,13 @@ def test_misidentified_boards_and_gross_corners(single_thread, tmp_path):
     page = write_report_html(res, seq, tmp_path).read_text()
     assert f"Dropped views ({len(res.dropped)})" in page and all(f"<td>{d['view']}</td>" in page for d in res.dropped)
     assert "Calibration succeeded" in page and "cam0 - cam1" in page and "What to capture next" in page
+    # The gross corners are rejected, named as such on the page, and out of the residual plots.
+    from calib_eval.calibration.report_html import residuals
+
+    n_rej = sum(len(v) for v in res.rejected.values())
+    assert n_rej > 0 and "<th>corners rejected</th>" in page
+    for _, r, rej in residuals(res, seq):
+        assert np.median(np.linalg.norm(r[rej], axis=1)) > 8 and np.percentile(np.linalg.norm(r[~rej], axis=1), 99) < 3
     assert page.count("data:image/png;base64,") >= 6 and 'src="http' not in page and "<link" not in page
     pairs = pair_spread(res, seq)
     assert pairs[(0, 1)][2] > 50 and pairs[(0, 1)][0] < 2.0 and pairs[(0, 1)][1] < 0.5  # mm / deg over the shared views
@@ -67,3 +57,25 @@ def test_clean_rig_drops_nothing(single_thread):
     seq, _ = make_sequence(rig, SynthSpec(n_frames=80), seed=4)
     res = calibrate(seq, CalibConfig(model=rig.model, fov=rig.fov))
     assert res.success and res.dropped == []
+
+
+def test_view_test_is_per_camera_and_capped():
+    """The per-view test compares each view with its own camera: a poorer camera's ordinary views
+    are not dropped, while a camera whose boards are mostly off still has them dropped (the cap)."""
+    from calib_eval.calibration.calibrator import _inconsistent_views
+    from cotrain.io.sequence import Observation
+
+    rng = np.random.default_rng(0)
+    used, err = [], []
+    for v in range(40):  # cam0: 0.3 px; cam1: a poorer lens, 1.6 px; cam2: 30 of 40 boards 25 px off
+        for c, med in ((0, 0.3), (1, 1.6), (2, 25.0 if v < 30 else 0.4)):
+            used.append(Observation(c, v, np.arange(20), np.zeros((20, 2)), np.ones(20), str(v)))
+            err.append(np.abs(rng.normal(med, 0.05 * med, 20)))
+    used.append(Observation(0, 99, np.arange(20), np.zeros((20, 2)), np.ones(20), "99"))  # one wrong board in cam0
+    err.append(np.full(20, 6.0))
+    bad = _inconsistent_views(used, np.concatenate(err), CalibConfig())
+    flagged = {(o.cam, o.view) for o, _ in bad}
+    assert (0, 99) in flagged
+    assert not any(c == 1 for c, _ in flagged)  # 5 x 1.6 = 8 px: cam1's own views stay
+    assert {(2, v) for v in range(30)} <= flagged  # capped at 10 px although cam2's median is 25 px
+    assert not any(c == 2 and v >= 30 for c, v in flagged)

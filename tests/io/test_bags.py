@@ -1,55 +1,18 @@
 """ROS bags as input: images streamed out of ROS1 and ROS2 bags (raw and compressed) give the
 same calibration as the folder they were written from; bad bags give one-line errors."""
 
-from pathlib import Path
-
 import cv2
 import numpy as np
 import pytest
 import yaml
-from rosbags.rosbag1 import Writer as Writer1
-from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_typestore
 
+from calib_eval.benchmark.rendered import render_rig_sequence
+from calib_eval.benchmark.rigs import paper_config
 from calib_eval.cli import run as calib_cli
-from calib_eval.pipeline import PipelineConfig, _render_rig_sequence
-from cotrain.io.bags import BagError, bag_to_sequence, decode_image
+from cotrain.io.bags import BagError, bag_to_sequence, decode_image, image_message, write_image_bag
 
 T0 = 1_700_000_000_000_000_000  # header stamps of the bags: the folder's times plus this
-
-
-def _image_msg(ts, stamp: int, img: np.ndarray, encoding: str = "mono8", frame: str = "cam"):
-    S = ts.types
-    Header, Time = S["std_msgs/msg/Header"], S["builtin_interfaces/msg/Time"]
-    extra = {"seq": 0} if "seq" in Header.__dataclass_fields__ else {}  # ROS1's header counts messages
-    header = Header(stamp=Time(sec=stamp // 10**9, nanosec=stamp % 10**9), frame_id=frame, **extra)
-    if encoding == "png":
-        data = np.frombuffer(cv2.imencode(".png", img)[1].tobytes(), np.uint8)
-        return S["sensor_msgs/msg/CompressedImage"](header=header, format="png", data=data), "sensor_msgs/msg/CompressedImage"
-    h, w = img.shape[:2]
-    step = img.strides[0]
-    msg = S["sensor_msgs/msg/Image"](
-        header=header, height=h, width=w, encoding=encoding, is_bigendian=0, step=step, data=img.reshape(-1).view(np.uint8)
-    )
-    return msg, "sensor_msgs/msg/Image"
-
-
-def write_bag(path: Path, ros: int, cams: list[list[tuple[int, np.ndarray]]], encoding: str = "mono8", extra=None, delay: int = 0) -> Path:
-    """A bag with one image topic per camera (/camN/image_raw), received ``delay`` ns after the
-    header stamps; ``extra(writer, ts, ser)`` adds more."""
-    ts = get_typestore(Stores.ROS1_NOETIC if ros == 1 else Stores.ROS2_HUMBLE)
-    writer = Writer1(path) if ros == 1 else Writer2(path, version=9)
-    with writer:
-        msgtype = "sensor_msgs/msg/CompressedImage" if encoding == "png" else "sensor_msgs/msg/Image"
-        conns = [writer.add_connection(f"/cam{c}/image_raw", msgtype, typestore=ts) for c in range(len(cams))]
-        ser = ts.serialize_ros1 if ros == 1 else ts.serialize_cdr
-        for c, frames in enumerate(cams):
-            for stamp, img in frames:
-                msg, typ = _image_msg(ts, stamp, img, encoding, f"cam{c}")
-                writer.write(conns[c], stamp + delay, ser(msg, typ))
-        if extra:
-            extra(writer, ts, ser)
-    return path
 
 
 @pytest.fixture(scope="module")
@@ -57,7 +20,7 @@ def rig(tmp_path_factory):
     """A rendered FoV 200 stereo rig (32 frames) as a sequence folder, calibrated from the folder."""
     root = tmp_path_factory.mktemp("rig")
     seq_dir = root / "seq"
-    _render_rig_sequence(PipelineConfig(calib_frames=32), seq_dir)
+    render_rig_sequence(paper_config("FoV200_90"), 32, seq_dir, seed=11, progress=False)
     cams = []
     for c in range(2):
         rows = (seq_dir / f"cam{c}" / "timestamps.csv").read_text().splitlines()[1:]
@@ -85,7 +48,7 @@ def rig(tmp_path_factory):
 @pytest.mark.parametrize("ros, encoding", [(1, "mono8"), (2, "png")])
 def test_bag_calibration_matches_the_folder(rig, tmp_path, ros, encoding, capsys):
     cams, folder_chain = rig
-    bag = write_bag(tmp_path / ("rec.bag" if ros == 1 else "rec"), ros, cams, encoding)
+    bag = write_image_bag(tmp_path / ("rec.bag" if ros == 1 else "rec"), ros, cams, encoding)
     out = tmp_path / "calib"
     args = ["calibrate", "--bag", str(bag), "--topics", "/cam0/image_raw", "/cam1/image_raw", "--fov", "200"]
     args += ["--models", "pinhole-equi", "pinhole-equi", "--select", "--out", str(out)]
@@ -100,12 +63,12 @@ def test_bag_calibration_matches_the_folder(rig, tmp_path, ros, encoding, capsys
 
 def test_missing_topic_and_empty_bag_are_one_line(tmp_path, capsys):
     img = np.full((40, 60), 128, np.uint8)
-    bag = write_bag(tmp_path / "two.bag", 1, [[(T0, img)], [(T0, img)]])
+    bag = write_image_bag(tmp_path / "two.bag", 1, [[(T0, img)], [(T0, img)]])
     base = ["calibrate", "--fov", "200", "--out", str(tmp_path / "o")]
     assert calib_cli([*base, "--bag", str(bag), "--topics", "/cam0/image_raw", "/left/image"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "/left/image" in err[0] and "/cam0/image_raw, /cam1/image_raw" in err[0]
-    empty = write_bag(tmp_path / "empty", 2, [])
+    empty = write_image_bag(tmp_path / "empty", 2, [])
     assert calib_cli([*base, "--bag", str(empty), "--topics", "/cam0/image_raw"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "image topics in the bag: none" in err[0]
@@ -120,11 +83,11 @@ def test_corrupt_message_is_skipped_and_counted(tmp_path):
 
     def broken(writer, ts, ser):
         conn = [c for c in writer.connections if c.topic == "/cam0/image_raw"][0]
-        msg, typ = _image_msg(ts, T0 + 3, img)
+        msg, typ = image_message(ts, T0 + 3, img)
         msg.height = 400  # more rows than the data holds
         writer.write(conn, T0 + 3, ser(msg, typ))
 
-    bag = write_bag(tmp_path / "r.bag", 1, [[(T0, img), (T0 + 1, img)]], extra=broken)
+    bag = write_image_bag(tmp_path / "r.bag", 1, [[(T0, img), (T0 + 1, img)]], extra=broken)
     out = tmp_path / "seq"
     summary = bag_to_sequence(bag, ["/cam0/image_raw"], out, progress=False)
     assert summary.images == [2] and summary.skipped == [1] and sum(summary.reasons.values()) == 1
@@ -141,21 +104,21 @@ def test_decode_encodings():
     grey = rng.integers(0, 255, (6, 8), dtype=np.uint8)
     bgr = np.dstack([grey, grey, grey])
     for enc, img in [("mono8", grey), ("bgr8", bgr), ("rgb8", bgr[..., ::-1].copy()), ("bgra8", np.dstack([bgr, grey]))]:
-        msg, typ = _image_msg(ts, T0, img, enc)
+        msg, typ = image_message(ts, T0, img, enc)
         np.testing.assert_array_equal(decode_image(msg, typ), grey)
     deep = rng.integers(0, 65535, (6, 8), dtype=np.uint16)
-    msg, typ = _image_msg(ts, T0, deep, "mono16")
+    msg, typ = image_message(ts, T0, deep, "mono16")
     got = decode_image(msg, typ)
     assert got.dtype == np.uint16 and np.array_equal(got, deep)
     # A flat colour (B, G, R) = (40, 120, 220) as an RGGB mosaic decodes to its grey value.
     mosaic = np.zeros((8, 8), np.uint8)
     mosaic[0::2, 0::2], mosaic[0::2, 1::2], mosaic[1::2, 0::2], mosaic[1::2, 1::2] = 220, 120, 120, 40
-    msg, typ = _image_msg(ts, T0, mosaic, "bayer_rggb8")
+    msg, typ = image_message(ts, T0, mosaic, "bayer_rggb8")
     want = cv2.cvtColor(np.full((1, 1, 3), (40, 120, 220), np.uint8), cv2.COLOR_BGR2GRAY)[0, 0]
     assert abs(int(decode_image(msg, typ)[4, 4]) - int(want)) <= 2
-    msg, typ = _image_msg(ts, T0, grey, "png")
+    msg, typ = image_message(ts, T0, grey, "png")
     np.testing.assert_array_equal(decode_image(msg, typ), grey)
-    msg, typ = _image_msg(ts, T0, grey, "yuv422")
+    msg, typ = image_message(ts, T0, grey, "yuv422")
     with pytest.raises(ValueError, match="unsupported encoding"):
         decode_image(msg, typ)
 
@@ -166,7 +129,7 @@ def test_cotrain_detect_from_a_bag(rig, tmp_path, capsys):
     from cotrain.io.sequence import load_sequence
 
     cams, _ = rig
-    bag = write_bag(tmp_path / "rec.bag", 1, [frames[:4] for frames in cams])
+    bag = write_image_bag(tmp_path / "rec.bag", 1, [frames[:4] for frames in cams])
     out = tmp_path / "seq"
     assert cotrain_cli(["detect", "--bag", str(bag), "--topics", "/cam0/image_raw", "/cam1/image_raw", "--out", str(out)]) == 0
     seq = load_sequence(out)
@@ -185,7 +148,7 @@ def test_cache_follows_topics_and_refuses_foreign_folders(tmp_path):
     from cotrain.io.bags import sequence_from_bag
 
     img = np.full((40, 60), 128, np.uint8)
-    bag = write_bag(tmp_path / "r.bag", 1, [[(T0, img)], [(T0, img)], [(T0, img)]])
+    bag = write_image_bag(tmp_path / "r.bag", 1, [[(T0, img)], [(T0, img)], [(T0, img)]])
     det = Detector(threads=1)
     out = tmp_path / "seq"
     three = ["/cam0/image_raw", "/cam1/image_raw", "/cam2/image_raw"]
@@ -205,14 +168,14 @@ def test_cache_follows_topics_and_refuses_foreign_folders(tmp_path):
 def test_damaged_and_old_bags(tmp_path):
     img = np.full((40, 60), 128, np.uint8)
     frames = [(T0 + k, img) for k in range(50)]
-    bag = write_bag(tmp_path / "r.bag", 1, [frames])
+    bag = write_image_bag(tmp_path / "r.bag", 1, [frames])
     data = bytearray(bag.read_bytes())
     damaged = tmp_path / "d.bag"
     damaged.write_bytes(bytes(data[: len(data) * 2 // 3]))  # cut part-way: the index is gone
     with pytest.raises(BagError):
         bag_to_sequence(damaged, ["/cam0/image_raw"], tmp_path / "x", progress=False)
     # A ROS2 bag without message definitions (recorded before Iron) is read with Humble's types.
-    old = write_bag(tmp_path / "old", 2, [frames[:3]])
+    old = write_image_bag(tmp_path / "old", 2, [frames[:3]])
     meta = old / "metadata.yaml"
     m = yaml.safe_load(meta.read_text())
     for t in m["rosbag2_bagfile_information"]["topics_with_message_count"]:
@@ -234,7 +197,7 @@ def test_header_stamps_their_fallback_and_duplicates(tmp_path):
     rostopic comes from the bag."""
     img = np.full((40, 60), 128, np.uint8)
     cams = [[(T0, img), (T0 + 50_000_000, img), (T0 + 50_000_000, img)], [(0, img), (0, img)]]
-    bag = write_bag(tmp_path / "r.bag", 1, cams, delay=7_000_000)
+    bag = write_image_bag(tmp_path / "r.bag", 1, cams, delay=7_000_000)
     out = tmp_path / "seq"
     summary = bag_to_sequence(bag, ["/cam0/image_raw", "/cam1/image_raw"], out, progress=False)
     assert summary.clock == ["header", "bag"] and summary.images == [2, 1] and summary.skipped == [1, 1]
