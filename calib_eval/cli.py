@@ -74,11 +74,14 @@ def _sequence(a: argparse.Namespace, cache: Path | None):
         raise ValueError("--bag needs --topics (one image topic per camera)")
     target = _target(a.target)
     det = Detector(a.detector, target=target)
-    folder, read = sequence_from_bag(a.bag, a.topics, cache or Path(str(a.bag).rstrip("/") + ".sequence"), det)
+    if a.every < 0:
+        raise ValueError("--every must be 0 (every image) or a positive number of seconds")
+    folder, read = sequence_from_bag(a.bag, a.topics, cache or Path(str(a.bag).rstrip("/") + ".sequence"), det, interval_s=a.every)
     skipped = sum(read["skipped"])
     how = "cached detections" if read["cached"] else "detected"
     counts = ", ".join(f"{t} {n} images" for t, n in zip(a.topics, read["images"]))
-    print(f"{a.bag}: {counts} ({how}; {skipped} undecodable skipped) -> {folder}")
+    thinned = f"; {sum(read.get('thinned', []))} left out by --every" if a.every else ""
+    print(f"{a.bag}: {counts} ({how}; {skipped} undecodable skipped{thinned}) -> {folder}")
     return load_sequence(folder, a.tolerance_ms, target=target)
 
 
@@ -272,6 +275,13 @@ def build_parser() -> argparse.ArgumentParser:
         s.add_argument("seq", nargs="?", help="sequence folder (cam0/, cam1/, ... with timestamps.csv and detections.json)")
         s.add_argument("--bag", help="instead of SEQ: a ROS1 .bag or ROS2 bag folder (read with rosbags, no ROS install)")
         s.add_argument("--topics", nargs="+", metavar="TOPIC", help="with --bag: one image topic per camera, cam0 first")
+        s.add_argument(
+            "--every",
+            type=float,
+            default=0.0,
+            metavar="SECONDS",
+            help="with --bag: at most one image per camera per this many seconds (the same time slots for every camera)",
+        )
         s.add_argument("--cache", help="with --bag: folder for the images and detections (default: OUT/sequence, or BAG.sequence)")
         s.add_argument("--detector", help="with --bag: ONNX model for the corners (default: the shipped model)")
         s.add_argument("--target", help="target file (our target config or a Kalibr target yaml); only where the detections name none")

@@ -86,7 +86,9 @@ def cmd_detect(args: argparse.Namespace) -> int:
         from cotrain.io.bags import sequence_from_bag
 
         out = Path(args.out) if args.out else Path(str(args.bag).rstrip("/") + ".sequence")
-        folder, read = sequence_from_bag(args.bag, args.topics, out, det)
+        if args.every < 0:
+            raise ValueError("--every must be 0 (every image) or a positive number of seconds")
+        folder, read = sequence_from_bag(args.bag, args.topics, out, det, interval_s=args.every)
         counts = ", ".join(f"{t} {n} images" for t, n in zip(args.topics, read["images"]))
         cached = " (cached)" if read["cached"] else ""
         print(f"{args.bag}: {counts}, {sum(read['skipped'])} undecodable skipped -> sequence folder {folder}{cached}")
@@ -146,6 +148,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("inputs", nargs="*", metavar="IMAGES_OR_FOLDERS")
     s.add_argument("--bag", help="instead of images: a ROS1 .bag or ROS2 bag folder; writes a sequence folder with detections")
     s.add_argument("--topics", nargs="+", metavar="TOPIC", help="with --bag: one image topic per camera, cam0 first")
+    s.add_argument(
+        "--every", type=float, default=0.0, metavar="SECONDS", help="with --bag: at most one image per camera per this many seconds"
+    )
     s.add_argument("--model", help="ONNX model (default: the shipped model)")
     s.add_argument("--out", help="detection JSON (default detections.json); with --bag the sequence folder (default BAG.sequence)")
     s.add_argument("--threshold", type=float, default=0.5, help="with --slots: visibility probability to report a corner")

@@ -41,6 +41,7 @@ class BagSummary:
     skipped: list[int] = field(default_factory=list)  # undecodable messages per camera
     reasons: dict[str, int] = field(default_factory=dict)  # why messages were skipped, with counts
     clock: list[str] = field(default_factory=list)  # per camera: "header" stamps, or "bag" time where the headers are 0
+    thinned: list[int] = field(default_factory=list)  # images per camera left out by the interval
 
 
 def decode_image(msg, msgtype: str) -> np.ndarray:
@@ -71,9 +72,13 @@ def decode_image(msg, msgtype: str) -> np.ndarray:
     return cv2.cvtColor(np.ascontiguousarray(img[..., :3]), code)
 
 
-def bag_to_sequence(bag: str | Path, topics: list[str], out: str | Path, progress: bool = True) -> BagSummary:
+def bag_to_sequence(bag: str | Path, topics: list[str], out: str | Path, progress: bool = True, interval_s: float = 0.0) -> BagSummary:
     """Stream the image topics of ``bag`` into a sequence folder at ``out`` (see the module
-    docstring). A missing topic or a bag without images is a :class:`BagError`."""
+    docstring). A missing topic or a bag without images is a :class:`BagError`. ``interval_s`` > 0
+    keeps, per camera, the first image of each time slot of about ``interval_s``: the same slots for
+    every camera, a whole number of the first topic's frame periods long and with their edges
+    half-way between its frames (by the bag's receive time), so that cameras a little apart in time
+    stay paired (a 30 Hz recording thinned to 2 Hz with 0.5)."""
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
     from tqdm import tqdm
@@ -98,8 +103,15 @@ def bag_to_sequence(bag: str | Path, topics: list[str], out: str | Path, progres
             raise BagError(f"{bag}: no image topic {', '.join(missing)} (image topics in the bag: {have})")
         conns = [c for c in reader.connections if c.topic in topics]
         cam_of = {t: i for i, t in enumerate(topics)}
-        summary = BagSummary([0] * len(topics), [0] * len(topics), {}, [""] * len(topics))
+        summary = BagSummary([0] * len(topics), [0] * len(topics), {}, [""] * len(topics), [0] * len(topics))
         seen: list[set[int]] = [set() for _ in topics]
+        slots: list[set[int]] = [set() for _ in topics]
+        slot_ns, half, start = 0.0, 0.0, reader.start_time
+        if interval_s > 0:
+            first = [c for c in conns if c.topic == topics[0]]
+            n0 = sum(c.msgcount for c in first)
+            period = (reader.end_time - reader.start_time) / max(1, n0 - 1) if n0 > 1 else interval_s * 1e9
+            slot_ns, half = max(1, round(interval_s * 1e9 / period)) * period, 0.5 * period
         rows: list[list[str]] = [["frame_id,timestamp_ns,filename"] for _ in topics]
         for i in range(len(topics)):
             (out / f"cam{i}" / "images").mkdir(parents=True, exist_ok=True)
@@ -123,6 +135,12 @@ def bag_to_sequence(bag: str | Path, topics: list[str], out: str | Path, progres
                 summary.reasons[why] = summary.reasons.get(why, 0) + 1
                 continue
             seen[cam].add(stamp)
+            if slot_ns:
+                slot = int((int(t_bag) - start + half) // slot_ns)
+                if slot in slots[cam]:
+                    summary.thinned[cam] += 1
+                    continue
+                slots[cam].add(slot)
             name = f"{stamp:019d}.png"
             if not cv2.imwrite(str(out / f"cam{cam}" / "images" / name), grey):
                 raise OSError(f"{out / f'cam{cam}' / 'images' / name}: cannot write the image")
@@ -156,12 +174,15 @@ def _bag_stamp(path: Path) -> list:
     return [[str(p.relative_to(path) if path.is_dir() else p.name), p.stat().st_size, p.stat().st_mtime_ns] for p in files]
 
 
-def sequence_from_bag(bag: str | Path, topics: list[str], out: str | Path, detector, progress: bool = True) -> tuple[Path, dict]:
+def sequence_from_bag(
+    bag: str | Path, topics: list[str], out: str | Path, detector, progress: bool = True, interval_s: float = 0.0
+) -> tuple[Path, dict]:
     """A sequence folder with detections from the image topics of ``bag``, at ``out``: images and
     timestamps from :func:`bag_to_sequence`, ``camN/detections.json`` from ``detector``
     (a :class:`cotrain.detect.detector.Detector`). Both are cached: a second call for the same bag
     (path, size, modification time), topics and target detects nothing again. Returns the folder
-    and what was read ({"images", "skipped", "reasons", "cached"})."""
+    and what was read ({"images", "skipped", "thinned", "reasons", "cached"}). ``interval_s``: see
+    :func:`bag_to_sequence`."""
     from cotrain.io.detections import detect_files, write_json_atomic
     from cotrain.io.sequence import write_camera_detections
 
@@ -174,6 +195,7 @@ def sequence_from_bag(bag: str | Path, topics: list[str], out: str | Path, detec
         "bag": str(path.resolve()),
         "files": _bag_stamp(path),
         "topics": list(topics),
+        "interval_s": interval_s,
         "model": [str(model.resolve()), model.stat().st_size, model.stat().st_mtime_ns],
         "detector": {
             "mode": detector.mode,
@@ -197,10 +219,10 @@ def sequence_from_bag(bag: str | Path, topics: list[str], out: str | Path, detec
     for old in out.glob("cam*"):  # a previous extraction (other topics, another detector)
         if old.is_dir() and old.name[3:].isdigit():
             shutil.rmtree(old)
-    summary = bag_to_sequence(path, topics, out, progress)
+    summary = bag_to_sequence(path, topics, out, progress, interval_s)
     for i in range(len(topics)):
         write_camera_detections(out / f"cam{i}", lambda paths: detect_files(paths, detector, progress=progress))
-    read = {"images": summary.images, "skipped": summary.skipped, "reasons": summary.reasons}
+    read = {"images": summary.images, "skipped": summary.skipped, "thinned": summary.thinned, "reasons": summary.reasons}
     write_json_atomic({"key": key, "read": read}, marker)
     return out, {**read, "cached": False}
 

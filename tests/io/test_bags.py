@@ -206,3 +206,18 @@ def test_header_stamps_their_fallback_and_duplicates(tmp_path):
     t1 = [int(r.split(",")[1]) for r in (out / "cam1" / "timestamps.csv").read_text().splitlines()[1:]]
     assert t0 == [T0, T0 + 50_000_000] and t1 == [7_000_000]
     assert (out / "cam1" / "rostopic").read_text().strip() == "/cam1/image_raw"
+
+
+def test_every_thins_by_time_slots_and_keeps_cameras_paired(tmp_path):
+    """A 30 Hz stereo recording thinned to one image per 0.5 s per camera: the same slots for both
+    cameras (cam1 a little late and with a dropped frame), so the kept images still pair up."""
+    img = np.full((40, 60), 128, np.uint8)
+    period = 33_333_333
+    cam0 = [(T0 + k * period, img) for k in range(60)]
+    cam1 = [(T0 + k * period + 2_000_000, img) for k in range(60) if k != 15]  # frame 15 (the first of slot 1) dropped
+    bag = write_image_bag(tmp_path / "r.bag", 1, [cam0, cam1])
+    s = bag_to_sequence(bag, ["/cam0/image_raw", "/cam1/image_raw"], tmp_path / "seq", progress=False, interval_s=0.5)
+    assert s.images == [4, 4] and s.thinned == [56, 55]
+    t = [[int(r.split(",")[1]) for r in (tmp_path / "seq" / f"cam{c}" / "timestamps.csv").read_text().splitlines()[1:]] for c in (0, 1)]
+    slot = [round((x - T0) / period) for x in t[0]], [round((x - T0 - 2_000_000) / period) for x in t[1]]
+    assert slot[0] == [0, 15, 30, 45] and slot[1] == [0, 16, 30, 45]  # paired within one frame, slot by slot
