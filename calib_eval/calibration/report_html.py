@@ -60,7 +60,7 @@ def anchor_spans(seq: Sequence, anchors: dict[int, list[int]]) -> dict[int, tupl
     for c, views in anchors.items():
         obs = [o for o in seq.by_camera(c) if o.view in set(views)]
         r = np.concatenate([cov.cameras[c].radius_of(o.q) for o in obs]) if obs else np.zeros(0)
-        out[c] = (len(obs), float(r.min(initial=math.nan)) if len(r) else math.nan, float(r.max(initial=math.nan)) if len(r) else math.nan)
+        out[c] = (len(obs), float(r.min()), float(r.max())) if len(r) else (0, math.nan, math.nan)
     return out
 
 

@@ -82,3 +82,25 @@ def test_narrow_views_are_told_to_span_the_radius(capsys, tmp_path):
     assert cov.cameras[1].widest_view > 0.5 and cov.cameras[0].widest_view < 0.3
     assert any(a.startswith("cam0: no single view spans more than 0.") for a in cov.advice)
     assert not any(a.startswith("cam1: no single view spans") for a in cov.advice)
+
+
+def test_anchor_radial_span_in_the_report(tmp_path):
+    """The report shows, per camera, the selector's anchors and the radial span they cover."""
+    from calib_eval.calibration.calibrator import CalibConfig, calibrate
+    from calib_eval.calibration.report_html import anchor_spans, write_report_html
+    from calib_eval.calibration.selector import SelectorConfig, select
+
+    seq, _ = make_sequence(paper_config("FoV200_60"), SynthSpec(n_frames=80), seed=4)
+    sel = select(seq, SelectorConfig(fov=200))
+    anchors = {c: [s.view for s in sel.scores if s.cam == c and s.stage == "anchor"] for c in range(2)}
+    spans = anchor_spans(seq, anchors)
+    cov = coverage(seq)
+    for c in range(2):
+        n, lo, hi = spans[c]
+        assert n == len(anchors[c]) > 0 and 0.0 <= lo < hi <= 1.05  # R is the 99.5th percentile radius
+        r = np.concatenate([cov.cameras[c].radius_of(o.q) for o in seq.by_camera(c) if o.view in anchors[c]])
+        assert lo == r.min() and hi == r.max()
+    sub = seq.subset(sel.keep)
+    page = write_report_html(calibrate(sub, CalibConfig(model="kb4", fov=200), sel.order), sub, tmp_path, anchors).read_text()
+    n, lo, hi = anchor_spans(sub, anchors)[0]  # the page's sequence is the selection
+    assert f"<td>{n}, {lo:.2f} - {hi:.2f}</td>" in page and "nan" not in page
