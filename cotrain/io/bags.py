@@ -119,6 +119,10 @@ def bag_to_sequence(bag: str | Path, topics: list[str], out: str | Path, progres
         stream = tqdm(_messages(reader, conns, bag), total=total, desc="bag", unit="msg", disable=not progress)
         for conn, t_bag, raw in stream:
             cam = cam_of[conn.topic]
+            slot = int((int(t_bag) - start + half) // slot_ns) if slot_ns else 0
+            if slot_ns and slot in slots[cam]:  # thinned before anything is decoded
+                summary.thinned[cam] += 1
+                continue
             try:
                 msg = reader.deserialize(raw, conn.msgtype)
                 grey = decode_image(msg, conn.msgtype)
@@ -135,12 +139,7 @@ def bag_to_sequence(bag: str | Path, topics: list[str], out: str | Path, progres
                 summary.reasons[why] = summary.reasons.get(why, 0) + 1
                 continue
             seen[cam].add(stamp)
-            if slot_ns:
-                slot = int((int(t_bag) - start + half) // slot_ns)
-                if slot in slots[cam]:
-                    summary.thinned[cam] += 1
-                    continue
-                slots[cam].add(slot)
+            slots[cam].add(slot)
             name = f"{stamp:019d}.png"
             if not cv2.imwrite(str(out / f"cam{cam}" / "images" / name), grey):
                 raise OSError(f"{out / f'cam{cam}' / 'images' / name}: cannot write the image")
