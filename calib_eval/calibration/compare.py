@@ -21,6 +21,8 @@ from calib_eval.calibration.mrcal_peer import MrcalConfig, MrcalResult, calibrat
 from cotrain.geometry import cameras, rotation_angle_deg
 from cotrain.io.sequence import Sequence
 
+MAX_RMS_PX = CalibConfig().max_rms_px  # a final RMS above this is no calibration, for either
+
 
 def error_rays(fov: float, n: int = 400) -> np.ndarray:
     """(n, 3) unit rays spread evenly over the image circle up to 95 % of the half FoV."""
@@ -64,10 +66,13 @@ class Comparison:
         m = self.mrcal
         head = f"mrcal: {m.lensmodel}; " + (
             f"{m.runtime_s:.1f} s, {m.outliers} corners thrown out"
+            + (f"; it ended at RMS {m.rms_px:.1f} px, which is not a calibration" if m.rms_px > MAX_RMS_PX else "")
             if m.success
             else f"failed ({m.reason})" + (f" after stage '{m.stage}', RMS {m.rms_px:.2f} px" if m.stage else "")
         )
-        ours = f"ours: {self.ours.model}; {self.ours.runtime_s:.1f} s" + ("" if self.ours.success else f"; failed ({self.ours.reason})")
+        ours = f"ours: {', '.join(self.ours.model)}; {self.ours.runtime_s:.1f} s" + (
+            "" if self.ours.success else f"; failed ({self.ours.reason})"
+        )
         lines = [
             ours,
             head,
