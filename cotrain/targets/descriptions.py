@@ -3,7 +3,8 @@
 - our config section (``target:`` in a training config; :class:`TargetConfig`, :func:`make_target`);
 - the detection JSON's ``"target"`` entry (:func:`target_from_json`; written by ``Target.to_json``);
 - a Kalibr target yaml (``target_type: checkerboard``, ``targetCols`` / ``targetRows`` counting
-  inner corners, ``rowSpacingMeters`` / ``colSpacingMeters``; :func:`target_from_kalibr`).
+  inner corners, ``rowSpacingMeters`` / ``colSpacingMeters``; or ``target_type: aprilgrid``,
+  ``tagCols``, ``tagRows``, ``tagSize``, ``tagSpacing``; :func:`target_from_kalibr`).
 
 :func:`load_target` reads a file of either of the first and last kinds.
 """
@@ -15,6 +16,7 @@ import math
 from pathlib import Path
 
 from cotrain.config import ConfigError, build, load_yaml
+from cotrain.targets.aprilgrid import AprilGrid
 from cotrain.targets.checkerboard import Checkerboard
 from cotrain.targets.target import KINDS, Target, TargetConfig, TargetError
 
@@ -24,6 +26,8 @@ def make_target(cfg: TargetConfig | None = None) -> Target:
     cfg = cfg or TargetConfig()
     if cfg.kind == "checkerboard":
         return Checkerboard(cfg)
+    if cfg.kind == "aprilgrid":
+        return AprilGrid(cfg)
     raise TargetError(f"target.kind: unsupported target {cfg.kind!r} (known: {', '.join(KINDS)})")
 
 
@@ -43,8 +47,18 @@ def target_from_json(data: dict, where: str = "target") -> Target:
     if not isinstance(data, dict):
         raise TargetError(f"{where}: expected a mapping, got {type(data).__name__}")
     kind = data.get("kind", "checkerboard")
-    if kind != "checkerboard":
+    if kind not in KINDS:
         raise TargetError(f"{where}: unsupported target kind {kind!r} (known: {', '.join(KINDS)})")
+    if kind == "aprilgrid":
+        return make_target(
+            TargetConfig(
+                kind=kind,
+                tag_cols=_number(data, "tag_cols", where, int),
+                tag_rows=_number(data, "tag_rows", where, int),
+                tag_size=_number(data, "tag_size", where),
+                tag_spacing=_number(data, "tag_spacing", where),
+            )
+        )
     cfg = TargetConfig(
         kind=kind,
         squares_x=_number(data, "squares_x", where, int),
@@ -65,7 +79,18 @@ def target_from_kalibr(data: dict, where: str = "target yaml") -> Target:
         if not math.isclose(dr, dc, rel_tol=1e-6):
             raise TargetError(f"{where}: rowSpacingMeters {dr} and colSpacingMeters {dc} differ (only square checkers are supported)")
         return make_target(TargetConfig(squares_x=cols + 1, squares_y=rows + 1, square_size=dc))
-    raise TargetError(f"{where}: unsupported Kalibr target_type {kind!r} (supported: checkerboard)")
+    if kind == "aprilgrid":
+        cfg = TargetConfig(
+            kind="aprilgrid",
+            tag_cols=_number(data, "tagCols", where, int),
+            tag_rows=_number(data, "tagRows", where, int),
+            tag_size=_number(data, "tagSize", where),
+            tag_spacing=_number(data, "tagSpacing", where),
+        )
+        if "codeOffset" in data and data["codeOffset"] not in (0, None):
+            raise TargetError(f"{where}: codeOffset {data['codeOffset']} is not supported (tags start at id 0)")
+        return make_target(cfg)
+    raise TargetError(f"{where}: unsupported Kalibr target_type {kind!r} (supported: checkerboard, aprilgrid)")
 
 
 def target_from_flags(

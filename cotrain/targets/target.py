@@ -19,7 +19,7 @@ from torch import Tensor
 
 from cotrain.geometry import cameras, poses
 
-KINDS = ("checkerboard",)  # target kinds this release knows
+KINDS = ("checkerboard", "aprilgrid")  # target kinds this release knows
 
 
 class TargetError(ValueError):
@@ -34,7 +34,11 @@ class TargetConfig:
     squares_x: int = 10  # checkerboard: squares along the board's x axis
     squares_y: int = 7  # checkerboard: squares along the board's y axis
     square_size: float = 0.04  # checkerboard: side of one square, metres
-    margin: float = 0.5  # white border around the pattern, in squares (0 = no border); rendering only
+    tag_cols: int = 6  # aprilgrid: tags along the board's x axis (Kalibr's tagCols)
+    tag_rows: int = 6  # aprilgrid: tags along the board's y axis (tagRows)
+    tag_size: float = 0.055  # aprilgrid: side of one tag including its black border, metres (tagSize)
+    tag_spacing: float = 0.3  # aprilgrid: gap between tags as a fraction of tag_size (tagSpacing)
+    margin: float = 0.5  # white border around the pattern, in squares / tag sizes (0 = no border); rendering only
 
 
 @runtime_checkable

@@ -1,0 +1,206 @@
+"""Kalibr's AprilGrid target: corner ids, board coordinates and printed texture (docs/conventions.md).
+
+A grid of ``tag_cols`` x ``tag_rows`` tag36h11 tags of side ``tag_size`` with gaps of
+``tag_spacing * tag_size``; each tag has Kalibr's 2-bit black border (10 x 10 cells over the tag)
+and a black square fills every gap crossing, so each tag corner is an X-junction.
+
+Corner ids and board coordinates are Kalibr's ``GridCalibrationTargetAprilgrid::createGridPoints``:
+point (r, c) of the 2 tag_rows x 2 tag_cols grid has id ``r * 2 * tag_cols + c`` and
+``x = (c // 2) * (1 + tag_spacing) * tag_size + (c % 2) * tag_size`` (y likewise from r). The
+board frame is Kalibr's page: seen from the printed side, x to the right and y up (tag 0 at the
+bottom left), so z points out of the print, toward the viewer.
+
+The texture is what Kalibr's ``createTargetPDF.py`` draws. The tag codes come from OpenCV's
+``DICT_APRILTAG_36h11`` (no code table here): Kalibr draws each tag's code turned by a half turn
+relative to OpenCV's marker image, so the printed data bits, seen from the printed side with y up,
+are OpenCV's marker bits turned by a half turn.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import cv2
+import numpy as np
+import torch
+from torch import Tensor
+
+from cotrain.targets.target import TargetConfig, TargetError
+
+BORDER_BITS = 2  # Kalibr's black border, in cells
+DATA_BITS = 6  # tag36h11: 6 x 6 data cells
+CELLS = DATA_BITS + 2 * BORDER_BITS  # cells across a tag (10)
+N_CODES = 587  # tag36h11 family size
+
+
+@functools.lru_cache(maxsize=4)
+def tag_bits(n: int) -> np.ndarray:
+    """(n, 6, 6) uint8 data bits of tag36h11 ids 0 .. n-1 as OpenCV draws the marker (row 0 at the
+    top, 1 = white)."""
+    d = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11)
+    out = np.empty((n, DATA_BITS, DATA_BITS), np.uint8)
+    for t in range(n):
+        img = cv2.aruco.generateImageMarker(d, t, DATA_BITS + 2, borderBits=1)  # one pixel per cell
+        out[t] = img[1:-1, 1:-1] > 127
+    return out
+
+
+class AprilGrid:
+    """Kalibr's AprilGrid: geometry (corners, ids, tags) and appearance (area-sampled intensity)."""
+
+    kind = "aprilgrid"
+
+    def __init__(self, cfg: TargetConfig | None = None):
+        cfg = cfg or TargetConfig(kind="aprilgrid")
+        if cfg.kind != "aprilgrid":
+            raise TargetError(f"target.kind: {cfg.kind!r} is not an aprilgrid")
+        if cfg.tag_cols < 1 or cfg.tag_rows < 1:
+            raise TargetError("target.tag_cols and target.tag_rows must be at least 1")
+        if cfg.tag_cols * cfg.tag_rows > N_CODES:
+            raise TargetError(f"an aprilgrid of {cfg.tag_cols} x {cfg.tag_rows} tags needs more than tag36h11's {N_CODES} codes")
+        if cfg.tag_size <= 0:
+            raise TargetError("target.tag_size must be positive")
+        if not 0 < cfg.tag_spacing <= 1:
+            raise TargetError("target.tag_spacing must be in (0, 1] (a fraction of tag_size, as Kalibr's)")
+        self.cfg = cfg
+        self.tc, self.tr = cfg.tag_cols, cfg.tag_rows
+        self.S = cfg.tag_size
+        self.gap = cfg.tag_spacing * cfg.tag_size
+        self.P = self.S + self.gap  # period of the tag grid
+        self.nx, self.ny = 2 * self.tc, 2 * self.tr  # corner grid (columns, rows)
+
+    def __repr__(self) -> str:
+        return f"AprilGrid({self.tc} x {self.tr} tags of {self.S:g} m, spacing {self.cfg.tag_spacing:g})"
+
+    def __str__(self) -> str:
+        return f"aprilgrid {self.tc} x {self.tr} tags of {self.S:g} m, spacing {self.cfg.tag_spacing:g}"
+
+    @property
+    def n_corners(self) -> int:
+        return self.nx * self.ny
+
+    @property
+    def n_tags(self) -> int:
+        return self.tc * self.tr
+
+    @property
+    def spacing(self) -> float:
+        """The tag's side, metres: the scale at which its corners and bits are read."""
+        return self.S
+
+    def to_json(self) -> dict:
+        """The detection JSON's ``"target"`` entry (docs/conventions.md)."""
+        return {"kind": "aprilgrid", "tag_cols": self.tc, "tag_rows": self.tr, "tag_size": self.S, "tag_spacing": self.cfg.tag_spacing}
+
+    def to_kalibr(self) -> dict:
+        """Kalibr's target yaml."""
+        return {"target_type": "aprilgrid", "tagCols": self.tc, "tagRows": self.tr, "tagSize": self.S, "tagSpacing": self.cfg.tag_spacing}
+
+    def symmetries(self) -> tuple[np.ndarray, ...]:
+        """None: every tag names itself."""
+        return ()
+
+    def grid_ij(self) -> Tensor:
+        """(N, 2) grid indices (c, r) of corner ids 0..N-1 (id = r * 2 tag_cols + c)."""
+        r, c = torch.meshgrid(torch.arange(self.ny), torch.arange(self.nx), indexing="ij")
+        return torch.stack([c.reshape(-1), r.reshape(-1)], dim=-1)
+
+    def ij_of(self, ids):
+        """(...) corner ids -> (..., 2) grid indices (c, r) (numpy or torch)."""
+        c, r = ids % self.nx, ids // self.nx
+        return np.stack([c, r], -1) if isinstance(ids, np.ndarray) else torch.stack([c, r], -1)
+
+    def id_of(self, ij):
+        """(..., 2) grid indices (c, r) -> (...) corner ids, -1 off the grid (numpy)."""
+        ij = np.asarray(ij)
+        on = (ij[..., 0] >= 0) & (ij[..., 0] < self.nx) & (ij[..., 1] >= 0) & (ij[..., 1] < self.ny)
+        return np.where(on, ij[..., 1] * self.nx + ij[..., 0], -1)
+
+    def tag_corners(self, t) -> np.ndarray:
+        """(..., 4) corner ids of tags ``t``: Kalibr's b, b+1, b + 2 tag_cols + 1, b + 2 tag_cols
+        with b = (t // tag_cols) * 4 tag_cols + (t % tag_cols) * 2: bottom left, bottom right,
+        top right, top left on the page (counter-clockwise seen from the printed side)."""
+        t = np.asarray(t)
+        b = (t // self.tc) * 4 * self.tc + (t % self.tc) * 2
+        return np.stack([b, b + 1, b + self.nx + 1, b + self.nx], -1)
+
+    def points(self, dtype: torch.dtype = torch.float64) -> Tensor:
+        """(N, 3) board-frame coordinates (metres) of corner ids 0..N-1 (Kalibr's createGridPoints)."""
+        cr = self.grid_ij().to(torch.int64)
+        xy = (cr // 2) * self.P + (cr % 2) * self.S
+        xy = xy.to(dtype)
+        return torch.cat([xy, torch.zeros_like(xy[:, :1])], dim=-1)
+
+    def _axis_grid(self, x: Tensor) -> Tensor:
+        """Board coordinate along one axis -> corner-grid coordinate (corner k at k; piecewise linear)."""
+        k = torch.floor(x / self.P)
+        f = x - k * self.P
+        return torch.where(f <= self.S, 2 * k + f / self.S, 2 * k + 1 + (f - self.S) / self.gap)
+
+    def grid_coordinates(self, xy: Tensor) -> tuple[Tensor, Tensor]:
+        """Board points (..., 2) metres -> corner-grid coordinates (..., 2) (corner (c, r) at (c, r))
+        and (...) bool: on the pattern (tags and the corner squares around them)."""
+        u, v = self._axis_grid(xy[..., 0]), self._axis_grid(xy[..., 1])
+        inside = (u > -1) & (u < self.nx) & (v > -1) & (v < self.ny)
+        return torch.stack([u, v], -1), inside
+
+    def extent(self) -> tuple[float, float, float, float]:
+        """(x_min, y_min, x_max, y_max) of the printed sheet: the pattern with its outer corner
+        squares, and a white margin of ``margin`` tag sizes."""
+        m = self.cfg.margin * self.S
+        return (-self.gap - m, -self.gap - m, self.tc * self.P + m, self.tr * self.P + m)
+
+    def _value(self, x: Tensor, y: Tensor, bits: Tensor) -> Tensor:
+        """Point-sampled print at board points: 0 black, 1 white."""
+        kx, ky = torch.floor(x / self.P), torch.floor(y / self.P)
+        fx, fy = x - kx * self.P, y - ky * self.P
+        in_tag_x, in_tag_y = fx < self.S, fy < self.S
+        col_ok = (kx >= 0) & (kx < self.tc)
+        row_ok = (ky >= 0) & (ky < self.tr)
+        tag = in_tag_x & in_tag_y & col_ok & row_ok
+        # Gap crossings next to a tag corner: gap index -1 .. tc - 1 (before / after each tag).
+        gx = (~in_tag_x & (kx >= -1) & (kx < self.tc)) | ((kx == -1) & ~in_tag_x)
+        gy = (~in_tag_y & (ky >= -1) & (ky < self.tr)) | ((ky == -1) & ~in_tag_y)
+        crossing = gx & gy
+        cell = self.S / CELLS
+        bx = torch.clamp(torch.floor(fx / cell), 0, CELLS - 1).long()
+        by = torch.clamp(torch.floor(fy / cell), 0, CELLS - 1).long()
+        data = (bx >= BORDER_BITS) & (bx < CELLS - BORDER_BITS) & (by >= BORDER_BITS) & (by < CELLS - BORDER_BITS)
+        t = (torch.clamp(ky, 0, self.tr - 1) * self.tc + torch.clamp(kx, 0, self.tc - 1)).long()
+        # Seen with y up, the printed bits are OpenCV's marker turned by a half turn: page cell
+        # (column bx, row by counted from the bottom) shows marker cell (row by - 2, column 7 - bx).
+        row = torch.clamp(by - BORDER_BITS, 0, DATA_BITS - 1)
+        col = torch.clamp(CELLS - BORDER_BITS - 1 - bx, 0, DATA_BITS - 1)
+        bit = bits[t, row, col].to(x.dtype)
+        inside_tag = torch.where(data, bit, torch.zeros_like(x))  # the border is black
+        value = torch.ones_like(x)
+        value = torch.where(tag, inside_tag, value)
+        return torch.where(crossing, torch.zeros_like(x), value)
+
+    def intensity(self, xy: Tensor, footprint: Tensor | None = None, samples: int = 4) -> tuple[Tensor, Tensor]:
+        """Appearance at board-plane points, averaged over a pixel footprint.
+
+        Args:
+            xy: (..., 2) board-frame x, y in metres.
+            footprint: (..., 2) width of the pixel's footprint along board x and y, metres;
+                ``None`` gives point samples.
+            samples: sub-samples per axis over the footprint (a box filter).
+        Returns:
+            intensity (...) in [0, 1] (0 black, 1 white) and coverage (...) in [0, 1], the fraction
+            of the footprint on the printed sheet.
+        """
+        bits = torch.from_numpy(tag_bits(self.n_tags)).to(xy.device)
+        x, y = xy[..., 0], xy[..., 1]
+        x0, y0, x1, y1 = self.extent()
+        if footprint is None:
+            v = self._value(x, y, bits)
+            cover = ((x >= x0) & (x <= x1) & (y >= y0) & (y <= y1)).to(x.dtype)
+            return torch.where(cover > 0, v, torch.ones_like(v)), cover
+        off = (torch.arange(samples, dtype=xy.dtype, device=xy.device) + 0.5) / samples - 0.5
+        sx = x[..., None, None] + off[:, None] * footprint[..., 0, None, None]
+        sy = y[..., None, None] + off[None, :] * footprint[..., 1, None, None]
+        sx, sy = torch.broadcast_tensors(sx, sy)
+        on = (sx >= x0) & (sx <= x1) & (sy >= y0) & (sy <= y1)
+        v = torch.where(on, self._value(sx, sy, bits), torch.ones_like(sx))
+        cover = on.to(xy.dtype).mean(dim=(-1, -2))
+        return v.mean(dim=(-1, -2)), cover
