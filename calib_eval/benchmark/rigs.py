@@ -14,7 +14,7 @@ import torch
 
 from cotrain.geometry import cameras, poses
 from cotrain.io.sequence import CameraInfo, Observation, Sequence
-from cotrain.targets import Target, TargetConfig, make_target, square_px
+from cotrain.targets import Target, TargetConfig, make_target, sees_print, square_px
 
 
 @dataclass
@@ -98,11 +98,11 @@ def _sample_rig_poses(rng: np.random.Generator, n: int, board: Target, spec: Syn
     out = []
     n_cam = T_cam_rig.shape[0]
     for _ in range(n):
-        # Rig position in the board frame: in front (z < 0), on a cap of directions.
+        # Rig position in the board frame: on the printed side, on a cap of directions.
         d = math.exp(rng.uniform(math.log(spec.distance_range[0]), math.log(spec.distance_range[1])))
         el = math.radians(rng.uniform(0, 65))
         az = rng.uniform(0, 2 * math.pi)
-        pos = centre + d * np.array([math.sin(el) * math.cos(az), math.sin(el) * math.sin(az), -math.cos(el)])
+        pos = centre + d * np.array([math.sin(el) * math.cos(az), math.sin(el) * math.sin(az), board.front * math.cos(el)])
         # Random viewing direction: one camera's axis points near the board, then jitter.
         look_cam = rng.integers(n_cam)
         target = centre + np.array([rng.uniform(-0.3, 0.3), rng.uniform(-0.2, 0.2), 0.0])
@@ -128,7 +128,7 @@ def make_sequence(rig: RigSpec, spec: SynthSpec, seed: int = 0) -> tuple[Sequenc
     for k in range(spec.n_frames):
         for c, (model, prm) in enumerate(zip(models, params)):
             T = T_cam_rig[c] @ T_rig_board[k]
-            if T[:3, 2] @ T[:3, 3] <= 0:  # printed side faces away
+            if not sees_print(board.front, T[:3, 2], T[:3, 3]):  # printed side faces away
                 continue
             pc = P @ T[:3, :3].T + T[:3, 3]
             q, ok = cameras.project(model, torch.from_numpy(pc), prm)

@@ -27,7 +27,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from cotrain.geometry import cameras, poses
-from cotrain.targets import Target, TargetConfig, make_target, square_px
+from cotrain.targets import Target, TargetConfig, make_target, sees_print, square_px
 
 
 @dataclass
@@ -130,11 +130,14 @@ def _sample_pose(cfg: RenderConfig, board: Target, fov: float, g: torch.Generato
     d = math.exp(_u(g, math.log(cfg.distance_range[0]), math.log(cfg.distance_range[1])))
     ray = torch.tensor([math.sin(theta) * math.cos(phi), math.sin(theta) * math.sin(phi), math.cos(theta)], dtype=torch.float64)
     centre = d * ray
-    # Board facing the camera: its z axis (into the board) along the viewing ray.
+    # Board facing the camera: its z axis (into the board) along the viewing ray, or against it
+    # for a target whose print faces +z.
     up = torch.tensor([0.0, -1.0, 0.0], dtype=torch.float64)
     if abs(float(ray @ up)) > 0.95:
         up = torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64)
     R_face = poses.look_at(torch.zeros(3, dtype=torch.float64), ray, up)[:3, :3]  # columns x, y, z
+    if board.front > 0:  # the print faces +z: turn the board half a turn about its x axis to face the camera
+        R_face = R_face @ torch.diag(torch.tensor([1.0, -1.0, -1.0], dtype=torch.float64))
     tilt = math.radians(cfg.max_tilt_deg) * _u(g) ** 0.7
     tilt_axis_angle = _u(g, 0, 2 * math.pi)
     w_tilt = torch.tensor([math.cos(tilt_axis_angle), math.sin(tilt_axis_angle), 0.0], dtype=torch.float64) * tilt
@@ -185,15 +188,16 @@ def _rays(scene: Scene, grid: Tensor) -> tuple[Tensor, Tensor]:
     return torch.stack(vs), torch.stack(oks)
 
 
-def _board_hit(v: Tensor, T_cam_board: Tensor) -> tuple[Tensor, Tensor]:
-    """Board-plane coordinates (B, H, W, 2) hit by rays v (B, H, W, 3), and hit mask (in front)."""
+def _board_hit(v: Tensor, T_cam_board: Tensor, front: int = -1) -> tuple[Tensor, Tensor]:
+    """Board-plane coordinates (B, H, W, 2) hit by rays v (B, H, W, 3), and hit mask (in front,
+    printed side toward the camera; ``front``: :attr:`Target.front`)."""
     R = T_cam_board[:, :3, :3].float()
     t = T_cam_board[:, :3, 3].float()
     n = R[:, :, 2]  # board z axis in the camera frame
     num = (n * t).sum(-1)  # n . t
     den = torch.einsum("bhwc,bc->bhw", v, n)
     lam = num[:, None, None] / torch.where(den.abs() > 1e-8, den, torch.full_like(den, 1e-8))
-    hit = (lam > 0) & (num[:, None, None] > 0)  # in front, and the printed side faces the camera
+    hit = (lam > 0) & sees_print(front, n, t)[:, None, None]  # in front, and the printed side faces the camera
     p_cam = lam[..., None] * v - t[:, None, None, :]
     xy = torch.einsum("bhwc,bcd->bhwd", p_cam, R)[..., :2]  # R^T (p - t)
     return xy, hit
@@ -212,9 +216,9 @@ def corner_labels(cfg: RenderConfig, board: Target, scene: Scene) -> dict[str, T
         size = square_px(model, p, T, board)  # local pixels per square
         n = T[:3, 2]
         ray = pc / pc.norm(dim=-1, keepdim=True)
-        cos_inc.append((ray @ n).clamp(0, 1))
+        cos_inc.append((-board.front * (ray @ n)).clamp(0, 1))
         # Printed side towards the camera.
-        ok = ok & (float(n @ T[:3, 3]) > 0)
+        ok = ok & bool(sees_print(board.front, n, T[:3, 3]))
         qs.append(q)
         valid.append(ok)
         l_size.append(size)
@@ -322,7 +326,7 @@ def render_scene(cfg: RenderConfig, board: Target, scene: Scene, gens: list[torc
 
     grid = _pixel_grid(H, W, ss)
     v, in_circle = _rays(scene, grid)
-    xy, hit = _board_hit(v, scene.T_cam_board)
+    xy, hit = _board_hit(v, scene.T_cam_board, board.front)
     # Footprint of a sample in board metres, from finite differences across neighbouring samples.
     gx = torch.zeros_like(xy)
     gy = torch.zeros_like(xy)

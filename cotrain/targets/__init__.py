@@ -3,7 +3,7 @@
 from cotrain.targets.aprilgrid import AprilGrid
 from cotrain.targets.checkerboard import ROTATIONS, Checkerboard, board_symmetries
 from cotrain.targets.descriptions import load_target, make_target, target_from_flags, target_from_json, target_from_kalibr
-from cotrain.targets.target import KINDS, Target, TargetConfig, TargetError, same_target, square_px
+from cotrain.targets.target import KINDS, Target, TargetConfig, TargetError, same_target, sees_print, square_px
 
 __all__ = [
     "AprilGrid",
@@ -17,6 +17,7 @@ __all__ = [
     "load_target",
     "make_target",
     "same_target",
+    "sees_print",
     "square_px",
     "target_from_flags",
     "target_from_json",

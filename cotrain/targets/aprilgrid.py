@@ -49,6 +49,7 @@ class AprilGrid:
     """Kalibr's AprilGrid: geometry (corners, ids, tags) and appearance (area-sampled intensity)."""
 
     kind = "aprilgrid"
+    front = 1  # Kalibr's page frame: y up on the print, z toward the viewer
 
     def __init__(self, cfg: TargetConfig | None = None):
         cfg = cfg or TargetConfig(kind="aprilgrid")

@@ -23,6 +23,7 @@ class Checkerboard:
     """A checkerboard target: geometry (corners, ids) and appearance (analytic intensity)."""
 
     kind = "checkerboard"
+    front = -1  # z points into the board, away from the viewer
 
     def __init__(self, cfg: TargetConfig | None = None):
         cfg = cfg or TargetConfig()

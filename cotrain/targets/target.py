@@ -46,6 +46,7 @@ class Target(Protocol):
     """A planar calibration target with identified corners (board frame: docs/conventions.md)."""
 
     kind: str
+    front: int  # the printed side faces the board's +z (+1: Kalibr's AprilGrid page) or -z (-1: our checkerboard, z into the board)
 
     @property
     def n_corners(self) -> int:
@@ -90,6 +91,12 @@ def same_target(a: Target, b: Target) -> bool:
         elif va != vb:
             return False
     return True
+
+
+def sees_print(front: int, n_cam: Tensor | np.ndarray, t_cam: Tensor | np.ndarray):
+    """Whether a camera sees the printed side of a target whose z axis is ``n_cam`` (..., 3) and
+    origin ``t_cam`` (..., 3) in the camera frame (``front``: :attr:`Target.front`)."""
+    return -front * (n_cam * t_cam).sum(-1) > 0
 
 
 def square_px(model: str, params: Tensor, T_cam_board: Tensor, target: Target) -> Tensor:
