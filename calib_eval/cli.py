@@ -74,7 +74,7 @@ def _sequence(a: argparse.Namespace, cache: Path | None):
         raise ValueError("--bag needs --topics (one image topic per camera)")
     target = _target(a.target)
     det = Detector(a.detector, target=target)
-    if a.every < 0:
+    if not 0 <= a.every < float("inf"):
         raise ValueError("--every must be 0 (every image) or a positive number of seconds")
     folder, read = sequence_from_bag(a.bag, a.topics, cache or Path(str(a.bag).rstrip("/") + ".sequence"), det, interval_s=a.every)
     skipped = sum(read["skipped"])

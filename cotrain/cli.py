@@ -86,7 +86,7 @@ def cmd_detect(args: argparse.Namespace) -> int:
         from cotrain.io.bags import sequence_from_bag
 
         out = Path(args.out) if args.out else Path(str(args.bag).rstrip("/") + ".sequence")
-        if args.every < 0:
+        if not 0 <= args.every < float("inf"):
             raise ValueError("--every must be 0 (every image) or a positive number of seconds")
         folder, read = sequence_from_bag(args.bag, args.topics, out, det, interval_s=args.every)
         counts = ", ".join(f"{t} {n} images" for t, n in zip(args.topics, read["images"]))

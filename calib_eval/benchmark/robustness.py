@@ -24,7 +24,7 @@ from calib_eval.calibration.calibrator import CalibConfig, CalibrationResult, ca
 from calib_eval.calibration.report_html import write_report_html
 from cotrain.detect.detector import Detector
 from cotrain.geometry.cameras import get_model
-from cotrain.io.detections import detect_files
+from cotrain.io.detections import detect_files, json_safe
 from cotrain.io.sequence import Sequence, load_sequence, write_camera_detections
 
 # The clean tolerances a corrupted rig must still meet (issue: a strict success within them).
@@ -125,8 +125,9 @@ def run_robustness(cfg: RobustnessConfig, out: Path) -> dict:
     n_gross = gross_corners(bad, cfg.gross, rng)
     res = calibrate(bad, calib)
     rows["corrupted"] = score(res, gt, rig.fov, injected)
-    page = write_report_html(res, bad, out)
-    on_page = sum(f"<td>{v}</td>" in page.read_text() for v in injected)
+    page = write_report_html(res, bad, out).read_text()
+    dropped_table = page[page.index("<h2>Dropped views") :]  # the views the page names, not other cells
+    on_page = sum(f"<tr><td>{v}</td>" in dropped_table for v in injected)
     off = CalibConfig(model=rig.model, fov=rig.fov, view_outlier_px=float("inf"))
     rows["corrupted, view test off"] = score(calibrate(bad, off), gt, rig.fov, injected)
     summary = {
@@ -141,7 +142,7 @@ def run_robustness(cfg: RobustnessConfig, out: Path) -> dict:
         "rows": rows,
         "tolerances": TOLERANCES,
     }
-    (out / "robustness.json").write_text(json.dumps(summary, indent=1, default=float))
+    (out / "robustness.json").write_text(json.dumps(json_safe(summary), indent=1))
     (out / "robustness.md").write_text(table(summary))
     print(table(summary))
     return summary

@@ -72,7 +72,7 @@ class CalibrationResult:
     runtime_s: float
     stages: list[dict] = field(default_factory=list)
     dropped: list[dict] = field(default_factory=list)  # views dropped as a whole: view, frame, cameras, reason
-    rejected: dict[tuple[int, int], np.ndarray] = field(default_factory=dict)  # (cam, view) -> corner ids dropped as outliers
+    rejected: dict[tuple[int, int], np.ndarray] = field(default_factory=dict)  # (cam, view) -> corner ids stage 2 dropped (outliers)
 
 
 def _intrinsic_stage(

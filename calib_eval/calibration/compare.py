@@ -19,6 +19,7 @@ import torch
 from calib_eval.calibration.calibrator import CalibConfig, CalibrationResult, calibrate
 from calib_eval.calibration.mrcal_peer import MrcalConfig, MrcalResult, calibrate_mrcal
 from cotrain.geometry import cameras, rotation_angle_deg
+from cotrain.io.detections import json_safe
 from cotrain.io.sequence import Sequence
 
 MAX_RMS_PX = CalibConfig().max_rms_px  # a final RMS above this is no calibration, for either
@@ -64,11 +65,13 @@ class Comparison:
 
     def table(self) -> str:
         m = self.mrcal
+        worst = max(m.rms_cam, default=math.nan)
+        reached = f", RMS {m.rms_px:.2f} px (mrcal's own figure)" if math.isfinite(m.rms_px) else ""
         head = f"mrcal: {m.lensmodel}; " + (
             f"{m.runtime_s:.1f} s, {m.outliers} corners thrown out"
-            + (f"; it ended at RMS {m.rms_px:.1f} px, which is not a calibration" if m.rms_px > MAX_RMS_PX else "")
+            + (f"; it ended at {worst:.1f} px RMS, which is not a calibration" if worst > MAX_RMS_PX else "")
             if m.success
-            else f"failed ({m.reason})" + (f" after stage '{m.stage}', RMS {m.rms_px:.2f} px" if m.stage else "")
+            else f"failed ({m.reason})" + (f" after stage '{m.stage}'{reached}" if m.stage else "")
         )
         ours = f"ours: {', '.join(self.ours.model)}; {self.ours.runtime_s:.1f} s" + (
             "" if self.ours.success else f"; failed ({self.ours.reason})"
@@ -99,7 +102,7 @@ def compare(
         row = {"camera": cam.name, "ours_rms": ours.rms_px[c] if ours.success else None, "mrcal_rms": None, "proj_px": None}
         row.update({"ext_mm": None, "ext_deg": None})
         if m.success:
-            row["mrcal_rms"] = m.rms_px  # the tool reports one RMS over all cameras
+            row["mrcal_rms"] = m.rms_cam[c]  # over the corners mrcal kept, per corner as ours
             if ours.success:
                 q, ok = project_rays(ours.model[c], ours.intrinsics[c], v)
                 row["proj_px"] = pixel_difference(q, ok, m.q_rays[c], mrcal_valid(m.q_rays[c]))
@@ -116,8 +119,8 @@ def write_comparison(cmp: Comparison, out: Path) -> tuple[Path, Path]:
     md, js = out / "compare.md", out / "compare.json"
     md.write_text("# Ours and mrcal on the same detections\n\n" + cmp.table() + "\n")
     m = cmp.mrcal
-    mrcal = {k: getattr(m, k) for k in ("available", "success", "reason", "stage", "runtime_s", "lensmodel", "rms_px", "outliers")}
-    mrcal["rms_px"] = mrcal["rms_px"] if math.isfinite(mrcal["rms_px"]) else None  # JSON has no NaN
+    keys = ("available", "success", "reason", "stage", "runtime_s", "lensmodel", "rms_px", "rms_cam", "outliers")
+    mrcal = {k: getattr(m, k) for k in keys}
     ours = {"success": cmp.ours.success, "reason": cmp.ours.reason, "model": cmp.ours.model, "runtime_s": cmp.ours.runtime_s}
-    js.write_text(json.dumps({"ours": ours, "mrcal": mrcal, "cameras": cmp.rows}, indent=1, default=float))
+    js.write_text(json.dumps(json_safe({"ours": ours, "mrcal": mrcal, "cameras": cmp.rows}), indent=1))
     return md, js

@@ -34,7 +34,7 @@ class CameraCoverage:
     centre: np.ndarray  # (2,) image centre, px
     R: float  # image radius, px: the usable radius, or farther where most corners prove a larger circle
     widest_view: float  # largest radial span (highest - lowest corner radius, of R) of a single view
-    reachable: np.ndarray  # (sectors,) bool: the sector's rim ring lies mostly on the sensor
+    reachable: np.ndarray  # (sectors,) bool: at least a fifth of the sector's rim ring lies on the sensor
     advice: list[str] = field(default_factory=list)
 
     def radius_of(self, q: np.ndarray) -> np.ndarray:

@@ -10,8 +10,10 @@ else changes.
 The corners file is mrcal's vnlog ``# filename x y level``: one row per board point, row-major
 (mrcal's board point (i, j) is our corner id ``j * nx + i``), ``- - -`` for a corner not detected
 (a partial view), one file name ``camC/frameNNNNNN.png`` per observation, so that frame numbers
-pair the cameras. mrcal's board origin is our corner 0 (docs/conventions.md), so its board poses
-are ours after a shift by that corner's board coordinates.
+pair the cameras. mrcal's board point (i, j) sits at (i, j) x spacing, with the same axes as ours
+and its origin at our corner 0 (docs/conventions.md puts corner 0 at one square in x and y), so
+its board poses are ours after a shift by that corner's board coordinates. mrcal ignores corners
+at negative pixel coordinates and observations with 3 corners or fewer; neither is written.
 
 The default lens model is the one mrcal advises for wide lenses: a splined stereographic model over
 the lens's FoV, seeded by mrcal's own stereographic seed with a focal length from ``--fov`` and
@@ -21,8 +23,10 @@ stereographic-unprojected corners, which is where partial boards beyond 90 degre
 
 from __future__ import annotations
 
+import glob
 import json
 import math
+import os
 import re
 import shutil
 import subprocess
@@ -57,7 +61,8 @@ class MrcalResult:
     stage: str  # the last stage the tool announced (where it failed)
     runtime_s: float
     lensmodel: str
-    rms_px: float = math.nan  # the tool's final RMS reprojection error (also when it failed after the solve)
+    rms_px: float = math.nan  # the tool's own final RMS (x and y counted apart, thrown-out corners as 0; also when it failed)
+    rms_cam: list[float] = field(default_factory=list)  # per camera, RMS corner error (px) over the corners it kept: as ours
     outliers: int = 0  # corners the tool threw out
     intrinsics: list[list[float]] = field(default_factory=list)  # per camera, mrcal's order for its lens model
     T_cam_rig: np.ndarray | None = None  # (C, 4, 4); cam0 = rig
@@ -72,18 +77,28 @@ def mrcal_tool() -> str | None:
     return tool if tool and Path(SYSTEM_PYTHON).is_file() else None
 
 
+MIN_POINTS = 4  # mrcal keeps an observation with more than 3 valid corners
+
+
 def write_corners(seq: Sequence, path: Path) -> list[int]:
-    """Write ``seq``'s observations as mrcal's corners vnlog; returns the views in mrcal's frame order."""
+    """Write ``seq``'s observations as mrcal's corners vnlog; returns the views in mrcal's frame
+    order. Corners mrcal would ignore (negative coordinates) and observations it would drop (3
+    corners or fewer) are left out, so that its frames are exactly these views."""
     board = seq.target
     n = board.n_corners
     lines = ["# filename x y level"]
+    views = set()
     for o in sorted(seq.observations, key=lambda o: (o.view, o.cam)):
+        ok = (o.q[:, 0] >= 0) & (o.q[:, 1] >= 0)
+        if ok.sum() < MIN_POINTS:
+            continue
         grid = np.full((n, 2), np.nan)
-        grid[o.ids] = o.q
+        grid[o.ids[ok]] = o.q[ok]
         name = f"cam{o.cam}/frame{o.view:06d}.png"
         lines += [f"{name} - - -" if np.isnan(x) else f"{name} {x:.4f} {y:.4f} 0" for x, y in grid]
+        views.add(o.view)
     path.write_text("\n".join(lines) + "\n")
-    return sorted({o.view for o in seq.observations})
+    return sorted(views)
 
 
 def default_lensmodel(fov: float, cfg: MrcalConfig) -> str:
@@ -108,14 +123,22 @@ import numpy as np, mrcal
 a = json.load(sys.stdin)
 rays = np.array(a["rays"], dtype=float).reshape(-1, 3)
 out = {"cams": []}
+oi = mrcal.cameramodel(a["models"][0]).optimization_inputs()
+x = mrcal.optimizer_callback(**oi, no_jacobian=True, no_factorization=True)[1]
+ob = oi["observations_board"]
+N, H, W, _ = ob.shape
+r = x[: N * H * W * 2].reshape(N, H, W, 2)  # the board residuals lead the measurement vector
+kept = ob[..., 2] > 0  # corners mrcal used (not missing, not thrown out)
+cam_of = oi["indices_frame_camintrinsics_camextrinsics"][:, 1]
 for i, path in enumerate(a["models"]):
     m = mrcal.cameramodel(path)
     lens, intr = m.intrinsics()
     q = mrcal.project(rays, lens, intr) if len(rays) else np.zeros((0, 2))
+    rr = r[cam_of == i][kept[cam_of == i]]
+    rms = float(np.sqrt(np.mean(np.sum(rr**2, -1)))) if len(rr) else float("nan")
     out["cams"].append({"lensmodel": lens, "intrinsics": intr.tolist(), "rt_cam_ref": m.extrinsics_rt_fromref().tolist(),
-                        "q": np.where(np.isfinite(q), q, -1e9).tolist()})
-    if i == 0:
-        out["frames_rt_toref"] = m.optimization_inputs()["frames_rt_toref"].tolist()
+                        "q": np.where(np.isfinite(q), q, -1e9).tolist(), "rms": rms})
+out["frames_rt_toref"] = oi["frames_rt_toref"].tolist()
 json.dump(out, sys.stdout)
 """
 
@@ -164,15 +187,18 @@ def calibrate_mrcal(
         views = write_corners(seq, workdir / "corners.vnl")
         focal = cfg.focal_px or seed_focal(seq, fov)
         # fmt: off
+        where = glob.escape(str(workdir.resolve()))  # absolute globs: a folder named cam0 above cannot confuse mrcal
         cmd = [tool, "--corners-cache", "corners.vnl", "--lensmodel", lensmodel, "--focal", f"{focal:.2f}",
                "--imagersize", str(w), str(h), "--object-spacing", f"{board.spacing:.9g}",
                "--object-width-n", str(board.nx), "--object-height-n", str(board.ny), "--outdir", "models",
-               *[f"cam{c}/*.png" for c in range(len(seq.cameras))]]
+               *[f"{where}/cam{c}/*.png" for c in range(len(seq.cameras))]]
         # fmt: on
         (workdir / "models").mkdir(exist_ok=True)
         t0 = time.time()
         try:
-            p = subprocess.run(cmd, cwd=workdir, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=cfg.timeout_s)
+            env = {**os.environ, "PYTHONUNBUFFERED": "1"}  # its stdout and stderr interleave in order
+            pipes = dict(stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+            p = subprocess.run(cmd, cwd=workdir, timeout=cfg.timeout_s, env=env, **pipes)
             log, rc = p.stdout, p.returncode
         except subprocess.TimeoutExpired as e:
             out = e.stdout.decode(errors="replace") if isinstance(e.stdout, bytes) else (e.stdout or "")
@@ -180,7 +206,7 @@ def calibrate_mrcal(
         runtime = time.time() - t0
         (workdir / "mrcal.log").write_text(" ".join(cmd) + "\n\n" + log)
         stage = _last(r"^(?:## (?!RMS)|=+ )(.*?)$", log)
-        rms = _last(r"RMS (?:reprojection )?error: ([0-9.eE+-]+)", log)
+        rms = _last(r"^## RMS error: ([0-9.eE+-]+)", log)
         n_out = _last(r"Noutliers: (\d+)", log)
         res = MrcalResult(True, False, "", stage, runtime, lensmodel, float(rms) if rms else math.nan, int(n_out) if n_out else 0, log=log)
         models = [workdir / "models" / f"camera-{c}.cameramodel" for c in range(len(seq.cameras))]
@@ -188,17 +214,25 @@ def calibrate_mrcal(
             res.reason = _reason(log, rc)
             return res
         rays = np.zeros((0, 3)) if rays is None else np.asarray(rays, dtype=np.float64)
-        p = subprocess.run(
-            [SYSTEM_PYTHON, "-c", _READER],
-            input=json.dumps({"models": [str(m) for m in models], "rays": rays.tolist()}),
-            capture_output=True,
-            text=True,
-            timeout=120,
-        )
+        try:
+            p = subprocess.run(
+                [SYSTEM_PYTHON, "-c", _READER],
+                input=json.dumps({"models": [str(m) for m in models], "rays": rays.tolist()}),
+                capture_output=True,
+                text=True,
+                timeout=600,
+            )
+        except subprocess.TimeoutExpired:
+            res.reason = "reading mrcal's models took over 600 s"
+            return res
         if p.returncode != 0:
             res.reason = "reading mrcal's models failed: " + (p.stderr.strip().splitlines() or ["?"])[-1]
             return res
         d = json.loads(p.stdout)
+        if len(d["frames_rt_toref"]) != len(views):
+            res.reason = f"mrcal kept {len(d['frames_rt_toref'])} of the {len(views)} views written; its board poses cannot be paired"
+            return res
+        res.rms_cam = [c["rms"] for c in d["cams"]]
         res.intrinsics = [c["intrinsics"] for c in d["cams"]]
         res.T_cam_rig = np.stack([_T_from_rt(c["rt_cam_ref"]) for c in d["cams"]])
         shift = np.eye(4)

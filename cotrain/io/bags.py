@@ -75,10 +75,11 @@ def decode_image(msg, msgtype: str) -> np.ndarray:
 def bag_to_sequence(bag: str | Path, topics: list[str], out: str | Path, progress: bool = True, interval_s: float = 0.0) -> BagSummary:
     """Stream the image topics of ``bag`` into a sequence folder at ``out`` (see the module
     docstring). A missing topic or a bag without images is a :class:`BagError`. ``interval_s`` > 0
-    keeps, per camera, the first image of each time slot of about ``interval_s``: the same slots for
-    every camera, a whole number of the first topic's frame periods long and with their edges
-    half-way between its frames (by the bag's receive time), so that cameras a little apart in time
-    stay paired (a 30 Hz recording thinned to 2 Hz with 0.5)."""
+    thins the recording before anything is decoded: of the first topic, the first image of each
+    slot of ``interval_s`` (a whole number of its frame periods); of every other topic, the image
+    within half a frame period of one of those (by the bag's receive time), so that the kept images
+    of synchronised cameras stay paired (a 30 Hz recording thinned to 2 Hz with 0.5). Finding the
+    first topic's frames reads its messages once more."""
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
     from tqdm import tqdm
@@ -105,13 +106,8 @@ def bag_to_sequence(bag: str | Path, topics: list[str], out: str | Path, progres
         cam_of = {t: i for i, t in enumerate(topics)}
         summary = BagSummary([0] * len(topics), [0] * len(topics), {}, [""] * len(topics), [0] * len(topics))
         seen: list[set[int]] = [set() for _ in topics]
-        slots: list[set[int]] = [set() for _ in topics]
-        slot_ns, half, start = 0.0, 0.0, reader.start_time
-        if interval_s > 0:
-            first = [c for c in conns if c.topic == topics[0]]
-            n0 = sum(c.msgcount for c in first)
-            period = (reader.end_time - reader.start_time) / max(1, n0 - 1) if n0 > 1 else interval_s * 1e9
-            slot_ns, half = max(1, round(interval_s * 1e9 / period)) * period, 0.5 * period
+        keep0, half = _reference_times(reader, [c for c in conns if c.topic == topics[0]], bag, interval_s) if interval_s > 0 else (None, 0)
+        used: list[set[int]] = [set() for _ in topics]
         rows: list[list[str]] = [["frame_id,timestamp_ns,filename"] for _ in topics]
         for i in range(len(topics)):
             (out / f"cam{i}" / "images").mkdir(parents=True, exist_ok=True)
@@ -119,10 +115,17 @@ def bag_to_sequence(bag: str | Path, topics: list[str], out: str | Path, progres
         stream = tqdm(_messages(reader, conns, bag), total=total, desc="bag", unit="msg", disable=not progress)
         for conn, t_bag, raw in stream:
             cam = cam_of[conn.topic]
-            slot = int((int(t_bag) - start + half) // slot_ns) if slot_ns else 0
-            if slot_ns and slot in slots[cam]:  # thinned before anything is decoded
+            ref = -1
+            if keep0 is not None and len(keep0) == 0:
                 summary.thinned[cam] += 1
                 continue
+            if keep0 is not None:  # thinned before anything is decoded
+                k = int(np.clip(np.searchsorted(keep0, t_bag), 1, len(keep0) - 1)) if len(keep0) > 1 else 0
+                k = k - 1 if k > 0 and abs(int(keep0[k - 1]) - int(t_bag)) <= abs(int(keep0[k]) - int(t_bag)) else k
+                ref = int(keep0[k])
+                if abs(ref - int(t_bag)) > (0 if cam == 0 else half) or ref in used[cam]:
+                    summary.thinned[cam] += 1
+                    continue
             try:
                 msg = reader.deserialize(raw, conn.msgtype)
                 grey = decode_image(msg, conn.msgtype)
@@ -139,7 +142,7 @@ def bag_to_sequence(bag: str | Path, topics: list[str], out: str | Path, progres
                 summary.reasons[why] = summary.reasons.get(why, 0) + 1
                 continue
             seen[cam].add(stamp)
-            slots[cam].add(slot)
+            used[cam].add(ref)
             name = f"{stamp:019d}.png"
             if not cv2.imwrite(str(out / f"cam{cam}" / "images" / name), grey):
                 raise OSError(f"{out / f'cam{cam}' / 'images' / name}: cannot write the image")
@@ -154,6 +157,20 @@ def bag_to_sequence(bag: str | Path, topics: list[str], out: str | Path, progres
         (out / f"cam{i}" / "timestamps.csv").write_text("\n".join(r) + "\n")
         (out / f"cam{i}" / "rostopic").write_text(topics[i] + "\n")  # camchain.yaml names it
     return summary
+
+
+def _reference_times(reader, conns, bag, interval_s: float) -> tuple[np.ndarray, float]:
+    """Receive times (ns, sorted) of the first topic's images that ``interval_s`` thinning keeps
+    (the first of each slot of a whole number of its frame periods, slot edges half-way between
+    frames), and half its frame period (ns)."""
+    t = np.array(sorted(int(t_bag) for _, t_bag, _ in _messages(reader, conns, bag)), dtype=np.int64)
+    if len(t) < 2:
+        return t, 0.0
+    period = float(np.median(np.diff(t)))
+    slot_ns = max(1, round(interval_s * 1e9 / max(period, 1.0))) * max(period, 1.0)
+    slot = np.floor((t - t[0] + 0.5 * period) / slot_ns).astype(np.int64)
+    first = np.r_[True, slot[1:] != slot[:-1]]
+    return t[first], 0.5 * period
 
 
 def _messages(reader, conns, bag):

@@ -7,10 +7,12 @@ Work over many files goes on past a bad one: an unreadable image becomes an entr
 from __future__ import annotations
 
 import json
+import math
 import os
 from pathlib import Path
 
 import cv2
+import numpy as np
 
 from cotrain.detect.detector import Detector, draw_detection
 from cotrain.detect.images import ImageError, load_image
@@ -39,6 +41,22 @@ def detect_files(paths: list[Path], detector: Detector, draw_dir: Path | None = 
             entry["error"] = str(e)
         entries.append(entry)
     return {"model": str(detector.path), "target": detector.target.to_json(), "images": entries}
+
+
+def json_safe(obj):
+    """``obj`` with NaN and infinities as None (JSON has no such numbers) and numpy scalars and
+    arrays as plain Python values, for ``json.dumps``."""
+    if isinstance(obj, dict):
+        return {k: json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return json_safe(obj.tolist())
+    if isinstance(obj, (np.floating, np.integer, np.bool_)):
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
 
 
 def write_json_atomic(data: dict, out: Path) -> None:

@@ -73,9 +73,11 @@ def test_view_test_is_per_camera_and_capped():
             err.append(np.abs(rng.normal(med, 0.05 * med, 20)))
     used.append(Observation(0, 99, np.arange(20), np.zeros((20, 2)), np.ones(20), "99"))  # one wrong board in cam0
     err.append(np.full(20, 6.0))
+    used.append(Observation(1, 98, np.arange(20), np.zeros((20, 2)), np.ones(20), "98"))  # a poor cam1 view, not a wrong board
+    err.append(np.full(20, 6.0))  # over 5 x the median of all views (0.4 px), under 5 x cam1's own (1.6 px)
     bad = _inconsistent_views(used, np.concatenate(err), CalibConfig())
     flagged = {(o.cam, o.view) for o, _ in bad}
     assert (0, 99) in flagged
-    assert not any(c == 1 for c, _ in flagged)  # 5 x 1.6 = 8 px: cam1's own views stay
+    assert not any(c == 1 for c, _ in flagged)  # 5 x 1.6 = 8 px: cam1's own views stay, (1, 98) included
     assert {(2, v) for v in range(30)} <= flagged  # capped at 10 px although cam2's median is 25 px
     assert not any(c == 2 and v >= 30 for c, v in flagged)
