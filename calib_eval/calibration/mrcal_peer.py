@@ -208,7 +208,17 @@ def calibrate_mrcal(
         stage = _last(r"^(?:## (?!RMS)|=+ )(.*?)$", log)
         rms = _last(r"^## RMS error: ([0-9.eE+-]+)", log)
         n_out = _last(r"Noutliers: (\d+)", log)
-        res = MrcalResult(True, False, "", stage, runtime, lensmodel, float(rms) if rms else math.nan, int(n_out) if n_out else 0, log=log)
+        res = MrcalResult(
+            available=True,
+            success=False,
+            reason="",
+            stage=stage,
+            runtime_s=runtime,
+            lensmodel=lensmodel,
+            rms_px=float(rms) if rms else math.nan,
+            outliers=int(n_out) if n_out else 0,
+            log=log,
+        )
         models = [workdir / "models" / f"camera-{c}.cameramodel" for c in range(len(seq.cameras))]
         if rc != 0 or not all(m.is_file() for m in models):
             res.reason = _reason(log, rc)

@@ -70,6 +70,7 @@ def test_mrcal_result_in_our_frames(tmp_path):
     r = calibrate_mrcal(seq, 180.0, MrcalConfig(lensmodel="LENSMODEL_STEREOGRAPHIC"), rays=v, workdir=tmp_path)
     assert r.success, r.reason
     assert max(r.rms_cam) < 0.35 and r.rms_px < 0.3 and (tmp_path / "corners.vnl").is_file() and (tmp_path / "mrcal.log").is_file()
+    assert f"Noutliers: {r.outliers} out of" in r.log and len(r.rms_cam) == 2 and r.stage == "final, full optimization"
     for c in range(2):
         xi, fx, fy, cx, cy = gt.params[c]  # Kalibr's omni order
         assert xi == 1.0
