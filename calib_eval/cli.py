@@ -191,7 +191,7 @@ def cmd_detection(a: argparse.Namespace) -> int:
 
 
 def cmd_benchmark(a: argparse.Namespace) -> int:
-    from calib_eval.benchmark.benchmark import ALL_CONFIGS, merge, run_benchmark
+    from calib_eval.benchmark.benchmark import ALL_CONFIGS, combine, merge, run_benchmark
 
     configs = ALL_CONFIGS if a.configs == ["all"] else a.configs
     if a.trials < 1:
@@ -199,7 +199,14 @@ def cmd_benchmark(a: argparse.Namespace) -> int:
     if a.merge_only:
         merge(Path(a.out), a.merge_only, a.trials, a.variants, a.model)
         return 0
-    run_benchmark(configs, a.trials, Path(a.out), workers=a.workers, frames=a.frames, variants=a.variants, model=a.model)
+    if a.combine:
+        missing = [d for d in a.combine if not (Path(d) / "trials.json").is_file()]
+        if missing:
+            raise FileNotFoundError(f"{missing[0]}: no trials.json (a finished benchmark run's folder)")
+        combine([Path(d) for d in a.combine], Path(a.out), a.trials, a.model)
+        return 0
+    opts = dict(workers=a.workers, frames=a.frames, variants=a.variants, model=a.model, mrcal_timeout_s=a.mrcal_timeout)
+    run_benchmark(configs, a.trials, Path(a.out), **opts)
     return 0
 
 
@@ -363,6 +370,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--workers", type=int, default=0, help="parallel processes (0 = one per CPU core)")
     s.add_argument("--merge-only", type=int, default=0, metavar="WORLD", help="only merge the shards of a WORLD-rank run")
+    s.add_argument("--combine", nargs="+", metavar="DIR", help="one table from finished runs with other --variants")
+    s.add_argument("--mrcal-timeout", type=float, default=120.0, help="seconds before mrcal's tool is stopped (counted as its failure)")
     s.add_argument("--out", default="report/benchmark")
     s.set_defaults(func=cmd_benchmark)
 

@@ -37,7 +37,7 @@ import numpy as np
 from calib_eval.benchmark.rigs import SynthSpec, make_sequence, paper_config
 from calib_eval.calibration.calibrator import CalibConfig, calibrate
 from calib_eval.calibration.compare import MAX_RMS_PX, error_rays, mrcal_valid, pixel_difference, pose_difference, project_rays
-from calib_eval.calibration.mrcal_peer import calibrate_mrcal
+from calib_eval.calibration.mrcal_peer import MrcalConfig, calibrate_mrcal
 from calib_eval.calibration.selector import SelectorConfig, select
 from cotrain.io.detections import json_safe
 
@@ -111,10 +111,13 @@ def evaluate_result(res, gt, fov: float) -> dict:
     return out
 
 
-def evaluate_mrcal(seq, gt, fov: float) -> dict:
+MRCAL_TIMEOUT_S = 120.0  # mrcal's tool is stopped after this long in the benchmark (ours takes seconds)
+
+
+def evaluate_mrcal(seq, gt, fov: float, timeout_s: float = MRCAL_TIMEOUT_S) -> dict:
     """mrcal's tool on ``seq``, scored by the same criteria as ours (success also needs its RMS <= 2 px)."""
     v = error_rays(fov)
-    m = calibrate_mrcal(seq, fov, rays=v)
+    m = calibrate_mrcal(seq, fov, MrcalConfig(timeout_s=timeout_s), rays=v)
     out = {"available": m.available, "success": False, "reason": m.reason, "stage": m.stage, "runtime_s": m.runtime_s}
     out.update({"rms_px": max(m.rms_cam, default=m.rms_px), "outliers": m.outliers})
     if m.success and not out["rms_px"] <= MAX_RMS_PX:
@@ -165,7 +168,13 @@ def coverage_grid(seq, cells: int = 16) -> list[list[int]]:
 
 
 def run_trial(
-    config: str, trial: int, frames: int = 480, noise_px: float = 0.3, variants: list[str] | None = None, model: str = "ds"
+    config: str,
+    trial: int,
+    frames: int = 480,
+    noise_px: float = 0.3,
+    variants: list[str] | None = None,
+    model: str = "ds",
+    mrcal_timeout_s: float = MRCAL_TIMEOUT_S,
 ) -> dict:
     """One sequence, calibrated by every variant. Deterministic in (config, trial)."""
     import torch
@@ -185,7 +194,7 @@ def run_trial(
         elif v == "selector":
             res = calibrate(seq.subset(sel.keep), CalibConfig(model=model, fov=rig.fov), order=sel.order)
         elif v == "mrcal":
-            r = evaluate_mrcal(seq.subset(sel.keep), gt, rig.fov)
+            r = evaluate_mrcal(seq.subset(sel.keep), gt, rig.fov, mrcal_timeout_s)
             r["wall_s"] = time.time() - t0
             out[v] = r
             continue
@@ -312,6 +321,7 @@ def run_benchmark(
     variants: list[str] | None = None,
     progress: bool = True,
     model: str = "ds",
+    mrcal_timeout_s: float = MRCAL_TIMEOUT_S,
 ) -> dict:
     """Run (this rank's share of) the benchmark, write its shard, and on rank 0 merge all shards."""
     from tqdm import tqdm
@@ -328,10 +338,10 @@ def run_benchmark(
     results = []
     if workers == 1:
         for c, t in tqdm(mine, desc=f"benchmark rank {rank}", disable=not progress):
-            results.append(run_trial(c, t, frames, variants=variants, model=model))
+            results.append(run_trial(c, t, frames, variants=variants, model=model, mrcal_timeout_s=mrcal_timeout_s))
     else:
         with ProcessPoolExecutor(workers) as ex:
-            futs = [ex.submit(run_trial, c, t, frames, 0.3, variants, model) for c, t in mine]
+            futs = [ex.submit(run_trial, c, t, frames, 0.3, variants, model, mrcal_timeout_s) for c, t in mine]
             for f in tqdm(futs, desc=f"benchmark rank {rank}", disable=not progress):
                 results.append(f.result())
     shard = out / f"shard_{rank}_of_{world}.json"
@@ -347,6 +357,22 @@ def run_benchmark(
             break
         time.sleep(2)
     return merge(out, world, trials, variants, model)
+
+
+def combine(dirs: list[Path], out: Path, trials: int, model: str = "ds") -> dict:
+    """One table from benchmark runs over the same configurations and trials with different
+    variants (``trials.json`` of each): a trial's variants are joined by (configuration, trial)."""
+    joined: dict[tuple[str, int], dict] = {}
+    variants: list[str] = []
+    elapsed = 0.0
+    for d in dirs:
+        for t in json.loads((d / "trials.json").read_text()):
+            joined.setdefault((t["config"], t["trial"]), {}).update(t)
+            variants += [v for v in ALL_VARIANTS if v in t and v not in variants]
+        elapsed += json.loads((d / "results.json").read_text()).get("elapsed_s", 0.0)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "shard_0_of_1.json").write_text(json.dumps({"trials": list(joined.values()), "elapsed_s": elapsed}))
+    return merge(out, 1, trials, [v for v in ALL_VARIANTS if v in variants], model)
 
 
 def merge(out: Path, world: int, trials: int, variants: list[str], model: str = "ds") -> dict:
