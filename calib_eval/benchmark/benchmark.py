@@ -27,6 +27,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import time
 import zlib
 from concurrent.futures import ProcessPoolExecutor
@@ -295,7 +296,9 @@ def failure_table(trials: list[dict], variant: str) -> str:
         n[t["config"]] = n.get(t["config"], 0) + 1
         if r.get("success"):
             continue
-        key = (t["config"], r.get("stage", "") or "-", (r.get("reason") or "?").replace("|", "/")[:140])
+        reason = re.sub(r"final RMS [0-9.]+ px > ", "final RMS over ", (r.get("reason") or "?").replace("|", "/"))  # one row, RMS beside
+        reason = re.sub(r"observation \d+ \(camera \d+\)", "an observation", re.sub(r"^(?:[\w<>]+\.)+(?=\w+: )", "", reason))
+        key = (t["config"], r.get("stage", "") or "-", reason[:160])
         rows.setdefault(key, []).append(r.get("rms_px", math.nan))
     if not rows:
         return ""

@@ -157,7 +157,7 @@ def _last(pattern: str, text: str) -> str:
 
 def _reason(log: str, rc: int) -> str:
     """mrcal's own last error line (an exception message), or the exit status."""
-    err = _last(r"^(?:\w+\.)*(?:\w*Error|\w*Exception|SolvePnPerror\w*): .*$", log)
+    err = _last(r"^(?:[\w<>]+\.)*\w*(?:[Ee]rror|Exception)\w*: .*$", log)  # e.g. mrcal.calibration.<...>.<locals>.SolvePnPerror_negz: ...
     return err or _last(r"^Exception.*$", log) or f"{TOOL} exited with status {rc}"
 
 
