@@ -95,21 +95,22 @@ def evaluate_result(res, gt, fov: float) -> dict:
         out["strict"] = False
         return out
     intr_px = max(projection_difference(res.model[c], res.intrinsics[c], gt.model[c], gt.params[c], fov) for c in range(len(gt.params)))
-    ext_t, ext_r = pose_difference(np.asarray(res.T_cam_rig)[1:], gt.T_cam_rig[1:])
-    views = sorted(res.T_rig_board)
-    ate_t, ate_r = pose_difference(np.stack([res.T_rig_board[v] for v in views]), gt.T_rig_board[views])
-    out.update(
-        {
-            "intr_px": float(intr_px),
-            "ext_mm": float(np.mean(ext_t)),
-            "ext_deg": float(np.mean(ext_r)),
-            "ate_mm": float(np.mean(ate_t)),
-            "ate_deg": float(np.mean(ate_r)),
-            "rms_px": res.rms_px,
-        }
-    )
+    out.update({"intr_px": float(intr_px), **pose_errors(np.asarray(res.T_cam_rig), res.T_rig_board, gt), "rms_px": res.rms_px})
     out["strict"] = is_strict(out)
     return out
+
+
+def pose_errors(T_cam_rig: np.ndarray, T_rig_board: dict[int, np.ndarray], gt) -> dict:
+    """Mean extrinsic (cameras after cam0) and target-pose (ATE) errors against the ground truth, mm and deg."""
+    ext_t, ext_r = pose_difference(T_cam_rig[1:], gt.T_cam_rig[1:])
+    views = sorted(T_rig_board)
+    ate_t, ate_r = pose_difference(np.stack([T_rig_board[v] for v in views]), gt.T_rig_board[views])
+    return {
+        "ext_mm": float(np.mean(ext_t)),
+        "ext_deg": float(np.mean(ext_r)),
+        "ate_mm": float(np.mean(ate_t)),
+        "ate_deg": float(np.mean(ate_r)),
+    }
 
 
 MRCAL_TIMEOUT_S = 120.0  # mrcal's tool is stopped after this long in the benchmark (ours takes seconds)
@@ -128,18 +129,7 @@ def evaluate_mrcal(seq, gt, fov: float, timeout_s: float = MRCAL_TIMEOUT_S) -> d
         return out
     out["success"] = True
     intr_px = max(pixel_difference(q, mrcal_valid(q), *project_rays(gt.model[c], gt.params[c], v)) for c, q in enumerate(m.q_rays))
-    ext_t, ext_r = pose_difference(m.T_cam_rig[1:], gt.T_cam_rig[1:])
-    views = sorted(m.T_rig_board)
-    ate_t, ate_r = pose_difference(np.stack([m.T_rig_board[k] for k in views]), gt.T_rig_board[views])
-    out.update(
-        {
-            "intr_px": float(intr_px),
-            "ext_mm": float(np.mean(ext_t)),
-            "ext_deg": float(np.mean(ext_r)),
-            "ate_mm": float(np.mean(ate_t)),
-            "ate_deg": float(np.mean(ate_r)),
-        }
-    )
+    out.update({"intr_px": float(intr_px), **pose_errors(m.T_cam_rig, m.T_rig_board, gt)})
     out["strict"] = is_strict(out)
     return out
 
