@@ -160,8 +160,8 @@ class AprilGrid:
         row_ok = (ky >= 0) & (ky < self.tr)
         tag = in_tag_x & in_tag_y & col_ok & row_ok
         # Gap crossings next to a tag corner: gap index -1 .. tc - 1 (before / after each tag).
-        gx = (~in_tag_x & (kx >= -1) & (kx < self.tc)) | ((kx == -1) & ~in_tag_x)
-        gy = (~in_tag_y & (ky >= -1) & (ky < self.tr)) | ((ky == -1) & ~in_tag_y)
+        gx = ~in_tag_x & (kx >= -1) & (kx < self.tc)
+        gy = ~in_tag_y & (ky >= -1) & (ky < self.tr)
         crossing = gx & gy
         cell = self.S / CELLS
         bx = torch.clamp(torch.floor(fx / cell), 0, CELLS - 1).long()
