@@ -6,7 +6,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test bench lint setup clean
+.PHONY: run test bench lint setup clean peers
 
 $(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -24,6 +24,11 @@ run: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python -m calib_eval.benchmark.timing
+
+# Optional AprilGrid evaluation peers (python -m calib_eval.detection.tags). --no-deps: aprilgrid
+# asks for opencv-python, which would overwrite opencv-python-headless's cv2.
+peers: $(STAMP)
+	$(BIN)/pip install -q --no-deps "aprilgrid==0.5.0" "pupil-apriltags==1.0.4.post11"
 
 lint: $(STAMP)
 	$(BIN)/ruff check . && $(BIN)/ruff format --check .

@@ -67,13 +67,13 @@ def _sequence(a: argparse.Namespace, cache: Path | None):
         if a.topics:
             raise ValueError("--topics goes with --bag")
         return load_sequence(a.seq, a.tolerance_ms, target=_target(a.target))
-    from cotrain.detect.detector import Detector
+    from cotrain.detect.detector import make_detector
     from cotrain.io.bags import sequence_from_bag
 
     if not a.topics:
         raise ValueError("--bag needs --topics (one image topic per camera)")
     target = _target(a.target)
-    det = Detector(a.detector, target=target)
+    det = make_detector(target, a.detector)
     if not 0 <= a.every < float("inf"):
         raise ValueError("--every must be 0 (every image) or a positive number of seconds")
     folder, read = sequence_from_bag(a.bag, a.topics, cache or Path(str(a.bag).rstrip("/") + ".sequence"), det, interval_s=a.every)
@@ -249,10 +249,10 @@ def cmd_opencv_detect(a: argparse.Namespace) -> int:
     if not paths:
         raise FileNotFoundError(f"{a.images}: no images")
     if a.learned:
-        from cotrain.detect.detector import Detector
+        from cotrain.detect.detector import make_detector
         from cotrain.io.detections import detect_files
 
-        det = Detector(a.model, target=tgt)
+        det = make_detector(tgt, a.model)
         detect = lambda files: detect_files(files, det)  # noqa: E731
     else:
         detect = lambda files: opencv_detect(files, tgt, "sb" if a.sb else "classic")  # noqa: E731

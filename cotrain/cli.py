@@ -57,7 +57,7 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_detect(args: argparse.Namespace) -> int:
-    from cotrain.detect.detector import Detector
+    from cotrain.detect.detector import make_detector
     from cotrain.detect.images import expand_inputs
     from cotrain.detect.onnx_model import OnnxModel
     from cotrain.io.detections import detect_files, write_json_atomic
@@ -74,13 +74,13 @@ def cmd_detect(args: argparse.Namespace) -> int:
         raise FileNotFoundError("no images found in the given paths")
     base = OnnxModel(args.model).target if args.square_size is not None and args.squares_x is None else None
     target = target_from_flags(args.target, args.squares_x, args.squares_y, args.square_size, base)
-    det = Detector(
+    det = make_detector(
+        target,
         args.model,
         threshold=args.threshold,
         consistency=not args.no_consistency,
         polish=args.polish,
         mode="slots" if args.slots else "grid",
-        target=target,
     )
     if args.bag:
         from cotrain.io.bags import sequence_from_bag

@@ -17,6 +17,7 @@ Reading images: :mod:`cotrain.detect.images`; the model and its named outputs:
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -28,9 +29,10 @@ from cotrain.detect.grid_pass import GridResult, grid_pass
 from cotrain.detect.images import MIN_SIDE, ImageError, to_grey_float
 from cotrain.detect.onnx_model import OnnxModel
 from cotrain.detect.saddle import saddle_fit, smooth_for, window_half
+from cotrain.detect.tag_pass import TagConfig, tag_pass
 from cotrain.geometry.letterbox import Letterbox
 from cotrain.model.outputs import DENSE_OUTPUTS
-from cotrain.targets import Checkerboard, Target
+from cotrain.targets import AprilGrid, Checkerboard, Target
 
 
 @dataclass
@@ -88,6 +90,18 @@ class Detector:
         self.mode = mode
         self.grid = grid or GridConfig()
 
+    def cache_key(self) -> dict:
+        """What decides this detector's output (the model file and the settings): cached
+        detections are reused only under the same key."""
+        model = Path(self.path)
+        return {
+            "model": [str(model.resolve()), model.stat().st_size, model.stat().st_mtime_ns],
+            "mode": self.mode,
+            "threshold": self.threshold,
+            "consistency": self.consistency,
+            "polish": self.polish,
+        }
+
     def letterbox(self, grey: np.ndarray) -> Letterbox:
         """The letterbox of an (h, w) image into the model's processing size."""
         h, w = grey.shape
@@ -140,6 +154,41 @@ class Detector:
         if consistency and len(ids):
             ids = ids[grid_consistent(ids, xy[ids], self.nx)]
         return Detection(ids, xy[ids], conf[ids].astype(np.float64), vis[ids].astype(np.float64), w, h, xy, vis)
+
+
+class AprilGridDetector:
+    """Kalibr AprilGrid corners and ids from the image alone: the tag pass of
+    :mod:`cotrain.detect.tag_pass` (X-junctions at full resolution, tags read through their own
+    corners, one placement per board). Same ``detect`` as :class:`Detector`."""
+
+    path = "tag-pass"  # written as the detection JSON's "model": no network is involved
+
+    def __init__(self, target: AprilGrid, cfg: TagConfig | None = None):
+        if not isinstance(target, AprilGrid):
+            raise ValueError(f"target: the tag pass finds aprilgrids, not {target.kind}")
+        self.target = target
+        self.cfg = cfg or TagConfig()
+
+    def cache_key(self) -> dict:
+        """What decides this detector's output: its settings (see :meth:`Detector.cache_key`)."""
+        return {"tag_pass": dataclasses.asdict(self.cfg)}
+
+    def detect(self, image: np.ndarray) -> Detection:
+        """Detect corners in one image (any size, 8/16-bit or float, grey or colour)."""
+        grey = to_grey_float(image) if image.dtype != np.float32 or image.ndim != 2 else image
+        h, w = grey.shape
+        if min(h, w) < MIN_SIDE:
+            raise ImageError(f"image too small ({w}x{h}); need at least {MIN_SIDE} px per side")
+        r = tag_pass(grey, self.target, self.cfg)
+        return Detection(r.ids, r.xy, r.confidence, np.ones(len(r.ids)), w, h)
+
+
+def make_detector(target: Target | None, model: str | Path | None = None, **options) -> Detector | AprilGridDetector:
+    """The detector for a target: the tag pass for an AprilGrid, the network and the grid pass
+    (``options``: :class:`Detector`'s) otherwise."""
+    if isinstance(target, AprilGrid):
+        return AprilGridDetector(target)
+    return Detector(model, target=target, **options)
 
 
 def grid_consistent(ids: np.ndarray, xy: np.ndarray, nx: int, rel_tol: float = 0.35, min_step_px: float = 2.0) -> np.ndarray:

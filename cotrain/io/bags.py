@@ -205,20 +205,13 @@ def sequence_from_bag(
     path, out = Path(bag), Path(out)
     if not path.exists():
         raise BagError(f"{bag}: no such bag")
-    model = Path(detector.path)
     key = {
         "format": 1,
         "bag": str(path.resolve()),
         "files": _bag_stamp(path),
         "topics": list(topics),
         "interval_s": interval_s,
-        "model": [str(model.resolve()), model.stat().st_size, model.stat().st_mtime_ns],
-        "detector": {
-            "mode": detector.mode,
-            "threshold": detector.threshold,
-            "consistency": detector.consistency,
-            "polish": detector.polish,
-        },
+        "detector": detector.cache_key(),
         "target": detector.target.to_json(),
     }
     marker = out / "bag.json"

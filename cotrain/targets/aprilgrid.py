@@ -45,6 +45,14 @@ def tag_bits(n: int) -> np.ndarray:
     return out
 
 
+def printed_bits(n: int) -> np.ndarray:
+    """(n, 6, 6) uint8 data bits of tag36h11 ids 0 .. n-1 as Kalibr prints them, indexed
+    ``[t, j, i]``: data row j counted from the tag's bottom edge on the page (y up), column i from
+    its left edge (x right); 1 = white. Kalibr draws OpenCV's marker turned by a half turn, so
+    page cell (i, j) shows marker cell (row j, column 5 - i)."""
+    return np.ascontiguousarray(tag_bits(n)[:, :, ::-1])
+
+
 class AprilGrid:
     """Kalibr's AprilGrid: geometry (corners, ids, tags) and appearance (area-sampled intensity)."""
 
@@ -69,6 +77,7 @@ class AprilGrid:
         self.gap = cfg.tag_spacing * cfg.tag_size
         self.P = self.S + self.gap  # period of the tag grid
         self.nx, self.ny = 2 * self.tc, 2 * self.tr  # corner grid (columns, rows)
+        self.printed = printed_bits(self.n_tags)  # (tags, 6, 6) the data bits on the page (see printed_bits)
 
     def __repr__(self) -> str:
         return f"AprilGrid({self.tc} x {self.tr} tags of {self.S:g} m, spacing {self.cfg.tag_spacing:g})"
@@ -168,10 +177,8 @@ class AprilGrid:
         by = torch.clamp(torch.floor(fy / cell), 0, CELLS - 1).long()
         data = (bx >= BORDER_BITS) & (bx < CELLS - BORDER_BITS) & (by >= BORDER_BITS) & (by < CELLS - BORDER_BITS)
         t = (torch.clamp(ky, 0, self.tr - 1) * self.tc + torch.clamp(kx, 0, self.tc - 1)).long()
-        # Seen with y up, the printed bits are OpenCV's marker turned by a half turn: page cell
-        # (column bx, row by counted from the bottom) shows marker cell (row by - 2, column 7 - bx).
-        row = torch.clamp(by - BORDER_BITS, 0, DATA_BITS - 1)
-        col = torch.clamp(CELLS - BORDER_BITS - 1 - bx, 0, DATA_BITS - 1)
+        row = torch.clamp(by - BORDER_BITS, 0, DATA_BITS - 1)  # page data cell, counted from the bottom (see printed_bits)
+        col = torch.clamp(bx - BORDER_BITS, 0, DATA_BITS - 1)
         bit = bits[t, row, col].to(x.dtype)
         inside_tag = torch.where(data, bit, torch.zeros_like(x))  # the border is black
         value = torch.ones_like(x)
@@ -190,7 +197,7 @@ class AprilGrid:
             intensity (...) in [0, 1] (0 black, 1 white) and coverage (...) in [0, 1], the fraction
             of the footprint on the printed sheet.
         """
-        bits = torch.from_numpy(tag_bits(self.n_tags)).to(xy.device)
+        bits = torch.from_numpy(self.printed).to(xy.device)
         x, y = xy[..., 0], xy[..., 1]
         x0, y0, x1, y1 = self.extent()
         if footprint is None:

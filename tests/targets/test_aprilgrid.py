@@ -1,6 +1,8 @@
 """Kalibr's AprilGrid: ids and board coordinates as Kalibr's createGridPoints, the print as Kalibr's
 createTargetPDF draws it, and a flat rendering that OpenCV's aruco decodes tag by tag."""
 
+from pathlib import Path
+
 import cv2
 import numpy as np
 import pytest
@@ -119,10 +121,21 @@ def test_descriptions_round_trip(tmp_path):
         assert msg in str(e.value) and "\n" not in str(e.value)
 
 
-def test_checkerboard_detector_refuses_an_aprilgrid_in_one_line(tmp_path, capsys):
+def test_cotrain_detect_runs_the_tag_pass_on_an_aprilgrid(tmp_path):
+    """``cotrain detect --target aprilgrid.yaml`` writes the detection JSON with the AprilGrid
+    target, Kalibr's ids, and an error entry for an unreadable file (the run goes on)."""
+    import json
+
     from cotrain.cli import run
 
-    cv2.imwrite(str(tmp_path / "a.png"), np.full((64, 64), 128, np.uint8))
-    assert run(["detect", "--target", str(APRILGRID), str(tmp_path / "a.png")]) == 2
-    err = capsys.readouterr().err
-    assert "finds checkerboards, not aprilgrid" in err and err.count("\n") == 1
+    g = load_target(APRILGRID)
+    img, _ = _flat_render(g, 800.0)
+    cv2.imwrite(str(tmp_path / "flat.png"), cv2.GaussianBlur(img, (0, 0), 0.7))
+    (tmp_path / "bad.png").write_text("not an image")
+    out = tmp_path / "det.json"
+    assert run(["detect", "--target", str(APRILGRID), str(tmp_path / "flat.png"), str(tmp_path / "bad.png"), "--out", str(out)]) == 0
+    data = json.loads(out.read_text())
+    assert data["target"] == g.to_json() and data["model"] == "tag-pass"
+    entries = {Path(e["path"]).name: e for e in data["images"]}
+    assert entries["bad.png"]["error"] and not entries["bad.png"]["corners"]
+    assert sorted(c["id"] for c in entries["flat.png"]["corners"]) == list(range(g.n_corners))

@@ -1,0 +1,304 @@
+"""AprilGrid detection evaluation: ``python -m calib_eval.detection.tags [--per-fov N] [--fov ...] [--out DIR]``.
+
+1. Render a seeded AprilGrid set (Kalibr's 6 x 6 default, 1280x720, half f-theta kb4, half the
+   other families, partial views included, plus frames without a target), with the same realism
+   as the checkerboard set (:mod:`calib_eval.detection.evaluation`).
+2. Run our tag pass (:class:`cotrain.detect.detector.AprilGridDetector`) and the AprilGrid
+   detectors a user would otherwise pick, where installed (``make peers``): OpenCV's aruco with
+   ``DICT_APRILTAG_36h11`` and Kalibr's 2-bit border, ``aprilgrid`` (PyPI, a port of Kalibr's
+   detector) and ``pupil-apriltags`` (AprilTag 3).
+3. Score per FoV and per 10-degree bin of the corner's off-axis angle.
+
+Detectable corners: visible, and the tag at least ``min_tag_px`` across (the smaller singular
+value of the image of one tag side). A peer's tag gives its four corners the ids of that tag's
+Kalibr corners, matched to the labels of that tag by position (peers order corners differently);
+a corner is recalled within 3 px of its label, and every other reported corner is wrong.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from calib_eval.detection.evaluation import _render_cfg
+from cotrain.detect.detector import AprilGridDetector
+from cotrain.geometry import cameras
+from cotrain.render.renderer import render_batch
+from cotrain.targets import AprilGrid, TargetConfig, make_target
+
+TOL_PX = 3.0
+BINS = list(range(0, 120, 10))  # off-axis bins, deg: [0, 10) ... [110, 120)
+
+
+@dataclass
+class TagEvalConfig:
+    fovs: list[int] = field(default_factory=lambda: [180, 200, 220, 240])  # FoVs (deg)
+    per_fov: int = 50  # frames per FoV
+    n_empty: int = 10  # frames without a target
+    seed: int = 2027  # the set's seed
+    min_tag_px: float = 8.0  # detectable: the tag at least this many px across
+    width: int = 1280
+    height: int = 720
+
+
+# --------------------------------------------------------------------------------------------
+# Peers: each returns [(tag id, (4, 2) corners)] for a uint8 image
+# --------------------------------------------------------------------------------------------
+def _aruco():
+    prm = cv2.aruco.DetectorParameters()
+    prm.markerBorderBits = 2
+    prm.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+    det = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11), prm)
+
+    def run(img):
+        corners, ids, _ = det.detectMarkers(img)
+        return [] if ids is None else [(int(t), c.reshape(4, 2)) for t, c in zip(ids.ravel(), corners)]
+
+    return run
+
+
+def _aprilgrid():
+    from aprilgrid import Detector
+
+    det = Detector("t36h11")
+    return lambda img: [(int(d.tag_id), np.asarray(d.corners, np.float64).reshape(4, 2)) for d in det.detect(img)]
+
+
+def _pupil():
+    from pupil_apriltags import Detector
+
+    det = Detector(families="tag36h11", quad_decimate=1.0, refine_edges=True)
+    return lambda img: [(int(d.tag_id), np.asarray(d.corners, np.float64).reshape(4, 2)) for d in det.detect(img)]
+
+
+PEERS = {"aruco": _aruco, "aprilgrid": _aprilgrid, "pupil-apriltags": _pupil}
+
+
+def available_peers() -> dict:
+    """The peers that import here: name -> detector (uint8 image -> tags)."""
+    out = {}
+    for name, make in PEERS.items():
+        try:
+            out[name] = make()
+        except ImportError:
+            print(f"{name}: not installed (make peers); left out", file=sys.stderr)
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# Set
+# --------------------------------------------------------------------------------------------
+def render_set(cfg: TagEvalConfig, board: AprilGrid, out: Path) -> list[dict]:
+    """Render the set into ``out/images`` (cached with its labels in ``out/labels.json``)."""
+    from tqdm import tqdm
+
+    lab_path = out / "labels.json"
+    key = {"config": cfg.__dict__, "target": board.to_json()}
+    if lab_path.is_file():
+        old = json.loads(lab_path.read_text())
+        if old.get("key") == key:
+            return old["labels"]
+    (out / "images").mkdir(parents=True, exist_ok=True)
+    from calib_eval.detection.evaluation import EvalConfig
+
+    ecfg = EvalConfig(width=cfg.width, height=cfg.height, target=board.cfg)
+    jobs = [(fov, i) for fov in cfg.fovs for i in range(cfg.per_fov)] + [(0, i) for i in range(cfg.n_empty)]
+    labels = []
+    for fov, i in tqdm(jobs, desc="render aprilgrid set"):
+        others = [m for m in cameras.MODELS if m != "kb4"]
+        models = list(cameras.MODELS) if fov == 0 else (["kb4"] if i < cfg.per_fov // 2 else others)
+        rc = _render_cfg(fov or 200, ecfg, models, no_target=fov == 0)
+        b = render_batch(rc, [i], seed=cfg.seed * 1000 + (fov // 10))
+        name = f"{'empty' if fov == 0 else f'fov{fov}'}_{i:03d}.png"
+        cv2.imwrite(str(out / "images" / name), (b["image"][0, 0].numpy() * 255).round().astype(np.uint8))
+        model = rc.models[int(b["model_index"][0])]
+        p_cam = b["T_cam_board"][0, :3, :3] @ board.points(b["T_cam_board"].dtype).T + b["T_cam_board"][0, :3, 3:]
+        angle = torch.rad2deg(torch.atan2(p_cam[:2].norm(dim=0), p_cam[2]))
+        labels.append(
+            {
+                "image": name,
+                "fov": fov or None,
+                "model": model,
+                "corners": b["corners_raw"][0].tolist(),
+                "visible": b["visible"][0].tolist(),
+                "tag_px": b["square_px"][0].tolist(),
+                "angle": angle.tolist(),
+            }
+        )
+    lab_path.write_text(json.dumps({"key": key, "labels": labels}))
+    return labels
+
+
+# --------------------------------------------------------------------------------------------
+# Scoring
+# --------------------------------------------------------------------------------------------
+def tags_to_corners(tags: list, board: AprilGrid, q: np.ndarray) -> tuple[list[int], list[np.ndarray]]:
+    """A peer's tags -> (ids, positions): each tag's four corners take the ids of its Kalibr corners,
+    matched to that tag's labels ``q`` (N, 2) by position; tags not on the board give wrong corners
+    (id -1)."""
+    ids, xy = [], []
+    for t, c in tags:
+        if not 0 <= t < board.n_tags:
+            ids += [-1] * 4
+            xy += list(c)
+            continue
+        kal = board.tag_corners(t)
+        for p in c:
+            ids.append(int(kal[np.argmin(np.linalg.norm(q[kal] - p, axis=1))]))
+            xy.append(p)
+    return ids, xy
+
+
+def score_frame(ids, xy, lab: dict, min_tag_px: float) -> dict:
+    q, vis = np.array(lab["corners"]), np.array(lab["visible"], bool)
+    det = vis & (np.array(lab["tag_px"]) >= min_tag_px)
+    hit = np.zeros(len(q), bool)
+    err, wrong = [], 0
+    for i, p in zip(ids, xy):
+        if i >= 0 and vis[i] and np.linalg.norm(q[i] - p) < TOL_PX and not hit[i]:
+            hit[i] = True
+            if det[i]:
+                err.append(float(np.linalg.norm(q[i] - p)))
+        else:
+            wrong += 1
+    return {"det": det, "hit": hit & det, "err": err, "wrong": wrong}
+
+
+def evaluate(cfg: TagEvalConfig, out: Path) -> dict:
+    board = make_target(TargetConfig(kind="aprilgrid"))
+    labels = render_set(cfg, board, out)
+    dets = {"ours": AprilGridDetector(board).detect, **available_peers()}
+    res = {}
+    for name, run in dets.items():
+        rows = []
+        for lab in labels:
+            img = cv2.imread(str(out / "images" / lab["image"]), cv2.IMREAD_GRAYSCALE)
+            t0 = time.perf_counter()
+            found = run(img)
+            ms = 1000 * (time.perf_counter() - t0)
+            if name == "ours":
+                ids, xy = found.ids.tolist(), list(found.xy)
+            else:
+                ids, xy = tags_to_corners(found, board, np.array(lab["corners"]))
+            s = score_frame(ids, xy, lab, cfg.min_tag_px)
+            rows.append((lab, s, ms, len(ids)))
+        res[name] = summarise(rows)
+        print(f"{name}: recall {res[name]['recall']:.3f}, wrong {res[name]['wrong']}, {res[name]['ms']:.1f} ms/image", file=sys.stderr)
+    (out / "tags.json").write_text(json.dumps(res, indent=1))
+    (out / "tags.md").write_text(table(res, cfg))
+    plot(res, out / "tags_recall_offaxis.png")
+    return res
+
+
+def summarise(rows: list) -> dict:
+    per_fov, per_bin = {}, {b: [0, 0] for b in BINS}
+    det_all = hit_all = wrong = empty_reports = 0
+    errs, ms = [], []
+    for lab, s, t, n in rows:
+        ms.append(t)
+        if lab["fov"] is None:
+            empty_reports += n > 0
+            continue
+        f = per_fov.setdefault(lab["fov"], [0, 0, 0])
+        f[0] += int(s["det"].sum())
+        f[1] += int(s["hit"].sum())
+        f[2] += s["wrong"]
+        wrong += s["wrong"]
+        det_all += int(s["det"].sum())
+        hit_all += int(s["hit"].sum())
+        errs += s["err"]
+        ang = np.array(lab["angle"])
+        for b in BINS:
+            m = s["det"] & (ang >= b) & (ang < b + 10)
+            per_bin[b][0] += int(m.sum())
+            per_bin[b][1] += int((s["hit"] & m).sum())
+    return {
+        "recall": hit_all / max(det_all, 1),
+        "wrong": wrong,
+        "mean_err": float(np.mean(errs)) if errs else float("nan"),
+        "median_err": float(np.median(errs)) if errs else float("nan"),
+        "empty_reports": empty_reports,
+        "ms": statistics.median(ms),
+        "fov": {k: {"recall": v[1] / max(v[0], 1), "corners": v[0], "wrong": v[2]} for k, v in sorted(per_fov.items())},
+        "bins": {b: {"recall": v[1] / v[0] if v[0] else None, "corners": v[0]} for b, v in per_bin.items()},
+    }
+
+
+def table(res: dict, cfg: TagEvalConfig) -> str:
+    names = list(res)
+    lines = [
+        f"AprilGrid detection: {cfg.per_fov} frames per FoV at {cfg.width}x{cfg.height}, {cfg.n_empty} without a target, seed {cfg.seed}; "
+        f"detectable = visible and the tag >= {cfg.min_tag_px:g} px across; recall within {TOL_PX:g} px with the right id.",
+        "",
+        "| detector | recall | "
+        + " | ".join(f"FoV {f}" for f in cfg.fovs)
+        + " | wrong | mean / median err (px) | reports on empty frames | ms / image (median) |",
+        "|---" * (6 + len(cfg.fovs)) + "|",
+    ]
+    for n in names:
+        r = res[n]
+        fovs = " | ".join(f"{r['fov'].get(f, {}).get('recall', float('nan')):.3f}" for f in cfg.fovs)
+        err = f"{r['mean_err']:.3f} / {r['median_err']:.3f}"
+        lines.append(f"| {n} | {r['recall']:.3f} | {fovs} | {r['wrong']} | {err} | {r['empty_reports']} | {r['ms']:.1f} |")
+    lines += ["", "Recall per off-axis angle of the corner (deg; corners in the bin in brackets):", ""]
+    lines.append("| detector | " + " | ".join(f"{b}-{b + 10}" for b in BINS) + " |")
+    lines.append("|---" * (1 + len(BINS)) + "|")
+    for n in names:
+        cells = []
+        for b in BINS:
+            v = res[n]["bins"][b]
+            cells.append("-" if v["recall"] is None else f"{v['recall']:.2f}")
+        lines.append(f"| {n} | " + " | ".join(cells) + " |")
+    lines.append("| (corners) | " + " | ".join(str(res[names[0]]["bins"][b]["corners"]) for b in BINS) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def plot(res: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for n, r in res.items():
+        xs = [b + 5 for b in BINS if r["bins"][b]["recall"] is not None]
+        ys = [r["bins"][b]["recall"] for b in BINS if r["bins"][b]["recall"] is not None]
+        ax.plot(xs, ys, marker="o", label=n)
+    ax.set_xlabel("off-axis angle of the corner (deg)")
+    ax.set_ylabel("recall (right id, within 3 px)")
+    ax.set_ylim(0, 1.02)
+    ax.grid(alpha=0.3)
+    ax.legend()
+    ax.set_title("AprilGrid corners found, by off-axis angle (FoV 180-240)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m calib_eval.detection.tags", description=__doc__.splitlines()[0])
+    p.add_argument("--per-fov", type=int, default=TagEvalConfig.per_fov)
+    p.add_argument("--fov", type=int, nargs="+", default=None)
+    p.add_argument("--seed", type=int, default=TagEvalConfig.seed)
+    p.add_argument("--out", default="runs/tags_eval")
+    a = p.parse_args(argv)
+    cfg = TagEvalConfig(per_fov=a.per_fov, seed=a.seed)
+    if a.fov:
+        cfg.fovs = a.fov
+    torch.set_num_threads(2)
+    res = evaluate(cfg, Path(a.out))
+    print(table(res, cfg))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

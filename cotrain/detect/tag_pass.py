@@ -1,0 +1,768 @@
+"""Tag pass of the detector: Kalibr AprilGrid corners, identified by the tags' own codes.
+
+An AprilGrid's corners are X-junctions: at every tag corner the tag's black border meets the black
+square of a gap crossing. Along a row of corners the steps alternate: a tag side (long), a gap
+(short, ``tag_spacing`` of a tag). Cells of the corner lattice alternate dark and light like a
+checkerboard's: tags and crossing squares are dark, the gap strips between them light. So:
+
+1. candidates (:func:`tag_candidates`): saddle points of the full-resolution image (inside the
+   image circle), fitted as the grid pass fits them (:mod:`cotrain.detect.saddle`);
+2. growth (:func:`grow_tag_lattice`): from a seed whose edge directions show a long and a short
+   neighbour on each axis, breadth first; each neighbour is predicted one long or one short step
+   along a lattice axis (the step lengths carried from corner to corner, and the parallelograms of
+   neighbours already placed) and matched to a candidate or to a saddle found at the prediction;
+   every step must be an edge with the dark cell on the side the lattice's parity says;
+3. decoding (:func:`decode_tags`): each tag cell with its four corners is read through the local
+   geometry of those corners (a homography per tag, never one per board: the fisheye bends a tag
+   at the rim), 6 x 6 data bits against Kalibr's black border and the white gaps around it, and
+   matched to every tag36h11 code in the four orientations a printed tag can have; a Hamming
+   distance up to ``max_hamming`` is corrected (AprilTag's own default: 2 of tag36h11's 11);
+4. placement (:func:`place_lattice`): each decoded tag says where the lattice lies on the board
+   (one of four turns with Kalibr's y-up page, an integer offset); the placement most tags agree
+   on wins, tags that disagree are dropped and counted, and every lattice corner, also those of
+   tags too small or too oblique to read, gets its id from it;
+5. boards: lattices that decode no tag of the target, like a second board with other tags or
+   tags not on a board (no X-junctions at their corners), give no corners; two lattices that claim
+   the same ids keep the one with more decoded tags;
+6. positions: every corner fitted once more in a small window
+   (:func:`cotrain.detect.lattice.refine_positions`).
+
+Pure functions over numpy arrays; pixels follow docs/conventions.md (centre of the top-left pixel at (0, 0)).
+"""
+
+from __future__ import annotations
+
+import collections
+import functools
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from scipy.spatial import cKDTree
+
+from cotrain.detect.grid_config import GridConfig
+from cotrain.detect.lattice import STEPS, Lattice, values_at
+from cotrain.detect.saddle import fit_saddles, outside_circle, saddle_response, smooth_cached, window_half
+from cotrain.targets.aprilgrid import BORDER_BITS, CELLS, DATA_BITS, N_CODES, AprilGrid, printed_bits
+
+
+@dataclass
+class TagConfig:
+    # --- candidates ---
+    response_sigma: float = 1.0  # px: scale of the saddle response (small: gaps of tiny tags are 2-3 px)
+    min_response: float = 0.0015  # saddle response a candidate needs (scale-normalised -det Hessian)
+    max_candidates: int = 4000  # strongest response maxima kept
+    # --- growth ---
+    seed_axis_angle: float = 12.0  # deg: a seed's neighbours lie within this of its fitted edge directions
+    min_long_short: float = 1.7  # at a seed, tag side / gap (Kalibr: 1 / tagSpacing) must exceed this on both axes
+    max_seeds: int = 40  # seeds tried (strongest responses first); covered candidates are not tried again
+    match_radius: float = 0.35  # a neighbour must lie within this fraction of its predicted step
+    agree_radius: float = 0.3  # predictions from different neighbours must agree within this fraction of the step
+    min_step_ratio: float = 0.7  # a new step may be this much shorter than predicted ...
+    max_step_ratio: float = 1.4  # ... or this much longer
+    max_step_junction: float = 0.1  # a candidate this close to a step's middle part (fraction of the step) refuses it
+    crowd_radius: float = 0.5  # a new corner this close (fraction of the local gap) to a placed one is refused
+    min_gap_px: float = 1.6  # no growth across gaps smaller than this
+    edge_depth: float = 0.35  # the edge test samples this fraction of the gap to each side of a step
+    min_edge_contrast: float = 0.04  # light minus dark side of a step, intensity, mean over the step
+    # --- decoding ---
+    max_hamming: int = 2  # bit errors a tag read alone may have (tag36h11: codes differ in at least 11 bits)
+    min_bit_contrast: float = 0.06  # white gap minus black border a tag needs to be read
+    min_clean: float = 0.9  # share of its border samples darker, and gap samples lighter, than their midpoint
+    min_cell_px: float = 1.0  # tags whose data cells are smaller than this (px) are not read
+    # --- placement ---
+    min_margin: float = 12.0  # the board's placement must beat the runner-up by this (correlation; a clean tag gives 36)
+    min_mean_corr: float = 0.4  # ... and its tags must correlate with their codes by this much on average (-1 .. 1)
+    min_tag_corr: float = 0.5  # a tag that was read keeps its corners when it correlates with its code by this much
+    max_cell_misfit: float = 0.25  # a corner must close one of its cells as a parallelogram within this fraction of its side
+    rim_strict_px: float = 8.0  # corners this close to the rim are reported only in a complete lattice cell
+    max_side_gap_ratio: float = 2.0  # a corner's tag side / gap on a lattice line may differ from the target's by this factor
+    # --- boards ---
+    min_corners: int = 4  # smallest lattice that is reported
+    grid: GridConfig = field(default_factory=lambda: GridConfig(min_response=0.0015))  # saddle fit and final positions
+
+
+@dataclass
+class TagResult:
+    ids: np.ndarray  # (K,) corner ids (Kalibr's)
+    xy: np.ndarray  # (K, 2) input-image pixels
+    confidence: np.ndarray  # (K,) 1 for corners of decoded tags, lower for corners identified through the lattice
+    tags: np.ndarray  # (T,) ids of the tags that decode alone to where the board's placement puts them
+    hamming: np.ndarray  # (T,) their bit errors
+    dropped_tags: int = 0  # tags that decode alone to another place than the board's (not used), and second boards' tags
+    foreign_tags: int = 0  # decoded tag36h11 tags that are not on the target (wild tags, other boards)
+
+
+# --------------------------------------------------------------------------------------------
+# Candidates
+# --------------------------------------------------------------------------------------------
+def tag_candidates(
+    grey: np.ndarray, allowed: np.ndarray, cfg: TagConfig, smoothed: dict[int, np.ndarray], rim_dist: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Fitted saddle points inside ``allowed`` (H, W), strongest first.
+
+    Returns xy (K, 2), axes (K, 2, 2) (edge directions, see :func:`cotrain.detect.saddle.saddle_fit`)
+    and the response (K,)."""
+    D = saddle_response(grey, cfg.response_sigma)
+    peak = (D >= cv2.dilate(D, np.ones((3, 3), np.uint8))) & (D > cfg.min_response) & allowed
+    ys, xs = np.nonzero(peak)
+    r = D[ys, xs]
+    order = np.argsort(-r)[: cfg.max_candidates]
+    xy0 = np.stack([xs[order], ys[order]], 1).astype(np.float64)
+    r = r[order].astype(np.float64)
+    if len(xy0) < 2:
+        return np.zeros((0, 2)), np.zeros((0, 2, 2)), np.zeros(0)
+    d, _ = cKDTree(xy0).query(xy0, k=2)
+    halves = window_half(np.maximum(d[:, 1], 2.0))
+    xy, ok, axes = np.zeros_like(xy0), np.zeros(len(xy0), bool), np.zeros((len(xy0), 2, 2))
+    for h in np.unique(halves):
+        m = halves == h
+        xy[m], ok[m], axes[m] = fit_saddles(grey, smoothed, xy0[m], int(h), cfg.grid, rim_dist)
+    keep = np.nonzero(ok)[0]
+    drop = np.zeros(len(keep), bool)
+    for i, j in sorted(cKDTree(xy[keep]).query_pairs(cfg.grid.merge_radius_px)):
+        if not drop[i]:
+            drop[j] = True
+    keep = keep[~drop]
+    return xy[keep], axes[keep], r[keep]
+
+
+# --------------------------------------------------------------------------------------------
+# Growth
+# --------------------------------------------------------------------------------------------
+def _cross(u: np.ndarray, v: np.ndarray) -> float:
+    return float(u[0] * v[1] - u[1] * v[0])
+
+
+def is_long(m: int, dm: int) -> bool:
+    """Whether the lattice step from coordinate m to m + dm (dm = +-1) is a tag side (long): cell
+    (0, 0) is a tag, so the steps from even coordinates upward are long."""
+    return min(m, m + dm) % 2 == 0
+
+
+def cell_dark(a: int, b: int) -> bool:
+    """Whether lattice cell (a, b) (corners a .. a+1, b .. b+1) is dark: a tag (both even) or a gap
+    crossing square (both odd)."""
+    return (a + b) % 2 == 0
+
+
+def _seed_frame(k: int, xy: np.ndarray, axes: np.ndarray, tree: cKDTree, cfg: TagConfig) -> np.ndarray | None:
+    """The seed's step frame (2 axes, 2 kinds (long, short), 2): a long and a short step in the +a
+    and the +b direction, the tag in the (+a, +b) quadrant; None when the seed does not see a long
+    and a short neighbour along both its edge directions."""
+    p0 = xy[k]
+    d, nb = tree.query(p0, k=min(96, len(xy)))
+    cos_max = np.cos(np.radians(cfg.seed_axis_angle))
+    frame = []
+    for u in axes[k]:
+        found = []
+        for sgn in (1, -1):
+            best = None
+            for dist, j in zip(d[1:], nb[1:]):
+                if not np.isfinite(dist) or dist < 1.0:
+                    continue
+                v = xy[j] - p0
+                if np.dot(v, sgn * u) / dist > cos_max:
+                    best = v  # the nearest one in this direction (d is sorted)
+                    break
+            if best is None:
+                return None
+            found.append(best)
+        n1, n2 = np.linalg.norm(found[0]), np.linalg.norm(found[1])
+        if max(n1, n2) < cfg.min_long_short * min(n1, n2):
+            return None
+        long, short = (found[0], found[1]) if n1 > n2 else (found[1], found[0])
+        frame.append((long, -short))  # the short step points the other way: toward -a, so +a is -short
+    fa, fb = np.array(frame[0]), np.array(frame[1])
+    if abs(_cross(fa[0], fb[0])) < 0.3 * np.linalg.norm(fa[0]) * np.linalg.norm(fb[0]):
+        return None
+    if _cross(fa[0], fb[0]) < 0:
+        fa, fb = fb, fa
+    return np.stack([fa, fb])  # (axis, kind, 2)
+
+
+def edge_contrast(img: np.ndarray, p: np.ndarray, q: np.ndarray, normal: np.ndarray, depth: float, rim_dist: np.ndarray) -> float:
+    """Mean brightness on the ``+normal`` side of segment p -> q minus the ``-normal`` side, sampled
+    at a quarter, half and three quarters of the way, ``depth`` px to each side; NaN where no
+    sample pair lies inside the image circle (``rim_dist`` (H, W) > 1)."""
+    t = np.array([0.25, 0.5, 0.75])[:, None]
+    mid = p[None] + t * (q - p)[None]
+    pts = np.concatenate([mid + depth * normal, mid - depth * normal])
+    vals = values_at(img, pts)
+    rd = values_at(rim_dist, pts)
+    ok = (rd[:3] > 1) & (rd[3:] > 1) & np.isfinite(vals[:3]) & np.isfinite(vals[3:])
+    if not ok.any():
+        return float("nan")
+    diff = vals[:3] - vals[3:]
+    return float(diff[ok].mean()) if (diff[ok] > 0).all() or (diff[ok] < 0).all() else 0.0
+
+
+def seed_tag(
+    xy: np.ndarray, axes: np.ndarray, seed: int, img: np.ndarray, spacing: float, cfg: TagConfig, tree: cKDTree
+) -> np.ndarray | None:
+    """A seed for the growth: candidate ``seed`` (of xy (K, 2), edge directions axes (K, 2, 2)) is
+    a tag corner whose tag, lattice cell (0, 0), has its three other corners among the candidates
+    and looks like a tag in ``img`` (H, W): a black border ring inside white gaps (see
+    :func:`look_at_tag`). Returns the seed's step frame (axis, kind (long, short), 2); None
+    otherwise. This keeps the growth off the X-junctions between a tag's own data cells."""
+    frame = _seed_frame(seed, xy, axes, tree, cfg)
+    if frame is None:
+        return None
+    p0 = xy[seed]
+    corners = [p0]
+    for pred, step in ((p0 + frame[0, 0], frame[0, 0]), (p0 + frame[0, 0] + frame[1, 0], frame[1, 0]), (p0 + frame[1, 0], frame[1, 0])):
+        dist, j = tree.query(pred)
+        if dist > cfg.match_radius * np.linalg.norm(step):
+            return None
+        corners.append(xy[j])
+    c = np.array(corners)
+    if min(np.linalg.norm(c - np.roll(c, 1, 0), axis=1)) / CELLS < cfg.min_cell_px:
+        return None
+    look = look_at_tag(img, c, spacing)
+    if look is None or look.contrast < cfg.min_bit_contrast or look.clean < cfg.min_clean:
+        return None
+    return frame
+
+
+def _junction_on_step(p: np.ndarray, q: np.ndarray, xy: np.ndarray, tree: cKDTree, tol: float) -> bool:
+    """Whether a candidate lies on the segment p -> q (2,) between 15 % and 85 % of the way, within
+    ``tol`` of its length: a step that jumped over a corner. (A tag's own data junctions lie at
+    least two cells, a fifth of the tag, off its sides.)"""
+    n = float(np.linalg.norm(q - p))
+    near = tree.query_ball_point((p + q) / 2, 0.5 * n)
+    if not near:
+        return False
+    d = xy[near] - p
+    u = (q - p) / max(n, 1e-9)
+    t = d @ u / max(n, 1e-9)
+    off = np.abs(d[:, 0] * u[1] - d[:, 1] * u[0])
+    return bool(((t > 0.15) & (t < 0.85) & (off < tol * n)).any())
+
+
+def grow_tag_lattice(
+    xy: np.ndarray,
+    axes: np.ndarray,
+    seed: int,
+    frame0: np.ndarray,
+    grey: np.ndarray,
+    cfg: TagConfig,
+    smoothed: dict[int, np.ndarray],
+    rim_dist: np.ndarray,
+    tree: cKDTree | None = None,
+) -> Lattice:
+    """Breadth-first growth of an AprilGrid corner lattice from candidate ``seed`` among candidates
+    xy (K, 2) with edge directions axes (K, 2, 2), on the image grey (H, W), starting with the
+    seed's step frame ``frame0`` (axis, kind (long, short), 2; see :func:`seed_tag`). Lattice cell
+    (0, 0) is a tag; axes are oriented so that a x b > 0 in the image (x right, y down)."""
+    tree = tree or cKDTree(xy)
+    sm = smooth_cached(smoothed, grey, 2)
+    H, W = grey.shape
+    pts = [xy[seed].copy()]
+    lab = [(0, 0)]
+    filled = [False]
+    frames = {(0, 0): frame0}
+    where = {(0, 0): 0}
+    used = {seed}
+    queue = collections.deque([(0, 0)])
+    while queue:
+        a, b = queue.popleft()
+        k = where[(a, b)]
+        fr = frames[(a, b)]
+        for da, db in STEPS:
+            t = (a + da, b + db)
+            if t in where:
+                continue
+            axis, sgn, m = (0, da, a) if da else (1, db, b)
+            kind = 0 if is_long(m, sgn) else 1
+            v = sgn * fr[axis, kind]
+            preds = [pts[k] + v]
+            for side in ((db, da), (-db, -da)):  # neighbours across: their own step along (da, db)
+                m0, m1 = where.get((a + side[0], b + side[1])), where.get((t[0] + side[0], t[1] + side[1]))
+                if m0 is not None and m1 is not None:
+                    preds.append(pts[k] + pts[m1] - pts[m0])
+            pred = np.mean(preds, 0)
+            step = float(np.linalg.norm(v))
+            if max(np.linalg.norm(p_ - pred) for p_ in preds) > cfg.agree_radius * step:
+                continue
+            gap = float(min(np.linalg.norm(fr[0, 1]), np.linalg.norm(fr[1, 1])))  # the local gap (short step)
+            if not (0 <= pred[0] < W and 0 <= pred[1] < H) or gap < cfg.min_gap_px:
+                continue
+            r = cfg.match_radius * step
+            found, was_filled = None, False
+            dist, j = tree.query(pred)
+            if dist < r and j not in used:
+                found = xy[j]
+                used.add(int(j))
+            else:
+                q, ok, _ = fit_saddles(grey, smoothed, pred[None], window_half(gap), cfg.grid, rim_dist)
+                if ok[0] and np.linalg.norm(q[0] - pred) < r:
+                    found, was_filled = q[0], True
+            if found is None:
+                continue
+            new_v = found - pts[k]
+            n_new = float(np.linalg.norm(new_v))
+            if not cfg.min_step_ratio * step <= n_new <= cfg.max_step_ratio * step:
+                continue
+            if min(np.linalg.norm(np.array(pts) - found, axis=1)) < cfg.crowd_radius * gap:
+                continue
+            if _junction_on_step(pts[k], found, xy, tree, cfg.max_step_junction):
+                continue  # the step passed over a corner: a tag side and a gap taken as one step
+            # The step is an edge: the dark cell on the side the lattice's parity says.
+            other = fr[1 - axis, 0]
+            normal = other / max(np.linalg.norm(other), 1e-9)  # toward +b (or +a)
+            lo = min(m, m + sgn)
+            cells = ((lo, b), (lo, b - 1)) if axis == 0 else ((a, lo), (a - 1, lo))  # the +normal side first
+            sign = -1.0 if cell_dark(*cells[0]) else 1.0  # expected sign of (+normal side - -normal side)
+            c = edge_contrast(sm, pts[k], found, normal, cfg.edge_depth * gap, rim_dist)
+            if not np.isfinite(c) or sign * c < cfg.min_edge_contrast:
+                continue
+            # Carry the frame: this axis's steps turn with the new step and scale with it.
+            nf = fr.copy()
+            unit = sgn * new_v / n_new
+            scale = n_new / step
+            nf[axis, kind] = sgn * new_v
+            nf[axis, 1 - kind] = unit * np.linalg.norm(fr[axis, 1 - kind]) * scale
+            frames[t] = nf
+            where[t] = len(pts)
+            pts.append(np.asarray(found, np.float64))
+            lab.append(t)
+            filled.append(was_filled)
+            queue.append(t)
+    return Lattice(np.array(pts), np.array(lab, int), np.array(filled))
+
+
+# --------------------------------------------------------------------------------------------
+# Decoding
+# --------------------------------------------------------------------------------------------
+# Lattice-to-board turns: board corner-grid (c, r) = M (a, b) + offset. The lattice is oriented
+# a x b > 0 in the image (y down) and Kalibr's page has y up, so M is a reflection (det -1).
+TURNS = (
+    np.array([[1, 0], [0, -1]]),
+    np.array([[-1, 0], [0, 1]]),
+    np.array([[0, 1], [1, 0]]),
+    np.array([[0, -1], [-1, 0]]),
+)
+
+
+@functools.lru_cache(maxsize=1)
+def _codes() -> np.ndarray:
+    """(N_CODES, 36) float: every tag36h11 code as printed, +1 white / -1 black, page cell (i, j)
+    at j * 6 + i."""
+    return printed_bits(N_CODES).reshape(N_CODES, -1).astype(np.float64) * 2 - 1
+
+
+@functools.lru_cache(maxsize=1)
+def _turn_index() -> np.ndarray:
+    """(4, 36): for each of :data:`TURNS`, the page data cell of lattice data cell (p, q) (p along a,
+    q along b; flat q * 6 + p)."""
+    p, q = np.meshgrid(np.arange(DATA_BITS), np.arange(DATA_BITS))
+    d = np.stack([p.ravel(), q.ravel()], 0) - (DATA_BITS - 1) / 2
+    out = []
+    for M in TURNS:
+        i, j = np.rint(M @ d + (DATA_BITS - 1) / 2).astype(int)
+        out.append(j * DATA_BITS + i)
+    return np.array(out)
+
+
+def page_order(soft: np.ndarray, turn: int) -> np.ndarray:
+    """Data cells (..., 36) in lattice order -> page order under turn ``turn`` of :data:`TURNS`."""
+    out = np.empty_like(soft)
+    out[..., _turn_index()[turn]] = soft
+    return out
+
+
+@functools.lru_cache(maxsize=4)
+def _unit_points(spacing: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sample points of a tag in its unit square (u along a, v along b; corners at 0 and 1):
+    3 x 3 points over the middle half of each data cell (36 * 9, 2; cell by cell in (p, q)
+    order), border cell centres (64, 2), and points in the white gaps around the tag (12, 2), half
+    a gap out."""
+    c = (np.arange(CELLS) + 0.5) / CELLS
+    U, V = np.meshgrid(c, c)
+    idx = np.arange(CELLS)
+    inner = (idx >= BORDER_BITS) & (idx < CELLS - BORDER_BITS)
+    data = np.stack([U[np.ix_(inner, inner)].ravel(), V[np.ix_(inner, inner)].ravel()], 1)
+    sub = np.stack(np.meshgrid([-0.25, 0, 0.25], [-0.25, 0, 0.25]), -1).reshape(-1, 2) / CELLS
+    data = (data[:, None] + sub[None]).reshape(-1, 2)
+    border = ~(inner[:, None] & inner[None, :])
+    bord = np.stack([U[border], V[border]], 1)
+    out = -spacing / 2
+    s = np.array([0.3, 0.5, 0.7])
+    gaps = np.concatenate(
+        [
+            np.stack([s, np.full(3, out)], 1),
+            np.stack([s, np.full(3, 1 - out)], 1),
+            np.stack([np.full(3, out), s], 1),
+            np.stack([np.full(3, 1 - out), s], 1),
+        ]
+    )
+    return data, bord, gaps
+
+
+@dataclass
+class TagLook:
+    soft: np.ndarray  # (36,) data cells in lattice order (p + 6 q), -1 black .. +1 white
+    contrast: float  # white gaps minus black border, intensity
+    clean: float  # share of border samples darker, and gap samples lighter, than their midpoint
+
+
+def _quadratic(u: np.ndarray) -> np.ndarray:
+    """(n, 2) -> (n, 6) monomials 1, u, v, uv, u^2, v^2."""
+    return np.stack([np.ones(len(u)), u[:, 0], u[:, 1], u[:, 0] * u[:, 1], u[:, 0] ** 2, u[:, 1] ** 2], 1)
+
+
+def tag_map(corners: np.ndarray, unit_more: np.ndarray | None = None, more: np.ndarray | None = None):
+    """The map from a tag's unit square (u along a, v along b) to the image: the homography of its
+    four corners (4, 2), bent by a quadratic where lattice corners around the tag (``more`` (n, 2)
+    pixels at unit coordinates ``unit_more`` (n, 2), n >= 6) show how the fisheye bends it. Returns
+    a function (m, 2) unit -> (m, 2) pixels."""
+    unit = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float32)
+    Hm = cv2.getPerspectiveTransform(unit, corners.astype(np.float32))
+    coef = None
+    if more is not None and len(more) >= 6:
+        Hi = np.linalg.inv(Hm)
+        seen = cv2.perspectiveTransform(more[None].astype(np.float64), Hi)[0]  # where the homography puts them
+        A = _quadratic(np.concatenate([unit, unit_more]))
+        rhs = np.concatenate([np.zeros((4, 2)), seen - unit_more])  # 0 at the tag's own corners
+        w = np.concatenate([np.full(4, 10.0), np.ones(len(more))])[:, None]
+        coef = np.linalg.lstsq(A * w, rhs * w, rcond=None)[0]
+
+    def to_image(u: np.ndarray) -> np.ndarray:
+        if coef is not None:
+            u = u + _quadratic(u) @ coef
+        return cv2.perspectiveTransform(u[None].astype(np.float64), Hm)[0]
+
+    return to_image
+
+
+def look_at_tag(
+    img: np.ndarray, corners: np.ndarray, spacing: float, unit_more: np.ndarray | None = None, more: np.ndarray | None = None
+) -> TagLook | None:
+    """Read the tag whose corners, lattice (0, 0), (1, 0), (1, 1), (0, 1), are ``corners`` (4, 2)
+    from ``img`` (H, W; unblurred: cells of small tags are 1-2 px) through the tag's own geometry
+    (:func:`tag_map`, with the lattice corners around it where given; never one homography per
+    board: the fisheye bends the board); None where samples fall outside the image. The data cells
+    are scaled between the black border and the white gaps around the tag, so a grey print or a dim
+    corner reads as well as a clean one."""
+    data, bord, gaps = _unit_points(float(spacing))
+    pts = tag_map(corners, unit_more, more)(np.concatenate([data, bord, gaps]))
+    vals = values_at(img, pts.astype(np.float64))
+    if not np.isfinite(vals).all():
+        return None
+    n = len(data)
+    d, bv, gv = vals[:n].reshape(36, -1).mean(1), vals[n : n + 64], vals[n + 64 :]
+    bl, wh = float(np.median(bv)), float(np.median(gv))
+    mid, half = (bl + wh) / 2, max((wh - bl) / 2, 1e-6)
+    clean = float(np.concatenate([bv < mid, gv > mid]).mean())
+    return TagLook(np.clip((d - mid) / half, -1, 1), wh - bl, clean)
+
+
+def decode_bits(soft: np.ndarray) -> tuple[int, int, int]:
+    """The tag36h11 code nearest to lattice-order data cells (36,) (their signs) over the four
+    turns: (id, turn index, Hamming distance)."""
+    codes, bits = _codes(), np.where(soft > 0, 1.0, -1.0)
+    best = (-1, -1, 99)
+    for m in range(len(TURNS)):
+        dist = (codes != page_order(bits, m)[None]).sum(1)
+        t = int(dist.argmin())
+        if dist[t] < best[2]:
+            best = (t, m, int(dist[t]))
+    return best
+
+
+@dataclass
+class TagCell:
+    cell: tuple[int, int]  # lattice cell (a, b) of the tag (both even)
+    look: TagLook
+    tag: int  # nearest tag36h11 id
+    turn: int  # its turn (index into TURNS)
+    hamming: int  # bits that differ from it
+    clean: bool  # a black border inside white gaps: only such cells place and verify the board
+
+
+def read_cells(lat: Lattice, img: np.ndarray, spacing: float, cfg: TagConfig) -> list[TagCell]:
+    """Every tag cell of the lattice (a, b both even) with its four corners, data cells of at least
+    ``cfg.min_cell_px`` and all samples in the image, read; ``clean`` says whether it looks like a
+    tag (``cfg.min_bit_contrast``, ``cfg.min_clean``)."""
+    where = lat.where
+    out = []
+    for a, b in where:
+        if a % 2 or b % 2:
+            continue
+        ks = [where.get(t) for t in ((a, b), (a + 1, b), (a + 1, b + 1), (a, b + 1))]
+        if None in ks:
+            continue
+        c = lat.xy[ks]
+        if min(np.linalg.norm(c - np.roll(c, 1, 0), axis=1)) / CELLS < cfg.min_cell_px:
+            continue
+        # The lattice corners around the tag (a 4 x 4 patch of the lattice without the tag's own).
+        ring = [(i, j) for i in (-1, 0, 1, 2) for j in (-1, 0, 1, 2) if not (0 <= i <= 1 and 0 <= j <= 1) and (a + i, b + j) in where]
+        pos = {-1: -spacing, 0: 0.0, 1: 1.0, 2: 1.0 + spacing}
+        unit_more = np.array([(pos[i], pos[j]) for i, j in ring]).reshape(-1, 2)
+        more = lat.xy[[where[(a + i, b + j)] for i, j in ring]].reshape(-1, 2)
+        look = look_at_tag(img, c, spacing, unit_more, more)
+        if look is None:
+            continue
+        ok = look.contrast >= cfg.min_bit_contrast and look.clean >= cfg.min_clean
+        out.append(TagCell((a, b), look, *decode_bits(look.soft), ok))
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# Placement
+# --------------------------------------------------------------------------------------------
+@dataclass
+class Placement:
+    turn: int  # index into TURNS: board corner grid (c, r) = M (a, b) + offset
+    offset: np.ndarray  # (2,) int
+    score: float  # summed correlation of the tag cells with the codes this placement puts under them
+    margin: float  # score minus the best other placement's
+    cells: int  # tag cells read
+
+
+def tag_under(cells_ab: np.ndarray, turn: int, offset: np.ndarray, board: AprilGrid) -> np.ndarray:
+    """(n,) board tag ids that a placement puts under lattice tag cells (n, 2) (-1: off the board)."""
+    cr = (cells_ab + 0.5) @ TURNS[turn].T + offset - 0.5  # the cell's lower corner on the board grid
+    cr = np.rint(cr).astype(int)
+    x, y = cr[:, 0] // 2, cr[:, 1] // 2
+    on = (cr[:, 0] % 2 == 0) & (cr[:, 1] % 2 == 0) & (x >= 0) & (x < board.tc) & (y >= 0) & (y < board.tr)
+    return np.where(on, y * board.tc + x, -1)
+
+
+def place_board(cells: list[TagCell], board: AprilGrid) -> Placement | None:
+    """The placement of a lattice on the board that all its read tag cells support together.
+
+    Every turn and offset that puts some cell on some board tag is scored by the correlation of
+    the cells' data (-1 .. 1 per cell, 36 per tag) with the codes it puts under them; a cell it puts
+    off the board counts -36. Reading all tags jointly, a board whose tags are each too blurred to
+    decode alone is still placed; the margin over the runner-up says how surely."""
+    cells = [c for c in cells if c.clean]
+    if not cells:
+        return None
+    ab = np.array([c.cell for c in cells])
+    soft = np.array([c.look.soft for c in cells])
+    codes = _codes()[: board.n_tags]
+    c0 = 2 * (np.arange(board.n_tags) % board.tc)
+    r0 = 2 * (np.arange(board.n_tags) // board.tc)
+    scored = []
+    for m, M in enumerate(TURNS):
+        corr = page_order(soft, m) @ codes.T  # (n, tags)
+        lo = np.stack([c0, r0], 1)[None] + 0.5 - ((ab + 0.5) @ M.T)[:, None]  # (n, tags, 2) offsets
+        for off in np.unique(np.rint(lo.reshape(-1, 2)).astype(int), axis=0):
+            t = tag_under(ab, m, off, board)
+            on = t >= 0
+            score = float(corr[np.nonzero(on)[0], t[on]].sum()) - 36.0 * float((~on).sum())
+            scored.append((score, m, off))
+    scored.sort(key=lambda x: -x[0])
+    best = scored[0]
+    second = scored[1][0] if len(scored) > 1 else -36.0 * len(cells)
+    return Placement(best[1], best[2], best[0], best[0] - second, len(cells))
+
+
+def final_positions(lat: Lattice, grey: np.ndarray, cfg: GridConfig, smoothed: dict[int, np.ndarray], rim_dist: np.ndarray) -> Lattice:
+    """The reported positions: every corner fitted once more in a window of at most
+    ``cfg.final_max_half`` (about a third of its gap below that), as the checkerboard's
+    :func:`cotrain.detect.lattice.refine_positions`. Here a corner whose fit fails, or moves by more
+    than ``cfg.max_final_shift`` of its gap, is not an X-junction (a tag's data cell against its
+    border makes a T) and is dropped: ``filled`` of the returned lattice marks the corners kept."""
+    where = lat.where
+    short = np.full(len(lat.ab), np.inf)
+    for (a, b), k in where.items():
+        for da, db in STEPS:
+            t = (a + da, b + db)
+            if t in where:
+                short[k] = min(short[k], float(np.linalg.norm(lat.xy[where[t]] - lat.xy[k])))
+    short = np.where(np.isfinite(short), short, 3 * cfg.min_step_px)
+    halves = window_half(short, cfg.final_max_half)
+    xy, keep = lat.xy.copy(), np.zeros(len(lat.ab), bool)
+    for h in np.unique(halves):
+        idx = np.nonzero(halves == h)[0]
+        q, ok, _ = fit_saddles(grey, smoothed, lat.xy[idx], int(h), cfg, rim_dist)
+        good = ok & (np.linalg.norm(q - lat.xy[idx], axis=1) < cfg.max_final_shift * short[idx])
+        xy[idx[good]] = q[good]
+        keep[idx[good]] = True
+    return Lattice(xy, lat.ab, keep)
+
+
+def steps_alternate(lat: Lattice, spacing: float, tol: float) -> np.ndarray:
+    """(K,) bool: corners whose two steps along each lattice line, a tag side and a gap, have the
+    target's ratio (1 / ``spacing``) within a factor ``tol`` (perspective changes it little over
+    one tag). A corner slid along a tag's side breaks it."""
+    where = lat.where
+    ok = np.ones(len(lat.ab), bool)
+    for (a, b), k in where.items():
+        for da, db in ((1, 0), (0, 1)):
+            m1, m2 = where.get((a + da, b + db)), where.get((a - da, b - db))
+            if m1 is None or m2 is None:
+                continue
+            d1, d2 = np.linalg.norm(lat.xy[m1] - lat.xy[k]), np.linalg.norm(lat.xy[m2] - lat.xy[k])
+            long_side, gap = (d1, d2) if is_long(a if da else b, 1) else (d2, d1)
+            r = long_side * spacing / max(gap, 1e-9)
+            ok[k] &= bool(1 / tol <= r <= tol)
+    return ok
+
+
+def near_rim(lat: Lattice, rim_dist: np.ndarray, px: float) -> np.ndarray:
+    """(K,) bool: lattice corners within ``px`` of the image circle's rim or the image border."""
+    H, W = rim_dist.shape
+    q = np.clip(np.rint(lat.xy).astype(int), 0, [W - 1, H - 1])
+    return rim_dist[q[:, 1], q[:, 0]] < px
+
+
+def cells_close(lat: Lattice, tol: float, strict: np.ndarray | None = None) -> np.ndarray:
+    """(K,) bool: corners that close at least one lattice cell they belong to as a parallelogram
+    of its other three corners would, within ``tol`` of the cell's longer side (over one cell the
+    fisheye's bend is small); a corner in no complete cell needs a neighbour along each lattice
+    axis, or, where ``strict`` (K,) says so (next to the image circle's rim, where the cut print
+    makes false junctions), is dropped. A corner slid along a side fails."""
+    where = lat.where
+    ok = np.ones(len(lat.ab), bool)
+    for (a, b), k in where.items():
+        errs = []
+        for da in (-1, 1):
+            for db in (-1, 1):
+                ka, kb, kab = where.get((a + da, b)), where.get((a, b + db)), where.get((a + da, b + db))
+                if ka is None or kb is None or kab is None:
+                    continue
+                pa, pb, pab = lat.xy[ka], lat.xy[kb], lat.xy[kab]
+                side = max(np.linalg.norm(pa - lat.xy[k]), np.linalg.norm(pb - lat.xy[k]))
+                errs.append(np.linalg.norm(pa + pb - pab - lat.xy[k]) / max(side, 1e-9))
+        if errs:
+            ok[k] = min(errs) <= tol
+        elif strict is not None and strict[k]:
+            ok[k] = False
+        else:  # in no complete cell: it needs a neighbour along each axis
+            ok[k] = any((a + d, b) in where for d in (-1, 1)) and any((a, b + d) in where for d in (-1, 1))
+    return ok
+
+
+def verified_corners(lat: Lattice, cells: list[TagCell], under: np.ndarray, turn: int, cfg: TagConfig) -> np.ndarray:
+    """(K,) bool: the lattice corners whose tag the board's placement is sure of. Every corner
+    belongs to one tag (lattice cell (a - a mod 2, b - b mod 2)). A tag that was read (its four
+    corners there, big enough, inside the image) must look like a tag and match the code the
+    placement puts under it (correlation ``cfg.min_tag_corr``); its corners are dropped otherwise (a
+    lattice that slipped by a row there). A tag that could not be read (too small, cut by the rim)
+    keeps its corners if a tag next to it (8-neighbourhood) matched: its ids come through the
+    lattice."""
+    codes = _codes()
+    good, read = set(), set()
+    for c, t in zip(cells, under):
+        read.add(c.cell)
+        if c.clean and t >= 0 and float(page_order(c.look.soft, turn) @ codes[t]) >= cfg.min_tag_corr * 36:
+            good.add(c.cell)
+    keep = np.zeros(len(lat.ab), bool)
+    for k, (a, b) in enumerate(lat.ab.tolist()):
+        cell = (a - a % 2, b - b % 2)
+        if cell in good:
+            keep[k] = True
+        elif cell not in read:
+            keep[k] = any((cell[0] + 2 * i, cell[1] + 2 * j) in good for i in (-1, 0, 1) for j in (-1, 0, 1))
+    return keep
+
+
+# --------------------------------------------------------------------------------------------
+# The pass
+# --------------------------------------------------------------------------------------------
+@dataclass
+class _Board:
+    lat: Lattice
+    ids: np.ndarray  # (K,) corner ids, -1 off the board
+    place: Placement
+    decoded: list[TagCell]  # cells that decode alone to the tag the placement puts there
+    disagree: int  # cells that decode alone to another board tag
+
+
+def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -> TagResult:
+    """AprilGrid corners with Kalibr's ids in the (H, W) float32 image ``grey`` in [0, 1]."""
+    cfg = cfg or TagConfig()
+
+    def empty(foreign: int = 0) -> TagResult:
+        return TagResult(np.zeros(0, int), np.zeros((0, 2)), np.zeros(0), np.zeros(0, int), np.zeros(0, int), 0, foreign)
+
+    allowed = ~outside_circle(grey)
+    allowed[[0, -1], :] = False
+    allowed[:, [0, -1]] = False
+    rim_dist = cv2.distanceTransform(allowed.astype(np.uint8), cv2.DIST_L2, 3)
+    smoothed: dict[int, np.ndarray] = {}
+    xy, axes, _ = tag_candidates(grey, allowed, cfg, smoothed, rim_dist)
+    if len(xy) < cfg.min_corners:
+        return empty()
+    tree = cKDTree(xy)
+    spacing = board.cfg.tag_spacing
+    covered = np.zeros(len(xy), bool)
+    found: list[_Board] = []
+    foreign = 0
+    tried = 0
+    for seed in range(len(xy)):
+        if tried >= cfg.max_seeds:
+            break
+        if covered[seed]:
+            continue
+        frame = seed_tag(xy, axes, seed, grey, spacing, cfg, tree)
+        if frame is None:
+            continue
+        tried += 1
+        lat = grow_tag_lattice(xy, axes, seed, frame, grey, cfg, smoothed, rim_dist, tree)
+        covered |= cKDTree(lat.xy).query(xy)[0] < cfg.grid.merge_radius_px
+        if len(lat.ab) < cfg.min_corners:
+            continue
+        cells = read_cells(lat, grey, spacing, cfg)
+        foreign += sum(c.clean and c.tag >= board.n_tags and c.hamming <= cfg.max_hamming for c in cells)
+        place = place_board(cells, board)
+        if place is None or place.margin < cfg.min_margin or place.score < cfg.min_mean_corr * 36 * place.cells:
+            continue
+        under = tag_under(np.array([c.cell for c in cells]), place.turn, place.offset, board)
+        alone = [(c, t) for c, t in zip(cells, under) if c.clean and c.hamming <= cfg.max_hamming and c.tag < board.n_tags]
+        decoded = [c for c, t in alone if c.tag == t and c.turn == place.turn]
+        ids = board.id_of(lat.ab @ TURNS[place.turn].T + place.offset)
+        ids[
+            ~verified_corners(lat, cells, under, place.turn, cfg)
+            | ~steps_alternate(lat, spacing, cfg.max_side_gap_ratio)
+            | ~cells_close(lat, cfg.max_cell_misfit, near_rim(lat, rim_dist, cfg.rim_strict_px))
+        ] = -1
+        found.append(_Board(lat, ids, place, decoded, len(alone) - len(decoded)))
+    if not found:
+        return empty(foreign)
+    # The same board seen as several lattices (an occluder splits it) is merged where they agree;
+    # a lattice that claims ids another one already holds elsewhere is a second board: the one
+    # placed more surely stays.
+    found.sort(key=lambda f: -f.place.margin)
+    pos: dict[int, np.ndarray] = {}
+    dropped = 0
+    kept: list[_Board] = []
+    for f in found:
+        on = f.ids >= 0
+        clash = [i for i, p in zip(f.ids[on].tolist(), f.lat.xy[on]) if i in pos and np.linalg.norm(pos[i] - p) > 2.0]
+        if clash:
+            dropped += len(f.decoded)
+            continue
+        kept.append(f)
+        for i, p in zip(f.ids[on].tolist(), f.lat.xy[on]):
+            pos.setdefault(i, p)
+    ids, xy_out, conf, tags, ham = [], [], [], [], []
+    seen: set[int] = set()
+    for f in kept:
+        on = f.ids >= 0
+        lat = final_positions(Lattice(f.lat.xy[on], f.lat.ab[on], f.lat.filled[on]), grey, cfg.grid, smoothed, rim_dist)
+        on = np.nonzero(on)[0][lat.filled]  # final_positions marks the corners it keeps in ``filled``
+        lat = Lattice(lat.xy[lat.filled], lat.ab[lat.filled], lat.filled[lat.filled])
+        read = set()
+        for c in f.decoded:
+            read |= set(board.tag_corners(c.tag).tolist())
+        for i, p in zip(f.ids[on].tolist(), lat.xy):
+            if i in seen:
+                continue
+            seen.add(i)
+            ids.append(i)
+            xy_out.append(p)
+            conf.append(1.0 if i in read else float(1 - np.exp(-f.place.margin / 36)))
+        for c in f.decoded:
+            if c.tag not in tags:
+                tags.append(c.tag)
+                ham.append(c.hamming)
+        dropped += f.disagree
+    ids_a = np.array(ids, int)
+    order = np.argsort(ids_a)
+    return TagResult(
+        ids_a[order], np.array(xy_out)[order], np.array(conf)[order], np.array(tags, int), np.array(ham, int), dropped, foreign
+    )
