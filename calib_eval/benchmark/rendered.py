@@ -20,17 +20,21 @@ from tqdm import tqdm
 from calib_eval.benchmark.rigs import GroundTruth, RigSpec, SynthSpec, make_sequence, rig_radius
 from cotrain.io.sequence import Sequence
 from cotrain.render.renderer import RenderConfig, Scene, render_scene, sample_generator
-from cotrain.targets import make_target
+from cotrain.targets import TargetConfig, make_target
 
 
-def render_rig_sequence(rig: RigSpec, frames: int, seq_dir: Path, seed: int = 11, progress: bool = True) -> tuple[Sequence, GroundTruth]:
+def render_rig_sequence(
+    rig: RigSpec, frames: int, seq_dir: Path, seed: int = 11, progress: bool = True, target: TargetConfig | None = None
+) -> tuple[Sequence, GroundTruth]:
     """Render ``frames`` synchronised views of ``rig`` into ``seq_dir`` (``camC/images``,
-    ``camC/timestamps.csv``). Returns the noise-free ground-truth observations and the ground truth.
+    ``camC/timestamps.csv``) of ``target`` (default the checkerboard). Returns the noise-free
+    ground-truth observations and the ground truth.
 
     Deterministic in (rig, seed): a longer sequence starts with the frames of a shorter one, and an
     image already in ``seq_dir`` is kept, not rendered again (an interrupted run resumes)."""
-    seq, gt = make_sequence(rig, SynthSpec(n_frames=frames, noise_px=0.0), seed=seed)
-    rc = RenderConfig(height=rig.height, width=rig.width, p_occluder=0.0, p_no_target=0.0, p_motion=0.0, max_blur_sigma=0.6)
+    target = target or TargetConfig()
+    seq, gt = make_sequence(rig, SynthSpec(n_frames=frames, noise_px=0.0, target=target), seed=seed)
+    rc = RenderConfig(height=rig.height, width=rig.width, p_occluder=0.0, p_no_target=0.0, p_motion=0.0, max_blur_sigma=0.6, target=target)
     board = make_target(rc.target)
     radius = rig_radius(rig)
     seq_dir = Path(seq_dir)

@@ -328,15 +328,13 @@ def skipped_corners(lat: Lattice, response: np.ndarray, cfg: GridConfig | None =
 # --------------------------------------------------------------------------------------------
 # Reported positions
 # --------------------------------------------------------------------------------------------
-def refine_positions(
+def final_fits(
     lat: Lattice, grey: np.ndarray, cfg: GridConfig, smoothed: dict[int, np.ndarray], rim_dist: np.ndarray | None = None
-) -> Lattice:
-    """The reported positions: every corner fitted once more in a window of at most
-    ``cfg.final_max_half`` (about a third of its square's smaller side below that). The search
-    and the checks above need the larger windows' robustness; the position is best taken close to
-    the junction, where the bent edges and the blooming of real prints pull it least (BoofCV
-    frames: calibration RMS 0.26 -> 0.21 px). A corner whose fit fails or moves by over
-    ``cfg.max_final_shift`` of its square keeps its position."""
+) -> tuple[np.ndarray, np.ndarray]:
+    """Every corner fitted once more in a window of at most ``cfg.final_max_half`` (about a third
+    of its shortest lattice step below that). Returns xy (K, 2), the fit where it succeeded and
+    moved by at most ``cfg.max_final_shift`` of that step, the old position elsewhere, and which
+    corners those are (K,) bool."""
     where = lat.where
     short = np.full(len(lat.ab), np.inf)
     for (a, b), k in where.items():
@@ -346,10 +344,21 @@ def refine_positions(
                 short[k] = min(short[k], float(np.linalg.norm(lat.xy[where[t]] - lat.xy[k])))
     short = np.where(np.isfinite(short), short, 3 * cfg.min_step_px)
     halves = window_half(short, cfg.final_max_half)
-    xy = lat.xy.copy()
+    xy, fitted = lat.xy.copy(), np.zeros(len(lat.ab), bool)
     for h in np.unique(halves):
         idx = np.nonzero(halves == h)[0]
         q, ok, _ = fit_saddles(grey, smoothed, lat.xy[idx], int(h), cfg, rim_dist)
         good = ok & (np.linalg.norm(q - lat.xy[idx], axis=1) < cfg.max_final_shift * short[idx])
         xy[idx[good]] = q[good]
-    return Lattice(xy, lat.ab, lat.filled)
+        fitted[idx[good]] = True
+    return xy, fitted
+
+
+def refine_positions(
+    lat: Lattice, grey: np.ndarray, cfg: GridConfig, smoothed: dict[int, np.ndarray], rim_dist: np.ndarray | None = None
+) -> Lattice:
+    """The reported positions (:func:`final_fits`). The search and the checks above need the larger
+    windows' robustness; the position is best taken close to the junction, where the bent edges and
+    the blooming of real prints pull it least (BoofCV frames: calibration RMS 0.26 -> 0.21 px). A
+    corner whose fit fails keeps its position."""
+    return Lattice(final_fits(lat, grey, cfg, smoothed, rim_dist)[0], lat.ab, lat.filled)

@@ -7,25 +7,28 @@ checkerboard's: tags and crossing squares are dark, the gap strips between them 
 
 1. candidates (:func:`tag_candidates`): saddle points of the full-resolution image (inside the
    image circle), fitted as the grid pass fits them (:mod:`cotrain.detect.saddle`);
-2. growth (:func:`grow_tag_lattice`): from a seed whose edge directions show a long and a short
-   neighbour on each axis, breadth first; each neighbour is predicted one long or one short step
-   along a lattice axis (the step lengths carried from corner to corner, and the parallelograms of
-   neighbours already placed) and matched to a candidate or to a saddle found at the prediction;
-   every step must be an edge with the dark cell on the side the lattice's parity says;
-3. decoding (:func:`decode_tags`): each tag cell with its four corners is read through the local
-   geometry of those corners (a homography per tag, never one per board: the fisheye bends a tag
-   at the rim), 6 x 6 data bits against Kalibr's black border and the white gaps around it, and
-   matched to every tag36h11 code in the four orientations a printed tag can have; a Hamming
-   distance up to ``max_hamming`` is corrected (AprilTag's own default: 2 of tag36h11's 11);
-4. placement (:func:`place_lattice`): each decoded tag says where the lattice lies on the board
-   (one of four turns with Kalibr's y-up page, an integer offset); the placement most tags agree
-   on wins, tags that disagree are dropped and counted, and every lattice corner, also those of
-   tags too small or too oblique to read, gets its id from it;
-5. boards: lattices that decode no tag of the target, like a second board with other tags or
-   tags not on a board (no X-junctions at their corners), give no corners; two lattices that claim
-   the same ids keep the one with more decoded tags;
-6. positions: every corner fitted once more in a small window
-   (:func:`cotrain.detect.lattice.refine_positions`).
+2. seeds (:func:`seed_tag`): a candidate whose edge directions lead to the three other corners of
+   a tag that looks like one (black border ring in white gaps, black and white data cells);
+3. growth (:func:`grow_tag_lattice`): breadth first; each neighbour is predicted one long or one
+   short step along a lattice axis (step lengths carried from corner to corner, and the
+   parallelograms of neighbours already placed) and matched to a candidate or to a saddle found at
+   the prediction; every step must be an edge with the dark cell on the side the lattice's parity
+   says, and must not pass over another candidate;
+4. reading (:func:`read_cells`, :func:`look_at_tag`): each tag cell with its four corners is read
+   through its own homography, bent by the lattice corners around it (never one homography per
+   board: the fisheye bends a tag at the rim), data cells scaled between the black border and the
+   white gaps; a tag decodes alone within ``max_hamming`` bit errors (AprilTag's own default: 2 of
+   tag36h11's 11);
+5. placement (:func:`place_board`): the turn and offset of the lattice on the board that all read
+   tags support together (correlation with the codes it puts under them); tags that decode alone
+   elsewhere are dropped and counted; :func:`verified_corners` keeps the corners of tags that
+   match, and of unread tags next to them (ids through the lattice), and :func:`cells_close`,
+   :func:`steps_alternate` drop corners that slid;
+6. boards: lattices that place no tag of the target (a second board with other tags; free tags
+   have no X-junctions at their corners) give no corners; lattices of one board are merged where
+   they agree, and of two that claim the same ids elsewhere the surer placement stays;
+7. positions: every corner fitted once more in a small window
+   (:func:`cotrain.detect.lattice.final_fits`); one whose fit fails is dropped.
 
 Pure functions over numpy arrays; pixels follow docs/conventions.md (centre of the top-left pixel at (0, 0)).
 """
@@ -41,7 +44,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from cotrain.detect.grid_config import GridConfig
-from cotrain.detect.lattice import STEPS, Lattice, values_at
+from cotrain.detect.lattice import STEPS, Lattice, final_fits, values_at
 from cotrain.detect.saddle import fit_saddles, outside_circle, saddle_response, smooth_cached, window_half
 from cotrain.targets.aprilgrid import BORDER_BITS, CELLS, DATA_BITS, N_CODES, AprilGrid, printed_bits
 
@@ -68,6 +71,7 @@ class TagConfig:
     # --- decoding ---
     max_hamming: int = 2  # bit errors a tag read alone may have (tag36h11: codes differ in at least 11 bits)
     min_bit_contrast: float = 0.06  # white gap minus black border a tag needs to be read
+    min_data_share: float = 0.15  # a seed's tag has at least this share of white and of black data cells (tag36h11: 0.2 .. 0.8)
     min_clean: float = 0.9  # share of its border samples darker, and gap samples lighter, than their midpoint
     min_cell_px: float = 1.0  # tags whose data cells are smaller than this (px) are not read
     # --- placement ---
@@ -146,39 +150,57 @@ def cell_dark(a: int, b: int) -> bool:
     return (a + b) % 2 == 0
 
 
-def _seed_frame(k: int, xy: np.ndarray, axes: np.ndarray, tree: cKDTree, cfg: TagConfig) -> np.ndarray | None:
-    """The seed's step frame (2 axes, 2 kinds (long, short), 2): a long and a short step in the +a
-    and the +b direction, the tag in the (+a, +b) quadrant; None when the seed does not see a long
-    and a short neighbour along both its edge directions."""
-    p0 = xy[k]
-    d, nb = tree.query(p0, k=min(96, len(xy)))
+def axis_neighbours(xy: np.ndarray, axes: np.ndarray, tree: cKDTree, cfg: TagConfig) -> np.ndarray:
+    """The nearest candidate along each candidate's edge directions, both ways, within
+    ``cfg.seed_axis_angle``: (K, axis, way (+, -), 2) step vectors, NaN where there is none."""
+    K = len(xy)
+    d, nb = tree.query(xy, k=min(96, K))
+    d, nb = d.reshape(K, -1), nb.reshape(K, -1)
+    ok = np.isfinite(d) & (d >= 1.0)
+    v = xy[np.minimum(nb, K - 1)] - xy[:, None]  # (K, n, 2), nearest first
+    cos = np.einsum("knd,kad->kna", v, axes) / np.where(ok, d, 1.0)[..., None]
     cos_max = np.cos(np.radians(cfg.seed_axis_angle))
-    frame = []
-    for u in axes[k]:
-        found = []
-        for sgn in (1, -1):
-            best = None
-            for dist, j in zip(d[1:], nb[1:]):
-                if not np.isfinite(dist) or dist < 1.0:
-                    continue
-                v = xy[j] - p0
-                if np.dot(v, sgn * u) / dist > cos_max:
-                    best = v  # the nearest one in this direction (d is sorted)
-                    break
-            if best is None:
-                return None
-            found.append(best)
-        n1, n2 = np.linalg.norm(found[0]), np.linalg.norm(found[1])
-        if max(n1, n2) < cfg.min_long_short * min(n1, n2):
-            return None
-        long, short = (found[0], found[1]) if n1 > n2 else (found[1], found[0])
-        frame.append((long, -short))  # the short step points the other way: toward -a, so +a is -short
-    fa, fb = np.array(frame[0]), np.array(frame[1])
-    if abs(_cross(fa[0], fb[0])) < 0.3 * np.linalg.norm(fa[0]) * np.linalg.norm(fb[0]):
-        return None
-    if _cross(fa[0], fb[0]) < 0:
-        fa, fb = fb, fa
-    return np.stack([fa, fb])  # (axis, kind, 2)
+    out = np.full((K, 2, 2, 2), np.nan)
+    rows = np.arange(K)
+    for ax in range(2):
+        for w, sgn in enumerate((1, -1)):
+            hit = ok & (sgn * cos[..., ax] > cos_max)
+            first = hit.argmax(1)
+            has = hit[rows, first]
+            out[has, ax, w] = v[rows[has], first[has]]
+    return out
+
+
+def _seed_frames(nbr: np.ndarray, spacing: float, cfg: TagConfig) -> list[np.ndarray]:
+    """Step frames (axis, kind (long, short), 2) under which a candidate would be a tag corner with
+    the tag in the (+a, +b) quadrant: one per quadrant whose two sides have a neighbour, surest
+    first (both sides the longer of their axis), from its neighbours ``nbr`` (axis, way, 2; see
+    :func:`axis_neighbours`). The short steps are the neighbours the other way
+    where they are shorter by ``cfg.min_long_short``, otherwise the target's gap (``spacing`` of
+    the side): a corner on the board's outer edge has no gap beyond it."""
+    nbr = [[None if np.isnan(v[0]) else v for v in pair] for pair in nbr]
+    frames = []
+    for s1 in (0, 1):
+        for s2 in (0, 1):
+            A, B = nbr[0][s1], nbr[1][s2]
+            if A is None or B is None:
+                continue
+            nA, nB = float(np.linalg.norm(A)), float(np.linalg.norm(B))
+            if abs(_cross(A, B)) < 0.3 * nA * nB:
+                continue
+            shorts, rank = [], 0
+            for side, opp in ((A, nbr[0][1 - s1]), (B, nbr[1][1 - s2])):
+                n_side = np.linalg.norm(side)
+                if opp is not None and np.linalg.norm(opp) * cfg.min_long_short <= n_side:
+                    shorts.append(-opp)  # the gap behind the corner, pointing +a (+b)
+                else:
+                    shorts.append(side * spacing)
+                    rank += opp is not None and np.linalg.norm(opp) > n_side  # the other way is longer: less likely the tag
+            fa, fb = np.stack([A, shorts[0]]), np.stack([B, shorts[1]])
+            if _cross(A, B) < 0:
+                fa, fb = fb, fa
+            frames.append((rank, np.stack([fa, fb])))
+    return [f for _, f in sorted(frames, key=lambda x: x[0])]
 
 
 def edge_contrast(img: np.ndarray, p: np.ndarray, q: np.ndarray, normal: np.ndarray, depth: float, rim_dist: np.ndarray) -> float:
@@ -198,30 +220,43 @@ def edge_contrast(img: np.ndarray, p: np.ndarray, q: np.ndarray, normal: np.ndar
 
 
 def seed_tag(
-    xy: np.ndarray, axes: np.ndarray, seed: int, img: np.ndarray, spacing: float, cfg: TagConfig, tree: cKDTree
+    xy: np.ndarray, nbr: np.ndarray, seed: int, img: np.ndarray, spacing: float, cfg: TagConfig, tree: cKDTree
 ) -> np.ndarray | None:
-    """A seed for the growth: candidate ``seed`` (of xy (K, 2), edge directions axes (K, 2, 2)) is
+    """A seed for the growth: candidate ``seed`` (of xy (K, 2), neighbours along its edges ``nbr``
+    (K, 2, 2, 2), see :func:`axis_neighbours`) is
     a tag corner whose tag, lattice cell (0, 0), has its three other corners among the candidates
-    and looks like a tag in ``img`` (H, W): a black border ring inside white gaps (see
-    :func:`look_at_tag`). Returns the seed's step frame (axis, kind (long, short), 2); None
-    otherwise. This keeps the growth off the X-junctions between a tag's own data cells."""
-    frame = _seed_frame(seed, xy, axes, tree, cfg)
-    if frame is None:
-        return None
+    and looks like a tag in ``img`` (H, W): a black border ring inside white gaps, black and white
+    data cells (see :func:`look_at_tag`). Returns the seed's step frame (axis, kind (long, short),
+    2); None otherwise. This keeps the growth off the X-junctions between a tag's own data cells,
+    and off the black squares at the gap crossings."""
     p0 = xy[seed]
-    corners = [p0]
-    for pred, step in ((p0 + frame[0, 0], frame[0, 0]), (p0 + frame[0, 0] + frame[1, 0], frame[1, 0]), (p0 + frame[1, 0], frame[1, 0])):
-        dist, j = tree.query(pred)
-        if dist > cfg.match_radius * np.linalg.norm(step):
-            return None
-        corners.append(xy[j])
-    c = np.array(corners)
-    if min(np.linalg.norm(c - np.roll(c, 1, 0), axis=1)) / CELLS < cfg.min_cell_px:
-        return None
-    look = look_at_tag(img, c, spacing)
-    if look is None or look.contrast < cfg.min_bit_contrast or look.clean < cfg.min_clean:
-        return None
-    return frame
+    for frame in _seed_frames(nbr[seed], spacing, cfg):
+        dist, j = tree.query(p0 + frame[0, 0] + frame[1, 0])
+        if dist > cfg.match_radius * min(np.linalg.norm(frame[0, 0]), np.linalg.norm(frame[1, 0])):
+            continue
+        c = np.array([p0, p0 + frame[0, 0], xy[j], p0 + frame[1, 0]])
+        if min(np.linalg.norm(c - np.roll(c, 1, 0), axis=1)) / CELLS < cfg.min_cell_px:
+            continue
+        look = look_at_tag(img, c, spacing)
+        if look is None or look.contrast < cfg.min_bit_contrast or look.clean < cfg.min_clean:
+            continue
+        if min((look.soft > 0).mean(), (look.soft < 0).mean()) < cfg.min_data_share:
+            continue  # uniform inside: a crossing square, not a tag
+        return frame
+    return None
+
+
+def inside_cells(lat: Lattice, xy: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(K,) bool: which points xy (K, 2) lie inside a complete cell of the lattice (image ``shape``)."""
+    mask = np.zeros(shape, np.uint8)
+    where = lat.where
+    for a, b in where:
+        ks = [where.get(t) for t in ((a, b), (a + 1, b), (a + 1, b + 1), (a, b + 1))]
+        if None not in ks:
+            cv2.fillConvexPoly(mask, np.rint(lat.xy[ks]).astype(np.int32), 1)
+    H, W = shape
+    q = np.clip(np.rint(xy).astype(int), 0, [W - 1, H - 1])
+    return mask[q[:, 1], q[:, 0]] > 0
 
 
 def _junction_on_step(p: np.ndarray, q: np.ndarray, xy: np.ndarray, tree: cKDTree, tol: float) -> bool:
@@ -559,31 +594,6 @@ def place_board(cells: list[TagCell], board: AprilGrid) -> Placement | None:
     return Placement(best[1], best[2], best[0], best[0] - second, len(cells))
 
 
-def final_positions(lat: Lattice, grey: np.ndarray, cfg: GridConfig, smoothed: dict[int, np.ndarray], rim_dist: np.ndarray) -> Lattice:
-    """The reported positions: every corner fitted once more in a window of at most
-    ``cfg.final_max_half`` (about a third of its gap below that), as the checkerboard's
-    :func:`cotrain.detect.lattice.refine_positions`. Here a corner whose fit fails, or moves by more
-    than ``cfg.max_final_shift`` of its gap, is not an X-junction (a tag's data cell against its
-    border makes a T) and is dropped: ``filled`` of the returned lattice marks the corners kept."""
-    where = lat.where
-    short = np.full(len(lat.ab), np.inf)
-    for (a, b), k in where.items():
-        for da, db in STEPS:
-            t = (a + da, b + db)
-            if t in where:
-                short[k] = min(short[k], float(np.linalg.norm(lat.xy[where[t]] - lat.xy[k])))
-    short = np.where(np.isfinite(short), short, 3 * cfg.min_step_px)
-    halves = window_half(short, cfg.final_max_half)
-    xy, keep = lat.xy.copy(), np.zeros(len(lat.ab), bool)
-    for h in np.unique(halves):
-        idx = np.nonzero(halves == h)[0]
-        q, ok, _ = fit_saddles(grey, smoothed, lat.xy[idx], int(h), cfg, rim_dist)
-        good = ok & (np.linalg.norm(q - lat.xy[idx], axis=1) < cfg.max_final_shift * short[idx])
-        xy[idx[good]] = q[good]
-        keep[idx[good]] = True
-    return Lattice(xy, lat.ab, keep)
-
-
 def steps_alternate(lat: Lattice, spacing: float, tol: float) -> np.ndarray:
     """(K,) bool: corners whose two steps along each lattice line, a tag side and a gap, have the
     target's ratio (1 / ``spacing``) within a factor ``tol`` (perspective changes it little over
@@ -688,6 +698,7 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
     if len(xy) < cfg.min_corners:
         return empty()
     tree = cKDTree(xy)
+    nbr = axis_neighbours(xy, axes, tree, cfg)
     spacing = board.cfg.tag_spacing
     covered = np.zeros(len(xy), bool)
     found: list[_Board] = []
@@ -698,12 +709,13 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
             break
         if covered[seed]:
             continue
-        frame = seed_tag(xy, axes, seed, grey, spacing, cfg, tree)
+        frame = seed_tag(xy, nbr, seed, grey, spacing, cfg, tree)
         if frame is None:
             continue
         tried += 1
         lat = grow_tag_lattice(xy, axes, seed, frame, grey, cfg, smoothed, rim_dist, tree)
         covered |= cKDTree(lat.xy).query(xy)[0] < cfg.grid.merge_radius_px
+        covered |= inside_cells(lat, xy, grey.shape)  # a grown tag's own data junctions are no seeds
         if len(lat.ab) < cfg.min_corners:
             continue
         cells = read_cells(lat, grey, spacing, cfg)
@@ -743,9 +755,11 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
     seen: set[int] = set()
     for f in kept:
         on = f.ids >= 0
-        lat = final_positions(Lattice(f.lat.xy[on], f.lat.ab[on], f.lat.filled[on]), grey, cfg.grid, smoothed, rim_dist)
-        on = np.nonzero(on)[0][lat.filled]  # final_positions marks the corners it keeps in ``filled``
-        lat = Lattice(lat.xy[lat.filled], lat.ab[lat.filled], lat.filled[lat.filled])
+        # Final positions; a corner whose small-window fit fails is not an X-junction (a tag's data
+        # cell against its border makes a T) and is dropped.
+        xy_fit, fitted = final_fits(Lattice(f.lat.xy[on], f.lat.ab[on], f.lat.filled[on]), grey, cfg.grid, smoothed, rim_dist)
+        on = np.nonzero(on)[0][fitted]
+        lat = Lattice(xy_fit[fitted], f.lat.ab[on], f.lat.filled[on])
         read = set()
         for c in f.decoded:
             read |= set(board.tag_corners(c.tag).tolist())
