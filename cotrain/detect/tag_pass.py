@@ -83,7 +83,7 @@ class TagConfig:
     max_side_gap_ratio: float = 2.0  # a corner's tag side / gap on a lattice line may differ from the target's by this factor
     # --- boards ---
     min_corners: int = 4  # smallest lattice that is reported
-    grid: GridConfig = field(default_factory=lambda: GridConfig(min_response=0.0015))  # saddle fit and final positions
+    grid: GridConfig = field(default_factory=GridConfig)  # saddle fit and final positions (the grid pass's)
 
 
 @dataclass
