@@ -87,6 +87,35 @@ def next_step(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return ratio * np.array([c * v[0] - s * v[1], s * v[0] + c * v[1]])
 
 
+def match_corner(
+    pred: np.ndarray,
+    r: float,
+    xy: np.ndarray,
+    tree: cKDTree,
+    used: set[int],
+    grey: np.ndarray,
+    smoothed: dict[int, np.ndarray],
+    half: int,
+    cfg: GridConfig,
+    rim_dist: np.ndarray | None = None,
+) -> tuple[np.ndarray | None, bool]:
+    """The corner at a predicted spot ``pred`` (2,): the nearest candidate of xy (K, 2) within
+    ``r`` not yet offered (``used`` gains it), otherwise a saddle fitted there in a window of
+    half-size ``half`` that lands within ``r``. Returns (point or None, found by the fit).
+
+    A candidate is offered once: if the growth's checks refuse it here, it is doubtful and is not
+    tried again from another corner (measured: offering it again lets wrong corners into small
+    squares)."""
+    dist, j = tree.query(pred)
+    if dist < r and j not in used:
+        used.add(int(j))
+        return xy[j], False
+    q, ok, _ = fit_saddles(grey, smoothed, pred[None], half, cfg, rim_dist)
+    if ok[0] and np.linalg.norm(q[0] - pred) < r:
+        return q[0], True
+    return None, False
+
+
 def grow_lattice(
     xy: np.ndarray,
     axes: np.ndarray,
@@ -163,18 +192,7 @@ def grow_lattice(
             r = cfg.match_radius * np.linalg.norm(v)
             if not (0 <= pred[0] < W and 0 <= pred[1] < H) or short < cfg.min_step_px:
                 continue
-            found, was_filled = None, False
-            dist, j = tree.query(pred)
-            if dist < r and j not in used:
-                # A candidate is offered once: if the checks below refuse it here, it is doubtful
-                # and is not tried again from another corner (measured: offering it again lets
-                # wrong corners into small squares).
-                found = xy[j]
-                used.add(int(j))
-            else:
-                q, ok, _ = fit_saddles(grey, smoothed, pred[None], window_half(short), cfg, rim_dist)
-                if ok[0] and np.linalg.norm(q[0] - pred) < r:
-                    found, was_filled = q[0], True
+            found, was_filled = match_corner(pred, r, xy, tree, used, grey, smoothed, window_half(short), cfg, rim_dist)
             if found is None:
                 continue
             new_v = found - pts[k]

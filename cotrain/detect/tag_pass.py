@@ -44,7 +44,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from cotrain.detect.grid_config import GridConfig
-from cotrain.detect.lattice import STEPS, Lattice, final_fits, values_at
+from cotrain.detect.lattice import STEPS, Lattice, final_fits, match_corner, values_at
 from cotrain.detect.saddle import fit_saddles, outside_circle, saddle_response, smooth_cached, window_half
 from cotrain.targets.aprilgrid import BORDER_BITS, CELLS, DATA_BITS, N_CODES, AprilGrid, printed_bits
 
@@ -323,15 +323,7 @@ def grow_tag_lattice(
             if not (0 <= pred[0] < W and 0 <= pred[1] < H) or gap < cfg.min_gap_px:
                 continue
             r = cfg.match_radius * step
-            found, was_filled = None, False
-            dist, j = tree.query(pred)
-            if dist < r and j not in used:
-                found = xy[j]
-                used.add(int(j))
-            else:
-                q, ok, _ = fit_saddles(grey, smoothed, pred[None], window_half(gap), cfg.grid, rim_dist)
-                if ok[0] and np.linalg.norm(q[0] - pred) < r:
-                    found, was_filled = q[0], True
+            found, was_filled = match_corner(pred, r, xy, tree, used, grey, smoothed, window_half(gap), cfg.grid, rim_dist)
             if found is None:
                 continue
             new_v = found - pts[k]
