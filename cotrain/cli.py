@@ -48,11 +48,23 @@ def cmd_train(args: argparse.Namespace) -> int:
 def cmd_export(args: argparse.Namespace) -> int:
     from export.onnx_export import export_onnx
 
-    r = export_onnx(args.checkpoint, args.out, tol_px=args.tol_px)
+    size = None
+    if args.input_size:
+        w, sep, h = args.input_size.lower().partition("x")
+        if not (sep and w.isdigit() and h.isdigit()):
+            raise ValueError(f"--input-size wants WIDTHxHEIGHT, not {args.input_size!r}")
+        size = (int(h), int(w))
+    r = export_onnx(args.checkpoint, args.out, tol_px=args.tol_px, input_size=size)
     print(
         f"wrote {r['out']} (opset {r['opset']}); parity on {r['images']} rendered images: max corner difference "
         f"{r['max_corner_diff_px']:.2e} px, max probability difference {r['max_prob_diff']:.2e}"
     )
+    if args.int8:
+        from export.onnx_export import quantize_dense
+
+        q = quantize_dense(args.out, Path(args.out).with_suffix(".int8.onnx"))
+        diffs = ", ".join(f"{k} {v:.3f}" for k, v in q["max_diff"].items())
+        print(f"wrote {q['out']} (int8, dense maps only, for the grid pass); largest differences from float: {diffs}")
     return 0
 
 
@@ -142,6 +154,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--checkpoint", required=True)
     s.add_argument("--out", required=True)
     s.add_argument("--tol-px", type=float, default=0.01, help="fail if onnxruntime and PyTorch corners differ by more")
+    s.add_argument("--input-size", metavar="WxH", help="processing size of the graph (default: the size it was trained at)")
+    s.add_argument(
+        "--int8",
+        action="store_true",
+        help="also write OUT.int8.onnx: the grid pass's maps with int8 convolutions (experimental: faster, but not at parity)",
+    )
     s.set_defaults(func=cmd_export)
 
     s = sub.add_parser("detect", help="detect corners in images with the ONNX model (onnxruntime, CPU)")

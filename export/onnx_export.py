@@ -79,12 +79,25 @@ def metadata(cfg: TrainConfig, name: str) -> dict[str, str]:
     }
 
 
-def export_onnx(checkpoint: str | Path, out: str | Path, tol_px: float = 0.01, n_check: int = 8) -> dict:
-    """Export ``checkpoint`` to ``out`` and run the parity check; returns the check's figures."""
+def export_onnx(
+    checkpoint: str | Path, out: str | Path, tol_px: float = 0.01, n_check: int = 8, input_size: tuple[int, int] | None = None
+) -> dict:
+    """Export ``checkpoint`` to ``out`` and run the parity check; returns the check's figures.
+
+    ``input_size`` (H, W): the processing size of the exported graph, default the one the network
+    was trained at. The network is fully convolutional, so a smaller size is a cheaper detector
+    whose boards look smaller to the network (``calib_eval.detection.processing_size`` measures
+    what that costs in recall); the metadata records the size the graph takes."""
     import onnx
     import onnxruntime as ort
 
     model, cfg = build_from_checkpoint(load_checkpoint(checkpoint))
+    if input_size is not None:
+        H, W = (int(v) for v in input_size)
+        if H < 32 or W < 32:
+            raise ExportError(f"input size {H}x{W} is too small (at least 32 x 32)")
+        cfg.model.input_size = (H, W)
+        cfg.render.height, cfg.render.width = H, W
     H, W = cfg.model.input_size
     wrapper = ExportWrapper(model).eval()
     example = torch.rand(2, 1, H, W)
@@ -127,3 +140,77 @@ def export_onnx(checkpoint: str | Path, out: str | Path, tol_px: float = 0.01, n
         raise ExportError(f"parity check failed: onnxruntime corners differ from PyTorch by {dq:.4f} px (> {tol_px} px)")
     os.replace(tmp, out)
     return {"out": str(out), "max_corner_diff_px": dq, "max_prob_diff": dp, "opset": got_opset, "images": n_check}
+
+
+KEEP_FLOAT = ("model.head_", "model.dec2", "model.side.0")  # int8 there moved column / row votes enough to flip a board's identity
+
+
+def quantize_dense(
+    model: str | Path, out: str | Path, n_calib: int = 32, seed: int = 515151, keep_float: tuple[str, ...] = KEEP_FLOAT
+) -> dict:
+    """An int8 graph of ``model``'s dense maps (the grid pass's inputs) at ``out``.
+
+    The graph is cut to :data:`~cotrain.model.outputs.DENSE_OUTPUTS` (the per-slot point heads
+    are not part of it) and its convolutions are quantized statically (QDQ, int8 weights per
+    channel, uint8 activations) with ranges calibrated on ``n_calib`` images rendered by the
+    model's own training config. The metadata is the model's, so the detector takes either file.
+    Returns the largest differences of the maps against the float graph on other rendered images.
+    """
+    import tempfile
+
+    import onnx
+    import onnxruntime as ort
+    from onnxruntime.quantization import CalibrationDataReader, QuantFormat, QuantType, quantize_static
+    from onnxruntime.quantization.shape_inference import quant_pre_process
+
+    from cotrain.config import from_dict
+    from cotrain.model.outputs import DENSE_OUTPUTS
+
+    proto = onnx.load(str(model))
+    meta = {p.key: p.value for p in proto.metadata_props}
+    if "cotrain.config" not in meta:
+        raise ExportError(f"{model}: not a cotrain model (no cotrain.config metadata)")
+    cfg = from_dict(TrainConfig, json.loads(meta["cotrain.config"]))
+    H, W = json.loads(meta["cotrain.input_size"])
+    cfg.render.height, cfg.render.width = H, W
+    dense = onnx.utils.Extractor(proto).extract_model([INPUT], list(DENSE_OUTPUTS))
+    # Convolutions whose weights are named with a prefix of keep_float stay in float.
+    exclude = [n.name for n in dense.graph.node if n.op_type == "Conv" and n.input[1].startswith(keep_float)]
+    calib = render_batch(cfg.render, list(range(n_calib)), seed=seed)["image"].numpy().astype(np.float32)
+
+    class Reader(CalibrationDataReader):
+        def __init__(self):
+            self.it = iter(calib[i : i + 1] for i in range(len(calib)))
+
+        def get_next(self):
+            x = next(self.it, None)
+            return None if x is None else {INPUT: x}
+
+    out = Path(out)
+    with tempfile.TemporaryDirectory() as tmp:
+        f32, pre, q = Path(tmp) / "dense.onnx", Path(tmp) / "pre.onnx", Path(tmp) / "int8.onnx"
+        onnx.save(dense, str(f32))
+        quant_pre_process(str(f32), str(pre), skip_symbolic_shape=True)
+        quantize_static(
+            str(pre),
+            str(q),
+            Reader(),
+            quant_format=QuantFormat.QDQ,
+            op_types_to_quantize=["Conv"],
+            activation_type=QuantType.QUInt8,
+            weight_type=QuantType.QInt8,
+            per_channel=True,
+            nodes_to_exclude=exclude,
+        )
+        qproto = onnx.load(str(q))
+        del qproto.metadata_props[:]
+        for k, v in meta.items():
+            entry = qproto.metadata_props.add()
+            entry.key, entry.value = k, v
+        out.parent.mkdir(parents=True, exist_ok=True)
+        onnx.save(qproto, str(out))
+    check = render_batch(cfg.render, list(range(8)), seed=seed + 1)["image"].numpy().astype(np.float32)
+    ref = ort.InferenceSession(dense.SerializeToString(), providers=["CPUExecutionProvider"]).run(list(DENSE_OUTPUTS), {INPUT: check})
+    got = ort.InferenceSession(str(out), providers=["CPUExecutionProvider"]).run(list(DENSE_OUTPUTS), {INPUT: check})
+    diff = {n: float(np.abs(a - b).max()) for n, a, b in zip(DENSE_OUTPUTS, ref, got)}
+    return {"out": str(out), "max_diff": diff, "calibration_images": n_calib}

@@ -47,6 +47,15 @@ class Detection:
     all_visibility: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (N,)
 
 
+@dataclass
+class Pending:
+    """An image between the two halves of a detector (:meth:`Detector.network`, :meth:`Detector.finish`)."""
+
+    grey: np.ndarray  # (H, W) float32 input image
+    box: Letterbox | None  # its letterbox into the processing size (None: no network)
+    out: dict[str, np.ndarray]  # the network's outputs by name (empty: no network)
+
+
 class Detector:
     """The network (onnxruntime, CPU) and the grid pass: identified corners at input resolution.
 
@@ -85,10 +94,15 @@ class Detector:
             raise ValueError(f"mode must be 'grid' or 'slots', not {mode!r}")
         if mode == "grid" and not self.net.has_dense:
             mode = "slots"  # a model exported before the grid pass: no dense outputs
+        if mode == "slots" and not self.net.has_slots:
+            raise ValueError(f"{self.net.path}: the model has no per-slot outputs (a graph for the grid pass only)")
         if mode == "slots" and not self.board_votes:
             raise ValueError("slot mode reads the model's own corner ids: it needs the board the model was trained on")
         self.mode = mode
         self.grid = grid or GridConfig()
+        if mode == "grid":
+            self.net.keep(DENSE_OUTPUTS)  # the per-slot heads are not run
+        self.net.session  # noqa: B018 (a model onnxruntime cannot load fails here, not on the first image)
 
     def cache_key(self) -> dict:
         """What decides this detector's output (the model file and the settings): cached
@@ -131,15 +145,25 @@ class Detector:
 
     def detect(self, image: np.ndarray) -> Detection:
         """Detect corners in one image (any size, 8/16-bit or float, grey or colour)."""
+        return self.finish(self.network(image))
+
+    def network(self, image: np.ndarray) -> Pending:
+        """The first half of :meth:`detect`: the image letterboxed and through the network (no
+        Python loops; onnxruntime releases the GIL, so another thread can run :meth:`finish` on
+        the previous image meanwhile, see :func:`cotrain.io.detections.detect_files`)."""
         grey = self._grey(image)
         box = self.letterbox(grey)
-        out = self.net.run(box.apply(grey)[None, None])
-        det = self._postprocess(out, box, consistency=self.consistency and self.mode == "slots")
+        return Pending(grey, box, self.net.run(box.apply(grey)[None, None]))
+
+    def finish(self, pending: Pending) -> Detection:
+        """The second half of :meth:`detect`: the grid pass (or the per-slot read-out)."""
+        grey, box, out = pending.grey, pending.box, pending.out
         if self.mode == "grid":
             g = self._grid(grey, box, out, self.grid)
-            det.ids, det.xy, det.confidence = g.ids, g.xy, g.confidence
-            det.visibility = np.ones(len(g.ids))
-        elif self.polish and len(det.ids):
+            h, w = grey.shape
+            return Detection(g.ids, g.xy, g.confidence, np.ones(len(g.ids)), w, h)
+        det = self._postprocess(out, box, consistency=self.consistency)
+        if self.polish and len(det.ids):
             det.xy = polish_corners(grey, det.xy, local_square_px(det.ids, det.xy, self.nx))
         return det
 
@@ -175,11 +199,20 @@ class AprilGridDetector:
 
     def detect(self, image: np.ndarray) -> Detection:
         """Detect corners in one image (any size, 8/16-bit or float, grey or colour)."""
+        return self.finish(self.network(image))
+
+    def network(self, image: np.ndarray) -> Pending:
+        """The image as the tag pass reads it (no network: the same two halves as :class:`Detector`)."""
         grey = to_grey_float(image) if image.dtype != np.float32 or image.ndim != 2 else image
         h, w = grey.shape
         if min(h, w) < MIN_SIDE:
             raise ImageError(f"image too small ({w}x{h}); need at least {MIN_SIDE} px per side")
-        r = tag_pass(grey, self.target, self.cfg)
+        return Pending(grey, None, {})
+
+    def finish(self, pending: Pending) -> Detection:
+        """The tag pass on an image from :meth:`network`."""
+        h, w = pending.grey.shape
+        r = tag_pass(pending.grey, self.target, self.cfg)
         return Detection(r.ids, r.xy, r.confidence, np.ones(len(r.ids)), w, h)
 
 

@@ -4,7 +4,10 @@
     out = net.run(batch)                  # {name: array} for the names of cotrain.model.outputs
     net.input_size, net.target            # processing size (H, W) and the target it was trained on
 
-The outputs are read by name (:mod:`cotrain.model.outputs`), never by position.
+The outputs are read by name (:mod:`cotrain.model.outputs`), never by position. ``only`` keeps the
+part of the graph that computes the named outputs (the grid pass reads the dense maps; the
+per-slot read-out's point heads are then not run at all). A graph with only the dense maps (an
+int8 graph from ``cotrain export --int8``) is a model for the grid pass alone.
 """
 
 from __future__ import annotations
@@ -26,23 +29,23 @@ def default_model_path() -> Path:
 
 
 class OnnxModel:
-    """An onnxruntime session on the CPU over a cotrain ONNX model, with its metadata."""
+    """An onnxruntime session on the CPU over a cotrain ONNX model, with its metadata.
 
-    def __init__(self, path: str | Path | None = None, threads: int = 0):
-        import onnxruntime as ort
+    ``threads``: onnxruntime's intra-op threads (0: its default, one per core). ``only``: the
+    outputs to compute (default all the model has)."""
+
+    def __init__(self, path: str | Path | None = None, threads: int = 0, only: tuple[str, ...] | None = None):
+        import onnx
 
         self.path = Path(path) if path else default_model_path()
         if not self.path.is_file():
             hint = "" if path else " (the shipped default model is missing; pass --model)"
             raise FileNotFoundError(f"{self.path}: model not found{hint}")
-        opts = ort.SessionOptions()
-        if threads:
-            opts.intra_op_num_threads = threads
         try:
-            self.session = ort.InferenceSession(str(self.path), opts, providers=["CPUExecutionProvider"])
+            proto = onnx.load(str(self.path))
         except Exception as e:
             raise ValueError(f"{self.path}: not a loadable ONNX model ({type(e).__name__})") from None
-        meta = self.session.get_modelmeta().custom_metadata_map
+        meta = {p.key: p.value for p in proto.metadata_props}
         if "cotrain.input_size" not in meta:
             raise ValueError(f"{self.path}: not a cotrain model (no cotrain.input_size metadata)")
         self.input_size: tuple[int, int] = tuple(json.loads(meta["cotrain.input_size"]))  # (H, W)
@@ -51,16 +54,48 @@ class OnnxModel:
             self.target: Target = target_from_json(trained)
         except (TargetError, json.JSONDecodeError) as e:
             raise ValueError(f"{self.path}: bad cotrain.target metadata ({e})") from None
-        inputs = [i.name for i in self.session.get_inputs()]
-        names = {o.name for o in self.session.get_outputs()}
+        inputs = [i.name for i in proto.graph.input]
+        names = {o.name for o in proto.graph.output}
         if INPUT not in inputs:
             raise ValueError(f"{self.path}: no input named {INPUT!r} (has {', '.join(inputs)})")
-        missing = [n for n in SLOT_OUTPUTS if n not in names]
-        if missing:
-            raise ValueError(f"{self.path}: the model lacks the outputs {', '.join(missing)}")
-        # A model exported before the grid pass has no dense maps: only the per-slot read-out runs.
+        # A model exported before the grid pass has no dense maps (only the per-slot read-out
+        # runs); an int8 graph for the grid pass has only the dense maps.
         self.has_dense = all(n in names for n in DENSE_OUTPUTS)
-        self.outputs = SLOT_OUTPUTS + (DENSE_OUTPUTS if self.has_dense else ())
+        self.has_slots = all(n in names for n in SLOT_OUTPUTS)
+        if not (self.has_dense or self.has_slots):
+            missing = [n for n in SLOT_OUTPUTS + DENSE_OUTPUTS if n not in names]
+            raise ValueError(f"{self.path}: the model lacks the outputs {', '.join(missing)}")
+        self.outputs = (SLOT_OUTPUTS if self.has_slots else ()) + (DENSE_OUTPUTS if self.has_dense else ())
+        self._proto, self._threads, self._session = proto, threads, None
+        if only is not None:
+            self.keep(only)
+
+    def keep(self, names: tuple[str, ...]) -> None:
+        """Compute only the outputs ``names`` from now on: the graph is cut to what they need."""
+        lacking = [n for n in names if n not in self.outputs]
+        if lacking:
+            raise ValueError(f"{self.path}: the model lacks the outputs {', '.join(lacking)}")
+        if set(names) != set(self.outputs):
+            import onnx
+
+            self._proto = onnx.utils.Extractor(self._proto).extract_model([INPUT], list(names))
+            self._session = None
+        self.outputs = tuple(names)
+
+    @property
+    def session(self):
+        """The onnxruntime session over the (possibly cut) graph, made on first use."""
+        if self._session is None:
+            import onnxruntime as ort
+
+            opts = ort.SessionOptions()
+            if self._threads:
+                opts.intra_op_num_threads = self._threads
+            try:
+                self._session = ort.InferenceSession(self._proto.SerializeToString(), opts, providers=["CPUExecutionProvider"])
+            except Exception as e:
+                raise ValueError(f"{self.path}: not a loadable ONNX model ({type(e).__name__})") from None
+        return self._session
 
     def run(self, batch: np.ndarray, names: tuple[str, ...] | None = None) -> dict[str, np.ndarray]:
         """Outputs by name for (B, 1, H, W) float32 processing-size images (``names``: a subset)."""

@@ -11,7 +11,9 @@ from cotrain.cli import run as cotrain_cli
 from cotrain.config import load_config
 from cotrain.detect.detector import Detector
 from cotrain.detect.images import expand_inputs, load_image
+from cotrain.detect.onnx_model import OnnxModel
 from cotrain.io.detections import detect_files
+from cotrain.model.outputs import DENSE_OUTPUTS
 from cotrain.model.train import TrainConfig, finalize_config, train
 from cotrain.render.renderer import render_batch
 from cotrain.targets import Checkerboard, TargetConfig
@@ -34,11 +36,56 @@ def test_export_checker_metadata_dynamic_batch(tiny_onnx):
     meta = {p.key: p.value for p in m.metadata_props}
     assert json.loads(meta["cotrain.input_size"]) == [64, 96]
     assert json.loads(meta["cotrain.target"])["squares_x"] == 10
-    det = Detector(tiny_onnx)
+    net = OnnxModel(tiny_onnx)
     for b in (1, 3):
-        outs = det.net.run(np.zeros((b, 1, 64, 96), np.float32))
+        outs = net.run(np.zeros((b, 1, 64, 96), np.float32))
         assert outs["corners"].shape == (b, 54, 2) and outs["visibility"].shape == (b, 54)
         assert outs["col_logp"].shape == (b, 11, 16, 24) and outs["row_logp"].shape == (b, 8, 16, 24)
+
+
+def test_grid_mode_cuts_the_graph_to_the_dense_maps(tiny_onnx):
+    """The grid pass's detector runs only the part of the graph its dense maps need, and those
+    maps are the full graph's, value for value."""
+    full, det = OnnxModel(tiny_onnx), Detector(tiny_onnx)
+    assert det.net.outputs == DENSE_OUTPUTS
+    cut = {n.op_type for n in det.net._proto.graph.node}
+    assert "GridSample" in {n.op_type for n in full._proto.graph.node} and "GridSample" not in cut  # the point heads' sampling
+    x = np.random.default_rng(1).random((2, 1, 64, 96)).astype(np.float32)
+    a, b = full.run(x), det.net.run(x)
+    for n in DENSE_OUTPUTS:
+        np.testing.assert_allclose(b[n], a[n], rtol=1e-5, atol=1e-6)
+    with pytest.raises(ValueError, match="lacks the outputs"):
+        det.net.keep(("corners",))
+
+
+def test_export_at_another_processing_size(tiny_onnx, tmp_path):
+    """--input-size exports the same weights at another processing size: the metadata says it, the
+    detector letterboxes into it, and the maps are a quarter of it."""
+    ck = tiny_onnx.parent / "last.pt"
+    out = tmp_path / "small.onnx"
+    assert cotrain_cli(["export", "--checkpoint", str(ck), "--out", str(out), "--input-size", "64x32"]) == 0
+    det = Detector(out)
+    assert det.input_size == (32, 64)
+    assert det.letterbox(np.zeros((120, 200), np.float32)).scale == pytest.approx(min(64 / 200, 32 / 120))
+    assert det.net.run(np.zeros((1, 1, 32, 64), np.float32))["corner_prob"].shape == (1, 1, 8, 16)
+    assert cotrain_cli(["export", "--checkpoint", str(ck), "--out", str(out), "--input-size", "64by32"]) == 2
+
+
+def test_int8_graph_for_the_grid_pass(tiny_onnx, tmp_path):
+    """--int8: a dense-maps-only graph with quantized convolutions; the grid pass takes it, the
+    per-slot read-out refuses it in one line, and its maps stay near the float graph's."""
+    from export.onnx_export import quantize_dense
+
+    out = tmp_path / "int8.onnx"
+    r = quantize_dense(tiny_onnx, out, n_calib=4)
+    ops = {n.op_type for n in onnx.load(str(out)).graph.node}
+    assert "QuantizeLinear" in ops and "DequantizeLinear" in ops
+    net = OnnxModel(out)
+    assert net.outputs == DENSE_OUTPUTS and not net.has_slots and net.input_size == (64, 96)
+    assert r["max_diff"]["corner_prob"] < 0.25 and r["max_diff"]["mask_prob"] < 0.25
+    Detector(out).detect(np.random.default_rng(0).random((120, 200)).astype(np.float32))
+    with pytest.raises(ValueError, match="no per-slot outputs"):
+        Detector(out, mode="slots")
 
 
 def test_export_bad_checkpoint_is_one_line(tmp_path, capsys):
@@ -112,7 +159,7 @@ def test_detect_rendered_and_broken_inputs(tiny_onnx, tmp_path):
 
 def test_detect_maps_back_to_input_resolution(tiny_onnx):
     """A corner the model puts at processing pixel x maps to (x + 0.5) / s - 0.5 in the input."""
-    det = Detector(tiny_onnx, threshold=0.0, consistency=False)
+    det = Detector(tiny_onnx, threshold=0.0, consistency=False, mode="slots")
     img = np.random.default_rng(0).random((240, 400)).astype(np.float32)  # 2.5x the 96x64 size in x, 3.75 in y
     d = det.detect(img)
     box = det.letterbox(img)
@@ -156,11 +203,20 @@ def test_detect_files_finds_rendered_corners_and_records_errors(tmp_path):
         paths.append(tmp_path / f"r{i}.png")
         cv2.imwrite(str(paths[i]), (out["image"][i, 0].numpy() * 255).round().astype(np.uint8))
     (tmp_path / "corrupt.png").write_bytes(b"\x89PNG\r\n\x1a\nbroken")
-    data = detect_files([*paths, tmp_path / "corrupt.png", tmp_path / "missing.png"], Detector(threads=1), progress=False)
-    assert [e["path"] for e in data["images"]] == [str(p) for p in [*paths, tmp_path / "corrupt.png", tmp_path / "missing.png"]]
+    # A bad file between good ones: the files after it (read ahead while it failed) are still done.
+    files = [*paths[:2], tmp_path / "corrupt.png", *paths[2:], tmp_path / "missing.png"]
+    data = detect_files(files, Detector(threads=1), progress=False)
+    assert [e["path"] for e in data["images"]] == [str(p) for p in files]
     assert data["target"] is not None
+    good = [e for e in data["images"] if e["path"] in {str(p) for p in paths}]
+    # Two images in flight (network ahead, grid pass behind) give what one image at a time gives.
+    det = Detector(threads=1)
+    for p, e in zip(paths, good):
+        d = det.detect(load_image(p))
+        assert [c["id"] for c in e["corners"]] == d.ids.tolist()
+        np.testing.assert_allclose(np.array([[c["x"], c["y"]] for c in e["corners"]]).reshape(-1, 2), d.xy.reshape(-1, 2), atol=1e-3)
     n_found = 0
-    for i, e in enumerate(data["images"][:4]):
+    for i, e in enumerate(good):
         assert e["error"] is None and (e["width"], e["height"]) == (768, 432)
         vis, gt = out["visible"][i].numpy(), out["corners_raw"][i].numpy()
         ids = np.array([c["id"] for c in e["corners"]], dtype=int)
@@ -173,7 +229,7 @@ def test_detect_files_finds_rendered_corners_and_records_errors(tmp_path):
             assert all(0 < c["confidence"] <= 1 for c in e["corners"])
             n_found += 1
     assert n_found == 3
-    for e, why in zip(data["images"][4:], ("not a readable image", "not found")):
+    for e, why in zip([data["images"][2], data["images"][5]], ("not a readable image", "not found")):
         assert why in e["error"] and e["corners"] == [] and (e["width"], e["height"]) == (0, 0)
 
 
