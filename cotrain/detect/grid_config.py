@@ -33,6 +33,7 @@ class GridConfig:
     diag_offset: float = 0.3  # colour test samples the four quadrants this fraction of (step a +- step b) from the corner
     min_seed_contrast: float = 0.05  # |quadrant contrast| (intensity) the seed needs (see lattice._diag_contrast)
     min_alternation: float = 0.25  # a new corner's quadrant contrast must flip sign with at least this share of its parent's
+    fill_min_alternation: float = 0.15  # a saddle search where no candidate was predicted needs colours alternating this much there
     match_radius: float = 0.45  # a neighbour must lie within this fraction of the grid step of its prediction
     agree_radius: float = 0.3  # predictions of one corner from different neighbours must agree within this fraction of a step
     min_step_ratio: float = 0.5  # a new step may be this much shorter than its prediction ...

@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import collections
 import functools
+import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -25,7 +27,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from cotrain.detect.grid_config import GridConfig
-from cotrain.detect.saddle import fit_saddles, smooth_cached, window_half
+from cotrain.detect.saddle import fit_saddles, pixel_index, smooth_cached, window_half
 
 STEPS = ((1, 0), (-1, 0), (0, 1), (0, -1))  # the four lattice neighbours (da, db)
 
@@ -66,6 +68,15 @@ def _diag_contrast(img: np.ndarray, p: np.ndarray, ea: np.ndarray, eb: np.ndarra
     return value_at(img, p + d2) + value_at(img, p - d2) - value_at(img, p + d1) - value_at(img, p - d1)
 
 
+def _fill_alternates(img: np.ndarray, pred: np.ndarray, ea: np.ndarray, eb: np.ndarray, parent: float, cfg: GridConfig) -> bool:
+    """Whether the checker colours already alternate at a predicted spot ``pred`` (2,) against
+    the parent corner's quadrant contrast ``parent`` (by ``cfg.fill_min_alternation``): only then
+    is a saddle searched there. Beyond the board's last corners they do not, and those failing
+    searches were most of the growth's time."""
+    pc = _diag_contrast(img, pred, ea, eb, cfg.diag_offset)
+    return pc * parent < 0 and abs(pc) >= cfg.fill_min_alternation * abs(parent)
+
+
 # --------------------------------------------------------------------------------------------
 # Growth
 # --------------------------------------------------------------------------------------------
@@ -78,13 +89,15 @@ def next_step(u: np.ndarray, v: np.ndarray) -> np.ndarray:
 
     Equal steps on the board seen in perspective keep their cross-ratio: with step lengths
     d0 = |u|, d1 = |v| the next one is d1 (d0 + d1) / (3 d0 - d1) (clamped to 0.5 .. 2 d1), and
-    the fisheye bends the line by about the same angle again (clamped to 30 deg)."""
-    d0, d1 = float(np.linalg.norm(u)), float(np.linalg.norm(v))
+    the fisheye bends the line by about the same angle again (clamped to 30 deg). (Scalar float
+    arithmetic: it runs once per corner of every growth.)"""
+    ux, uy, vx, vy = float(u[0]), float(u[1]), float(v[0]), float(v[1])
+    d0, d1 = math.hypot(ux, uy), math.hypot(vx, vy)
     den = 3 * d0 - d1
-    ratio = float(np.clip((d0 + d1) / den, 0.5, 2.0)) if den > 0 else 2.0
-    turn = float(np.clip(np.arctan2(_cross(u, v), float(np.dot(u, v))), -np.pi / 6, np.pi / 6))
-    c, s = np.cos(turn), np.sin(turn)
-    return ratio * np.array([c * v[0] - s * v[1], s * v[0] + c * v[1]])
+    ratio = min(max((d0 + d1) / den, 0.5), 2.0) if den > 0 else 2.0
+    turn = min(max(math.atan2(ux * vy - uy * vx, ux * vx + uy * vy), -math.pi / 6), math.pi / 6)
+    c, s = math.cos(turn), math.sin(turn)
+    return np.array([ratio * (c * vx - s * vy), ratio * (s * vx + c * vy)])
 
 
 def match_corner(
@@ -98,10 +111,12 @@ def match_corner(
     half: int,
     cfg: GridConfig,
     rim_dist: np.ndarray | None = None,
+    worth_fitting: Callable[[], bool] | None = None,
 ) -> tuple[np.ndarray | None, bool]:
     """The corner at a predicted spot ``pred`` (2,): the nearest candidate of xy (K, 2) within
     ``r`` not yet offered (``used`` gains it), otherwise a saddle fitted there in a window of
-    half-size ``half`` that lands within ``r``. Returns (point or None, found by the fit).
+    half-size ``half`` that lands within ``r`` (only if ``worth_fitting()`` says so, when given).
+    Returns (point or None, found by the fit).
 
     A candidate is offered once: if the growth's checks refuse it here, it is doubtful and is not
     tried again from another corner (measured: offering it again lets wrong corners into small
@@ -110,6 +125,8 @@ def match_corner(
     if dist < r and j not in used:
         used.add(int(j))
         return xy[j], False
+    if worth_fitting is not None and not worth_fitting():
+        return None, False
     q, ok, _ = fit_saddles(grey, smoothed, pred[None], half, cfg, rim_dist)
     if ok[0] and np.linalg.norm(q[0] - pred) < r:
         return q[0], True
@@ -156,6 +173,8 @@ def grow_lattice(
     if _cross(sa, sb) < 0:
         sa, sb = sb, sa
     pts = [p0.copy()]
+    placed = np.empty((len(xy) + 16, 2))  # pts as one array, for the crowding test
+    placed[0] = p0
     sm1 = smooth_cached(smoothed, grey, 2)
     par = {(0, 0): _diag_contrast(sm1, p0, sa, sb, cfg.diag_offset)}
     if abs(par[(0, 0)]) < cfg.min_seed_contrast:
@@ -167,6 +186,7 @@ def grow_lattice(
     used = {seed}
     queue = collections.deque([(0, 0)])
     H, W = grey.shape
+    hypot = math.hypot
     while queue:
         a, b = queue.popleft()
         k = where[(a, b)]
@@ -185,33 +205,41 @@ def grow_lattice(
                 m0, m1 = where.get((a + side[0], b + side[1])), where.get((t[0] + side[0], t[1] + side[1]))
                 if m0 is not None and m1 is not None:
                     preds.append(pts[k] + pts[m1] - pts[m0])
-            pred = np.mean(preds, 0)
-            if max(np.linalg.norm(p_ - pred) for p_ in preds) > cfg.agree_radius * np.linalg.norm(v):
+            pred = preds[0] if len(preds) == 1 else np.mean(preds, 0)
+            len_v = hypot(v[0], v[1])
+            if len(preds) > 1 and max(hypot(p_[0] - pred[0], p_[1] - pred[1]) for p_ in preds) > cfg.agree_radius * len_v:
                 continue  # the neighbours disagree about where this corner is
-            short = min(np.linalg.norm(v), np.linalg.norm(sb if da else sa))  # the square's smaller side here
-            r = cfg.match_radius * np.linalg.norm(v)
+            side_v = sb if da else sa
+            short = min(len_v, hypot(side_v[0], side_v[1]))  # the square's smaller side here
+            r = cfg.match_radius * len_v
             if not (0 <= pred[0] < W and 0 <= pred[1] < H) or short < cfg.min_step_px:
                 continue
-            found, was_filled = match_corner(pred, r, xy, tree, used, grey, smoothed, window_half(short), cfg, rim_dist)
+            pa, pb = (v * da if da else sa), (v * db if db else sb)
+            worth_fitting = functools.partial(_fill_alternates, sm1, pred, pa, pb, par[(a, b)], cfg)
+            found, was_filled = match_corner(pred, r, xy, tree, used, grey, smoothed, window_half(short), cfg, rim_dist, worth_fitting)
             if found is None:
                 continue
             new_v = found - pts[k]
-            len_new, len_v = np.linalg.norm(new_v), np.linalg.norm(v)
+            len_new = hypot(new_v[0], new_v[1])
             if len_new < cfg.min_step_ratio * len_v or len_new > cfg.max_step_ratio * len_v:
                 continue  # the step changed its length too much
-            crowd = short if short >= cfg.crowd_small_factor * cfg.min_step_px else np.linalg.norm(v)
-            if min(np.linalg.norm(np.array(pts) - found, axis=1)) < cfg.crowd_radius * crowd:
+            crowd = short if short >= cfg.crowd_small_factor * cfg.min_step_px else len_v
+            d = placed[: len(pts)] - found
+            if np.sqrt((d * d).sum(1).min()) < cfg.crowd_radius * crowd:
                 # Would sit on top of a lattice corner already placed. Measured against the smaller
                 # side (on a board seen obliquely the next corner across is much nearer than the
                 # step), except in small squares, where a diagonal slip is then let through.
                 continue
             na = new_v * da if da else sa
             nbv = new_v * db if db else sb
-            pc = _diag_contrast(sm1, np.asarray(found), na, nbv, cfg.diag_offset)
+            pc = _diag_contrast(sm1, found, na, nbv, cfg.diag_offset)
             if pc * par[(a, b)] >= 0 or abs(pc) < cfg.min_alternation * abs(par[(a, b)]):
                 continue  # checker colours do not alternate: a slipped row or column, or not this board
             par[t] = pc
             where[t] = len(pts)
+            if len(pts) == len(placed):
+                placed = np.concatenate([placed, np.empty_like(placed)])
+            placed[len(pts)] = found
             pts.append(np.asarray(found, np.float64))
             lab.append(t)
             filled.append(was_filled)
@@ -297,7 +325,7 @@ def verify_lattice(
         q[m], ok[m], axes[m] = fit_saddles(grey, smoothed, lat.xy[m], max(2, int(h) // 2), cfg, rim_dist)
     keep = todo & ok & (np.linalg.norm(q - lat.xy, axis=1) < cfg.max_refit_shift * short)
     if rim_dist is not None:
-        qi = np.clip(np.rint(q).astype(int), 0, [W - 1, H - 1])
+        qi = pixel_index(q, W, H)
         cut = keep & (rim_dist[qi[:, 1], qi[:, 0]] < 1 + 1.8 * halves)
         cos_max = np.cos(np.radians(cfg.max_rim_edge_angle))
         for k in np.nonzero(cut)[0]:

@@ -13,6 +13,7 @@ int8 graph from ``cotrain export --int8``) is a model for the grid pass alone.
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -31,8 +32,11 @@ def default_model_path() -> Path:
 class OnnxModel:
     """An onnxruntime session on the CPU over a cotrain ONNX model, with its metadata.
 
-    ``threads``: onnxruntime's intra-op threads (0: its default, one per core). ``only``: the
-    outputs to compute (default all the model has)."""
+    ``threads``: onnxruntime's intra-op threads; 0: half the cores (at least one), so that the
+    grid pass of the previous image and the reading of the next have the other half
+    (:func:`cotrain.io.detections.detect_files` runs them side by side; on two cores this is 1.5x
+    the throughput of two onnxruntime threads). ``only``: the outputs to compute (default all the
+    model has)."""
 
     def __init__(self, path: str | Path | None = None, threads: int = 0, only: tuple[str, ...] | None = None):
         import onnx
@@ -89,8 +93,7 @@ class OnnxModel:
             import onnxruntime as ort
 
             opts = ort.SessionOptions()
-            if self._threads:
-                opts.intra_op_num_threads = self._threads
+            opts.intra_op_num_threads = self._threads or max(1, (os.cpu_count() or 2) // 2)
             try:
                 self._session = ort.InferenceSession(self._proto.SerializeToString(), opts, providers=["CPUExecutionProvider"])
             except Exception as e:

@@ -70,6 +70,12 @@ def _patches(img: np.ndarray, p: np.ndarray, half: int, border: int = cv2.BORDER
     return out.reshape(len(p), n * n).astype(np.float64)
 
 
+def pixel_index(q: np.ndarray, W: int, H: int) -> np.ndarray:
+    """The nearest pixel (K, 2) int of points q (K, 2), clamped into a W x H image."""
+    qi = np.rint(q).astype(int)
+    return np.minimum(np.maximum(qi, 0), np.array([W - 1, H - 1]))
+
+
 # --------------------------------------------------------------------------------------------
 # Saddle fit
 # --------------------------------------------------------------------------------------------
@@ -111,7 +117,7 @@ def saddle_fit(
         if rim_dist is None:
             return patch @ pinv.T, patch, np.ones_like(patch), np.ones(len(q), bool)
         coef, valid, posed = patch @ pinv.T, np.ones_like(patch), np.ones(len(q), bool)
-        qi = np.clip(np.rint(q).astype(int), 0, [W - 1, H - 1])
+        qi = pixel_index(q, W, H)
         near = rim_dist[qi[:, 1], qi[:, 0]] < reach + 1.5 * half + 1  # the window may reach the rim
         if near.any():
             valid[near] = (_patches(rim_dist, q[near], half, cv2.BORDER_CONSTANT) > reach).astype(np.float64)
@@ -137,7 +143,7 @@ def saddle_fit(
     if rim_dist is None:
         inside = (p[:, 0] >= half) & (p[:, 0] < W - 1 - half) & (p[:, 1] >= half) & (p[:, 1] < H - 1 - half)
     else:
-        pi = np.clip(np.rint(p).astype(int), 0, [W - 1, H - 1])
+        pi = pixel_index(p, W, H)
         inside = (p[:, 0] >= 0) & (p[:, 0] <= W - 1) & (p[:, 1] >= 0) & (p[:, 1] <= H - 1)
         inside &= rim_dist[pi[:, 1], pi[:, 0]] >= cfg.min_rim_px
     ok = alive & inside & (np.linalg.norm(p - xy, axis=1) <= half)
@@ -182,7 +188,7 @@ def fit_saddles(
     if rim_dist is None:
         return q, ok, axes
     H, W = rim_dist.shape
-    xi = np.clip(np.rint(xy).astype(int), 0, [W - 1, H - 1])
+    xi = pixel_index(xy, W, H)
     near = rim_dist[xi[:, 1], xi[:, 0]] < 1 + 1.8 * half  # the window (and its blur) reaches the rim
     for h in sorted({max(2, half // 2), 2}, reverse=True):
         retry = np.nonzero(~ok & near)[0]
@@ -202,8 +208,9 @@ def window_half(spacing_px: float | np.ndarray, max_half: int = 5) -> int | np.n
     Larger windows are no better: on real prints the edges bend (the fisheye) and the white
     squares bloom into the black ones, so a wide fit leans off the junction (measured on the
     BoofCV frames: calibration RMS 0.41 px with windows up to 8, 0.26 up to 5)."""
-    h = np.clip(np.rint(0.3 * np.asarray(spacing_px)), 2, max_half).astype(int)
-    return int(h) if h.ndim == 0 else h
+    if np.ndim(spacing_px) == 0 and np.isfinite(spacing_px):  # the growth asks once per corner: plain float arithmetic
+        return int(min(max(round(0.3 * float(spacing_px)), 2), max_half))
+    return np.clip(np.rint(0.3 * np.asarray(spacing_px)), 2, max_half).astype(int)
 
 
 def smooth_for(grey: np.ndarray, half: int) -> np.ndarray:

@@ -46,3 +46,49 @@ def test_next_step_continues_a_perspective_line_and_an_arc():
     np.testing.assert_allclose(np.linalg.norm(next_step(np.array([10.0, 0]), np.array([40.0, 0]))), 80)
     w = next_step(np.array([10.0, 0]), np.array([0.0, 10]))
     assert np.degrees(np.arctan2(w[1], w[0])) == pytest.approx(120)
+
+
+def test_growth_searches_saddles_only_where_colours_alternate(monkeypatch):
+    """Corners missing from the candidates are found by a saddle search at their predicted spot.
+    Where a predicted spot shows no alternating checker colours (here a grey occluder over part
+    of the board) no saddle is searched, and the lattice is the same as when every spot is."""
+    import cotrain.detect.lattice as lattice_mod
+    from cotrain.detect.grid_config import GridConfig
+    from cotrain.detect.lattice import grow_lattice
+    from cotrain.detect.saddle import fit_saddles
+
+    sq, org = 24, (30, 30)
+    img, q = board_image(sq=sq, org=org, size=(330, 250))  # the whole board and its margin
+    img[org[1] + 3 * sq + 6 : org[1] + 6 * sq - 6, org[0] + 5 * sq + 6 : org[0] + 8 * sq - 6] = 0.5  # hides corners (5..6, 3..4)
+    hidden = [j * NX + i for i in (4, 5, 6) for j in (2, 3, 4)]
+    hidden = [k for k in hidden if 5 * sq + 6 < q[k, 0] - org[0] < 8 * sq - 6 and 3 * sq + 6 < q[k, 1] - org[1] < 6 * sq - 6]
+    missing = [NX + 2, 2 * NX + 7]  # corners the candidates lack
+    cand = np.delete(q, missing + hidden, 0) + 0.2
+    calls = []
+
+    def counting(grey, smoothed, xy, *args, **kw):
+        calls.extend(xy.tolist())
+        return fit_saddles(grey, smoothed, xy, *args, **kw)
+
+    monkeypatch.setattr(lattice_mod, "fit_saddles", counting)
+    cfg = GridConfig()
+    grown = []
+    for gate in (True, False):
+        if not gate:
+            monkeypatch.setattr(lattice_mod, "_fill_alternates", lambda *a: True)
+        smoothed: dict[int, np.ndarray] = {}
+        xy, ok, axes = fit_saddles(img, smoothed, cand, 4, cfg)
+        assert ok.all()
+        calls.clear()
+        grown.append((grow_lattice(xy, axes, 0, img, cfg, smoothed), np.array(calls)))
+    (gated, at_gated), (plain, at_plain) = grown
+    assert len(hidden) == 4 and len(gated.ab) == NX * NY - len(hidden) and int(gated.filled.sum()) == len(missing)
+    np.testing.assert_array_equal(gated.ab, plain.ab)
+    np.testing.assert_allclose(gated.xy, plain.xy)
+
+    def near(at: np.ndarray, k: int) -> bool:
+        return bool(len(at)) and np.linalg.norm(at - q[k], axis=1).min() < 0.3 * sq
+
+    assert all(near(at_gated, k) for k in missing)  # searched, and found
+    assert all(near(at_plain, k) for k in hidden) and not any(near(at_gated, k) for k in hidden)
+    assert len(at_gated) < len(at_plain)
