@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 from calib_eval.detection import DEFAULT_DETECTORS, DETECTORS
+from calib_eval.detection.conditions import CONDITIONS
 from cotrain.geometry import MODELS, model_from_name
 from cotrain.geometry.cameras import KALIBR_NAMES
 from cotrain.targets import Target, load_target, target_from_flags
@@ -185,7 +186,12 @@ def cmd_detection(a: argparse.Namespace) -> int:
     if a.model and not Path(a.model).is_file():
         raise FileNotFoundError(f"{a.model}: model not found")
     w, h = parse_size(a.size)
-    cfg = EvalConfig(fovs=a.fov, per_fov=a.per_fov, n_empty=a.empty, seed=a.seed, width=w, height=h)
+    if a.per_condition < 0:
+        raise ValueError("--per-condition must be 0 (no condition rows) or more")
+    conditions = [] if a.per_condition == 0 else a.conditions
+    cfg = EvalConfig(
+        fovs=a.fov, per_fov=a.per_fov, n_empty=a.empty, seed=a.seed, width=w, height=h, conditions=conditions, per_condition=a.per_condition
+    )
     evaluate_detection(a.model, cfg, Path(a.out), detectors=a.detectors)
     return 0
 
@@ -338,6 +344,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--fov", type=int, nargs="+", default=[180, 200, 220, 240])
     s.add_argument("--per-fov", type=int, default=50)
     s.add_argument("--empty", type=int, default=20, help="images without a target")
+    s.add_argument("--per-condition", type=int, default=24, help="images per hard-condition row (0: none)")
+    s.add_argument(
+        "--conditions", nargs="+", default=list(CONDITIONS), choices=list(CONDITIONS), metavar="C", help="hard-condition rows (default all)"
+    )
     s.add_argument("--seed", type=int, default=2026, help="benchmark seed (2026: the evaluation set; tune on others)")
     s.add_argument("--size", default="1280x720", help="image size WIDTHxHEIGHT (other rigs: 1024x1024, 1920x1080, ...)")
     s.add_argument(

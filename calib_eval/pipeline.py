@@ -102,7 +102,7 @@ def run_pipeline(cfg: PipelineConfig, from_scratch: bool = False) -> int:
 
     # 3. Detection evaluation.
     _stage("3/4 detection evaluation per FoV")
-    ecfg = EvalConfig(fovs=cfg.eval_fovs, per_fov=cfg.eval_per_fov, n_empty=cfg.eval_empty)
+    ecfg = EvalConfig(fovs=cfg.eval_fovs, per_fov=cfg.eval_per_fov, n_empty=cfg.eval_empty, conditions=[])  # FoV rows only
     ev = evaluate_detection(str(onnx_path), ecfg, out / "detection")
     figures["detection"] = ev["results"]
     learned = ev["results"]["learned"]["per_fov"]

@@ -2,14 +2,17 @@
 
 Rendering, a training step, the detector against findChessboardCornersSB on the same frames, and
 the calibration of a 480-frame stereo sequence; each figure is a median of several runs.
+``python -m calib_eval.benchmark.timing detect`` runs the detector figures alone.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import statistics
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
@@ -19,10 +22,9 @@ from calib_eval.calibration.calibrator import CalibConfig, calibrate
 from calib_eval.calibration.selector import SelectorConfig, select
 from cotrain.config import load_config
 from cotrain.detect.detector import Detector
-from cotrain.detect.images import load_image
 from cotrain.model.losses import compute_losses
 from cotrain.model.network import CornerNet
-from cotrain.model.train import TrainConfig, build_from_checkpoint, finalize_config, load_checkpoint
+from cotrain.model.train import TrainConfig, finalize_config
 from cotrain.render.renderer import RenderConfig, render_batch
 
 
@@ -80,64 +82,91 @@ def bench_render_vs_step(cfg_path: str = "configs/default.yaml", repeats: int = 
     return out
 
 
-def bench_detect(model: str | None = None, checkpoint: str | None = None, n: int = 12, seed: int = 99) -> dict:
-    """Median ms per 1280x720 image: ``cotrain detect``'s default path (decode + onnxruntime +
-    grid pass), the per-slot path (decode + onnxruntime + slot post-processing), the PyTorch
-    network alone, and cv2.findChessboardCornersSB (EXHAUSTIVE | ACCURACY)."""
-    import tempfile
-    from pathlib import Path
+@dataclass
+class DetectSet:
+    """A set of rendered frames the detector is timed on (the detection evaluation's renderer and
+    settings, ``calib_eval.detection.evaluation``)."""
 
+    name: str  # row name
+    seed: int  # benchmark seed
+    width: int
+    height: int
+    per_fov: int  # frames per FoV (180, 200, 220, 240)
+    n_empty: int  # frames without a target
+    every: int = 1  # time every n-th frame of the set
+
+
+DETECT_SETS = (
+    DetectSet("evaluation set (seed 2026, 1280x720)", 2026, 1280, 720, 50, 20, every=4),
+    DetectSet("other seed and size (seed 31, 1024x768)", 31, 1024, 768, 12, 4),
+)
+
+
+def _frames(spec: DetectSet, root: Path) -> list[Path]:
+    """The set's PNG files, rendered once into ``root`` (reused while the set's config is the same)."""
+    from calib_eval.detection.evaluation import EvalConfig, load_or_render
+
+    cfg = EvalConfig(per_fov=spec.per_fov, n_empty=spec.n_empty, seed=spec.seed, width=spec.width, height=spec.height, conditions=[])
+    out = root / f"detect_{spec.seed}_{spec.width}x{spec.height}_{spec.per_fov}"
+    meta = load_or_render(cfg, out)
+    return [out / "images" / lab["image"] for lab in meta["labels"]][:: spec.every]
+
+
+def bench_detect(model: str | None = None, runs: int = 5, sets: tuple[DetectSet, ...] = DETECT_SETS, root: Path = Path("report")) -> dict:
+    """Milliseconds per image, decoding included, on the same frames and in the same run:
+
+    - ``files``: ``cotrain detect`` over the files (:func:`cotrain.io.detections.detect_files`:
+      the network of the next image beside the grid pass of this one): wall time / images;
+    - ``one_at_a_time``: ``Detector.detect`` on one image after another (the latency of one image);
+    - ``sb``: ``cv2.findChessboardCornersSB`` (EXHAUSTIVE | ACCURACY, the board's inner corners)
+      on one image after another, reading included.
+
+    Each figure is the median over ``runs`` runs of (total time / images)."""
     import cv2
-    import numpy as np
 
-    cfg = RenderConfig(height=720, width=1280)
-    batch = render_batch(cfg, list(range(n)), seed)
-    tmp = Path(tempfile.mkdtemp())
-    paths = []
-    for i in range(n):
-        p = tmp / f"{i}.png"
-        cv2.imwrite(str(p), (batch["image"][i, 0].numpy() * 255).astype(np.uint8))
-        paths.append(p)
-    out = {}
-    for mode in ("grid", "slots"):
-        det = Detector(model, mode=mode)
-        det.detect(load_image(paths[0]))  # warm-up
-        t_ort = []
-        for p in paths:
-            t0 = time.perf_counter()
-            det.detect(load_image(p))
-            t_ort.append(time.perf_counter() - t0)
-        out["detector_ms" if mode == "grid" else "onnxruntime_slots_ms"] = 1000 * statistics.median(t_ort)
-    if checkpoint:
-        net, _ = build_from_checkpoint(load_checkpoint(checkpoint))
-        t_pt = []
-        for p in paths:
-            t0 = time.perf_counter()
-            g = load_image(p)
-            x = det.letterbox(g).apply(g)
-            with torch.no_grad():
-                net(torch.from_numpy(x)[None, None])
-            t_pt.append(time.perf_counter() - t0)
-        out["pytorch_ms"] = 1000 * statistics.median(t_pt)
-    t_cv = []
-    found = 0
+    from cotrain.detect.images import load_image
+    from cotrain.io.detections import detect_files
+
+    det = Detector(model)
+    pattern = (det.target.nx, det.target.ny)
     flags = cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
-    for p in paths:
-        t0 = time.perf_counter()
-        img = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
-        ok, _ = cv2.findChessboardCornersSB(img, (9, 6), flags=flags)
-        t_cv.append(time.perf_counter() - t0)
-        found += int(ok)
-    out["findChessboardCornersSB_ms"] = 1000 * statistics.median(t_cv)
-    out["speedup_vs_SB"] = out["findChessboardCornersSB_ms"] / out["detector_ms"]
-    out["threads"] = torch.get_num_threads()
-    print(
-        f"detect on {n} rendered 1280x720 images (median ms/image): detector (onnxruntime + grid pass) {out['detector_ms']:.1f}, "
-        f"onnxruntime + per-slot read-out {out['onnxruntime_slots_ms']:.1f}"
-        + (f", PyTorch network {out['pytorch_ms']:.1f}" if "pytorch_ms" in out else "")
-        + f", findChessboardCornersSB {out['findChessboardCornersSB_ms']:.1f} (found the board in {found}/{n}); "
-        f"the detector is {out['speedup_vs_SB']:.1f}x faster than SB"
-    )
+    out = {}
+    for spec in sets:
+        paths = _frames(spec, root)
+        n = len(paths)
+        detect_files(paths[:2], det, progress=False)  # warm-up
+        t_files, t_one, t_sb = [], [], []
+        for _ in range(runs):
+            t0 = time.perf_counter()
+            detect_files(paths, det, progress=False)
+            t_files.append(1000 * (time.perf_counter() - t0) / n)
+            t0 = time.perf_counter()
+            for p in paths:
+                det.detect(load_image(p))
+            t_one.append(1000 * (time.perf_counter() - t0) / n)
+            t0 = time.perf_counter()
+            found = 0
+            for p in paths:
+                found += int(cv2.findChessboardCornersSB(cv2.imread(str(p), cv2.IMREAD_GRAYSCALE), pattern, flags=flags)[0])
+            t_sb.append(1000 * (time.perf_counter() - t0) / n)
+        row = {
+            "images": n,
+            "files_ms": statistics.median(t_files),
+            "one_at_a_time_ms": statistics.median(t_one),
+            "sb_ms": statistics.median(t_sb),
+            "sb_found": found,
+            "runs": {"files": t_files, "one_at_a_time": t_one, "sb": t_sb},
+            "threads": os.cpu_count(),
+        }
+        row["speedup_files_vs_sb"] = row["sb_ms"] / row["files_ms"]
+        row["speedup_one_vs_sb"] = row["sb_ms"] / row["one_at_a_time_ms"]
+        out[spec.name] = row
+        print(
+            f"detect, {spec.name}, {n} frames (ms/image, median of {runs} runs): cotrain detect over the files "
+            f"{row['files_ms']:.1f}, one image at a time {row['one_at_a_time_ms']:.1f}, findChessboardCornersSB "
+            f"{row['sb_ms']:.1f} (board found in {found}/{n}); {row['speedup_files_vs_sb']:.1f}x SB over files, "
+            f"{row['speedup_one_vs_sb']:.1f}x one at a time"
+        )
     return out
 
 
@@ -176,12 +205,20 @@ def bench_calibration(config: str = "FoV220_90", frames: int = 480, repeats: int
     return out
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv == ["detect"]:
+        results = {"detect": bench_detect()}
+        out = Path("report") / "bench_detect.json"
+        out.parent.mkdir(exist_ok=True)
+        out.write_text(json.dumps(results, indent=1, default=str))
+        print(f"wrote {out}")
+        return 0
     results = {
         "render_384x216": bench_render(RenderConfig(), batch=8, repeats=5),
         "render_1280x720": bench_render(RenderConfig(height=720, width=1280), batch=4, repeats=3),
         "render_vs_train_step": bench_render_vs_step(),
-        "detect_1280x720": bench_detect(),
+        "detect": bench_detect(),
         "calibration": bench_calibration(),
     }
     out = Path("report") / "bench.json"

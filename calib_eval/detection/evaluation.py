@@ -1,7 +1,9 @@
 """Per-FoV detection evaluation: ``calib-eval detection [--model M.onnx] [--fov ...] [--per-fov N] [--seed N] [--size WxH] [--out DIR]``.
 
 1. Render a fixed, versioned benchmark set (seeded; 1280x720 unless ``--size``) per FoV: half with the
-   paper's f-theta model, half with the other families (ucm, eucm, ds), plus images without a target.
+   paper's f-theta model, half with the other families (ucm, eucm, ds), plus images without a target,
+   plus one row per hard condition (:data:`CONDITIONS`: large squares at the rim, over- and
+   under-exposure, a low-contrast print, motion blur, strong vignetting; FoV 180-240).
 2. Run the learned detector and the geometry-based detectors (OpenCV ``findChessboardCornersSB``
    and ``findChessboardCorners`` + ``cornerSubPix``) on the same images; save their predictions.
 3. Score in a second pass from the saved predictions.
@@ -31,6 +33,7 @@ import cv2
 import numpy as np
 
 from calib_eval.detection import DEFAULT_DETECTORS, DETECTORS
+from calib_eval.detection.conditions import CONDITIONS
 from calib_eval.detection.opencv_baseline import find_chessboard
 from cotrain.detect.detector import Detector
 from cotrain.detect.images import ImageError, load_image
@@ -58,6 +61,8 @@ class EvalConfig:
     width: int = 1280
     height: int = 720
     target: TargetConfig = field(default_factory=TargetConfig)  # the board rendered and looked for
+    conditions: list[str] = field(default_factory=lambda: list(CONDITIONS))  # rows of hard frames (CONDITIONS)
+    per_condition: int = 24  # images per condition
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -68,18 +73,21 @@ def parse_size(text: str) -> tuple[int, int]:
     return int(w), int(h)
 
 
-def _render_cfg(fov: float, cfg: EvalConfig, models: list[str], no_target: bool = False):
-    return RenderConfig(
+def _render_cfg(
+    fov: float | tuple[float, float], cfg: EvalConfig, models: list[str], no_target: bool = False, condition: str | None = None
+):
+    rc = RenderConfig(
         height=cfg.height,
         width=cfg.width,
         models=models,
         model_weights=[1.0] * len(models),
-        fov_range=(fov, fov),
+        fov_range=fov if isinstance(fov, tuple) else (fov, fov),
         kb4_k_scale=0.0,
         p_no_target=1.0 if no_target else 0.0,
         distance_range=(0.15, 1.2),
         target=cfg.target,
     )
+    return dataclasses.replace(rc, **CONDITIONS[condition]) if condition else rc
 
 
 def render_benchmark(cfg: EvalConfig, out: Path, progress: bool = True) -> dict:
@@ -93,15 +101,30 @@ def render_benchmark(cfg: EvalConfig, out: Path, progress: bool = True) -> dict:
         half = cfg.per_fov // 2
         jobs += [(fov, "kb4", i) for i in range(half)] + [(fov, "other", i) for i in range(half, cfg.per_fov)]
     jobs += [(0, "empty", i) for i in range(cfg.n_empty)]
+    for c in cfg.conditions:
+        if c not in CONDITIONS:
+            raise ValueError(f"unknown condition {c!r} (known: {', '.join(CONDITIONS)})")
+        jobs += [(c, "cond", i) for i in range(cfg.per_condition)]
     labels = []
     for fov, kind, i in tqdm(jobs, desc="render benchmark", disable=not progress):
+        condition = fov if kind == "cond" else None
         if kind == "empty":
             rc = _render_cfg(200, cfg, list(cameras.MODELS), no_target=True)
+            seed = cfg.seed * 1000 + BENCH_VERSION * 100
+        elif condition:
+            models = ["kb4"] if i % 2 == 0 else [m for m in cameras.MODELS if m != "kb4"]
+            rc = _render_cfg((180.0, 240.0), cfg, models, condition=condition)
+            seed = cfg.seed * 1000 + BENCH_VERSION * 100 + 50 + list(CONDITIONS).index(condition)
         else:
             rc = _render_cfg(fov, cfg, ["kb4"] if kind == "kb4" else [m for m in cameras.MODELS if m != "kb4"])
-        seed = cfg.seed * 1000 + BENCH_VERSION * 100 + (fov // 10)
+            seed = cfg.seed * 1000 + BENCH_VERSION * 100 + (fov // 10)
         b = render_batch(rc, [i], seed=seed)
-        name = f"{'empty' if kind == 'empty' else f'fov{fov}'}_{i:03d}.png"
+        if kind == "empty":
+            name = f"empty_{i:03d}.png"
+        elif condition:
+            name = f"{condition.replace(' ', '_').replace('-', '_')}_{i:03d}.png"
+        else:
+            name = f"fov{fov}_{i:03d}.png"
         cv2.imwrite(str(img_dir / name), (b["image"][0, 0].numpy() * 255).round().astype(np.uint8))
         p = b["params"][0]
         model = rc.models[int(b["model_index"][0])]
@@ -111,7 +134,8 @@ def render_benchmark(cfg: EvalConfig, out: Path, progress: bool = True) -> dict:
         labels.append(
             {
                 "image": name,
-                "fov": fov if kind != "empty" else None,
+                "fov": (round(float(b["fov"][0]), 1) if condition else fov) if kind != "empty" else None,
+                "condition": condition,
                 "model": model,
                 "has_target": kind != "empty",
                 "corners": b["corners_raw"][0].tolist(),
@@ -227,7 +251,7 @@ def score(preds: dict[str, dict], labels: list[dict]) -> dict:
             continue
         gt = np.asarray(lab["corners"])
         s = score_image(p["corners"], p["has_id"], gt, np.asarray(lab["visible"]), np.asarray(lab["detectable"]))
-        key = str(lab["fov"])
+        key = lab.get("condition") or str(lab["fov"])
         g = groups.setdefault(key, {"det": 0, "hit": 0, "rep": 0, "out": 0})
         g["det"] += s["n_detectable"]
         g["hit"] += len(s["hits"])
@@ -238,10 +262,10 @@ def score(preds: dict[str, dict], labels: list[dict]) -> dict:
         c = np.asarray(lab["centre"])
         for i in np.nonzero(lab["detectable"])[0]:
             radial.setdefault(key, []).append((float(np.hypot(*(gt[i] - c)) / lab["radius"]), i in hit_ids))
-    rows = {}
+    rows, by_condition = {}, {}
     for key, g in groups.items():
         e = errors_by_fov[key]
-        rows[key] = {
+        (by_condition if key in CONDITIONS else rows)[key] = {
             "recall": g["hit"] / max(1, g["det"]),
             "mean_error_px": float(np.mean(e)) if e else float("nan"),
             "median_error_px": float(np.median(e)) if e else float("nan"),
@@ -251,6 +275,7 @@ def score(preds: dict[str, dict], labels: list[dict]) -> dict:
         }
     return {
         "per_fov": rows,
+        "per_condition": by_condition,
         "false_images": empty_flagged,
         "n_empty": n_empty,
         "ms_per_image": statistics.median(ms) if ms else float("nan"),
@@ -275,6 +300,21 @@ def _table(results: dict[str, dict], fovs: list[int]) -> str:
                 f"| {fov} | {name} | {row['recall']:.3f} | {row['mean_error_px']:.3f} | {row['median_error_px']:.3f} | "
                 f"{100 * row['outlier_rate']:.2f}% | {ptxt} |"
             )
+    conditions = [c for c in CONDITIONS if any(c in r.get("per_condition", {}) for r in results.values())]
+    if conditions:
+        lines += [
+            "",
+            "| condition (FoV 180-240) | detector | recall | mean err px | median err px | outliers |",
+            "|---|---|---|---|---|---|",
+        ]
+        for c in conditions:
+            for name, r in results.items():
+                row = r.get("per_condition", {}).get(c)
+                if row is not None:
+                    lines.append(
+                        f"| {c} | {name} | {row['recall']:.3f} | {row['mean_error_px']:.3f} | {row['median_error_px']:.3f} | "
+                        f"{100 * row['outlier_rate']:.2f}% |"
+                    )
     lines.append("")
     lines.append("| detector | images without target with reports | ms / image (median) |")
     lines.append("|---|---|---|")

@@ -73,7 +73,7 @@ def margin_table(
 ) -> dict:
     from tqdm import tqdm
 
-    meta = load_or_render(EvalConfig(seed=seed, width=size[0], height=size[1]), set_dir, progress)
+    meta = load_or_render(EvalConfig(seed=seed, width=size[0], height=size[1], conditions=[]), set_dir, progress)
     det = Detector(model)
     gcfg = dataclasses.replace(det.grid, **(grid or {}), min_margin=-np.inf)
     rows, total = [], 0

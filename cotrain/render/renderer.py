@@ -45,10 +45,17 @@ class RenderConfig:
     distance_range: tuple[float, float] = (0.12, 0.9)  # board-centre distance, metres
     max_tilt_deg: float = 70.0  # board tilt away from facing the camera
     offaxis_margin_deg: float = 12.0  # board centres drawn up to FoV/2 + this (partial views)
+    offaxis_min_deg: float = 0.0  # ... and at least this far off-axis (a row of boards at the rim)
     supersample: int = 1  # extra supersampling on top of the analytic area filter
     p_blur: float = 0.5  # probability of defocus blur
     max_blur_sigma: float = 1.2  # defocus sigma (pixels) upper bound
     p_motion: float = 0.15  # probability of motion blur
+    motion_kernel: tuple[int, int] = (5, 5)  # motion-blur length (pixels, odd) drawn in this range
+    exposure_range: tuple[float, float] = (0.6, 1.4)  # exposure gain (over 1 clips the whites)
+    gamma_range: tuple[float, float] = (0.7, 1.4)  # gamma after the exposure
+    black_range: tuple[float, float] = (0.02, 0.2)  # reflectance of the printed black
+    white_range: tuple[float, float] = (0.6, 1.0)  # reflectance of the printed white (grey on a dull print)
+    vignette_range: tuple[float, float] = (0.0, 0.6)  # darkening at the image circle's rim (share of the centre)
     noise_range: tuple[float, float] = (0.0, 0.04)  # Gaussian read-noise sigma (intensity units)
     p_jpeg: float = 0.3  # probability of JPEG compression
     p_occluder: float = 0.3  # probability of 1-3 occluders in front of the board
@@ -125,7 +132,11 @@ def _sample_camera(cfg: RenderConfig, g: torch.Generator) -> tuple[str, Tensor, 
 def _sample_pose(cfg: RenderConfig, board: Target, fov: float, g: torch.Generator) -> Tensor:
     """T_cam_board: board centre along a random ray (up to FoV/2 + margin off-axis), tilted."""
     half = min(math.radians(fov / 2 + cfg.offaxis_margin_deg), math.radians(150))
-    theta = half * math.sqrt(_u(g))  # denser towards the edge, where real detectors fail
+    if cfg.offaxis_min_deg > 0:
+        lo = min(math.radians(cfg.offaxis_min_deg), half)
+        theta = math.sqrt(lo * lo + _u(g) * (half * half - lo * lo))  # uniform over the ring's area
+    else:
+        theta = half * math.sqrt(_u(g))  # denser towards the edge, where real detectors fail
     phi = _u(g, 0, 2 * math.pi)
     d = math.exp(_u(g, math.log(cfg.distance_range[0]), math.log(cfg.distance_range[1])))
     ray = torch.tensor([math.sin(theta) * math.cos(phi), math.sin(theta) * math.sin(phi), math.cos(theta)], dtype=torch.float64)
@@ -348,8 +359,8 @@ def render_scene(cfg: RenderConfig, board: Target, scene: Scene, gens: list[torc
     def rr(g: torch.Generator, lo: float = 0.0, hi: float = 1.0) -> float:
         return _u(g, lo, hi)
 
-    black = torch.tensor([rr(g, 0.02, 0.2) for g in gens])[:, None, None]
-    white = torch.tensor([rr(g, 0.6, 1.0) for g in gens])[:, None, None]
+    black = torch.tensor([rr(g, *cfg.black_range) for g in gens])[:, None, None]
+    white = torch.tensor([rr(g, *cfg.white_range) for g in gens])[:, None, None]
     lx = torch.tensor([rr(g, -0.5, 0.5) for g in gens])[:, None, None]
     ly = torch.tensor([rr(g, -0.5, 0.5) for g in gens])[:, None, None]
     ext = board.extent()
@@ -382,7 +393,7 @@ def render_scene(cfg: RenderConfig, board: Target, scene: Scene, gens: list[torc
     r_px = (grid[None] - centres[:, None, None, :]).norm(dim=-1)
     rad = scene.radius[:, None, None].float()
     rim = (rad - r_px + 0.5).clamp(0, 1)
-    vig_strength = torch.tensor([rr(g, 0.0, 0.6) for g in gens])[:, None, None]
+    vig_strength = torch.tensor([rr(g, *cfg.vignette_range) for g in gens])[:, None, None]
     vignette = 1 - vig_strength * (r_px / rad).clamp(0, 1) ** 3
     img = img * vignette * rim
 
@@ -397,8 +408,8 @@ def render_scene(cfg: RenderConfig, board: Target, scene: Scene, gens: list[torc
         cover_m = (in_sq.float() * cover)[:, None]
 
     # Optics and sensor: exposure and gamma, defocus, motion blur, noise, JPEG.
-    exposure = torch.tensor([rr(g, 0.6, 1.4) for g in gens])[:, None, None, None]
-    gamma = torch.tensor([rr(g, 0.7, 1.4) for g in gens])[:, None, None, None]
+    exposure = torch.tensor([rr(g, *cfg.exposure_range) for g in gens])[:, None, None, None]
+    gamma = torch.tensor([rr(g, *cfg.gamma_range) for g in gens])[:, None, None, None]
     img = (img * exposure).clamp(0, 1) ** gamma
     sig = torch.tensor([rr(g, 0.3, cfg.max_blur_sigma) if rr(g) < cfg.p_blur else 0.0 for g in gens])
     if bool((sig > 0).any()):
@@ -406,7 +417,9 @@ def render_scene(cfg: RenderConfig, board: Target, scene: Scene, gens: list[torc
         img = torch.where(sig[:, None, None, None] > 0, blurred, img)
     for b, g in enumerate(gens):
         if rr(g) < cfg.p_motion:
-            img[b : b + 1] = kornia.filters.motion_blur(img[b : b + 1], 5, rr(g, 0, 180), rr(g, -1, 1))
+            lo, hi = cfg.motion_kernel
+            k = lo if lo == hi else lo + 2 * int(rr(g) * ((hi - lo) // 2 + 1))  # odd lengths lo .. hi
+            img[b : b + 1] = kornia.filters.motion_blur(img[b : b + 1], min(k, hi), rr(g, 0, 180), rr(g, -1, 1))
     noise = torch.tensor([rr(g, *cfg.noise_range) for g in gens])[:, None, None, None]
     noise_fields = torch.stack([torch.randn(1, H, W, generator=g) for g in gens])
     img = (img + noise * noise_fields * (0.5 + img)).clamp(0, 1)

@@ -139,3 +139,61 @@ def test_preview_cli(tmp_path):
     assert run(["render-preview", "--n", "4", "--out", str(out), "height=96", "width=160"]) == 0
     img = cv2.imread(str(out))
     assert img is not None and img.shape == (192, 320, 3)
+
+
+def test_appearance_ranges_reach_the_image():
+    """The appearance fields the evaluation's hard conditions set: an over-exposed frame clips its
+    whites, a dull print has less contrast between its squares, strong vignetting darkens the
+    rim against the centre, a longer motion blur leaves weaker gradients. The defaults draw the
+    same frames as before the fields existed (same seed, same image)."""
+    import dataclasses
+
+    base = RenderConfig(
+        height=120, width=200, p_occluder=0.0, p_blur=0.0, p_motion=0.0, p_jpeg=0.0, noise_range=(0.0, 0.0), p_no_target=0.0
+    )
+    ids, seed = [0, 1, 2], 11
+
+    def render(**kw):
+        return render_batch(dataclasses.replace(base, **kw), ids, seed)
+
+    ref = render()
+    defaults = dict(exposure_range=(0.6, 1.4), gamma_range=(0.7, 1.4), black_range=(0.02, 0.2), white_range=(0.6, 1.0))
+    assert torch.equal(render(**defaults, vignette_range=(0.0, 0.6), motion_kernel=(5, 5), offaxis_min_deg=0.0)["image"], ref["image"])
+    bright = render(exposure_range=(2.5, 2.5), gamma_range=(1.0, 1.0))["image"]
+    assert (bright >= 0.999).float().mean() > 5 * (ref["image"] >= 0.999).float().mean() + 0.01
+
+    def square_contrast(b):
+        on = b["image"][b["board_mask"] > 0.5]
+        return float(on.quantile(0.9) - on.quantile(0.1))
+
+    dull = render(black_range=(0.35, 0.35), white_range=(0.55, 0.55))
+    assert square_contrast(dull) < 0.6 * square_contrast(ref)
+    flat = dict(vignette_range=(0.0, 0.0), p_no_target=1.0)
+    even, dark = render(**flat), render(**{**flat, "vignette_range": (0.9, 0.9)})
+    ratio = dark["image"] / even["image"].clamp_min(1e-3)
+    centre = ratio[..., 50:70, 90:110].median()
+    assert float(centre) > 0.85 and float(ratio[..., 60, 5:20].median()) < 0.6 * float(centre)
+    short, long = render(p_motion=1.0, motion_kernel=(3, 3)), render(p_motion=1.0, motion_kernel=(15, 15))
+
+    def grad(x):
+        return float((x[..., 1:, :] - x[..., :-1, :]).abs().mean() + (x[..., :, 1:] - x[..., :, :-1]).abs().mean())
+
+    assert grad(long["image"]) < 0.8 * grad(short["image"])
+
+
+def test_boards_drawn_off_axis_at_least_offaxis_min():
+    """offaxis_min_deg puts the board at the rim: its centre lies farther off-axis."""
+    import dataclasses
+
+    base = RenderConfig(height=120, width=200, fov_range=(200.0, 200.0), models=["kb4"], model_weights=[1.0], p_no_target=0.0)
+    x0, y0, x1, y1 = Checkerboard().extent()
+    centre = torch.tensor([(x0 + x1) / 2, (y0 + y1) / 2, 0.0, 1.0], dtype=torch.float64)
+
+    def offaxis_deg(cfg):
+        T = render_batch(cfg, list(range(16)), 5)["T_cam_board"].double()
+        p = (T @ centre)[:, :3]
+        return torch.rad2deg(torch.atan2(p[:, :2].norm(dim=-1), p[:, 2]))
+
+    near, rim = offaxis_deg(base), offaxis_deg(dataclasses.replace(base, offaxis_min_deg=80.0))
+    # The board's centre is jittered off the drawn ray by up to 0.3 board sizes.
+    assert float(rim.median()) > float(near.median()) + 15 and float(rim.min()) > 50
