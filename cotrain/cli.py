@@ -174,7 +174,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--threshold", type=float, default=0.5, help="with --slots: visibility probability to report a corner")
     s.add_argument("--draw", help="folder for overlays of the detections")
     s.add_argument(
-        "--slots", action="store_true", help="report the network's per-slot corners instead of the grid pass (cotrain.detect.grid_pass)"
+        "--slots",
+        action="store_true",
+        help="experimental: the network's own per-slot corners instead of the grid pass (ids right for few corners; see docs/detector.md)",
     )
     s.add_argument("--polish", action="store_true", help="with --slots: classical saddle-point polish of the corners")
     s.add_argument("--no-consistency", action="store_true", help="with --slots: keep corners that fail the grid-consistency check")

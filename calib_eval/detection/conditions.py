@@ -18,6 +18,8 @@ CONDITIONS: dict[str, dict] = {
     "over-exposed": {"exposure_range": (1.7, 2.6), "gamma_range": (0.7, 1.0)},  # the whites clip, blacks turn grey
     "under-exposed": {"exposure_range": (0.12, 0.3), "gamma_range": (1.0, 1.4), "noise_range": (0.01, 0.03)},
     "low-contrast print": {"black_range": (0.3, 0.4), "white_range": (0.55, 0.65)},  # grey ink on grey paper
-    "motion blur": {"p_motion": 1.0, "motion_kernel": (9, 15), "p_blur": 0.0},  # 9-15 px along one direction
+    # 9-15 px along one direction, weighted evenly: the corner's label (the board at mid-exposure)
+    # stays at the centre of its blurred image.
+    "motion blur": {"p_motion": 1.0, "motion_kernel": (9, 15), "motion_direction": (0.0, 0.0), "p_blur": 0.0},
     "strong vignetting": {"vignette_range": (0.75, 0.9)},  # the rim at 10-25 % of the centre's brightness, 8-bit
 }

@@ -49,6 +49,7 @@ PAPER = {  # Table: detection recall / mean error (px) of the paper
     240: {"learned": (0.9263, 0.8277), "geometry": (0.6838, 0.8553)},
 }
 TOL_PX = 3.0
+EXPERIMENTAL = ("learned_slots", "learned_slots_polish")  # the network's per-slot read-out: reported apart from the detectors
 
 
 @dataclass
@@ -145,7 +146,13 @@ def render_benchmark(cfg: EvalConfig, out: Path, progress: bool = True) -> dict:
                 "radius": float(b["radius"][0]),
             }
         )
-    meta = {"version": BENCH_VERSION, "config": dataclasses.asdict(cfg), "target": make_target(cfg.target).to_json(), "labels": labels}
+    meta = {
+        "version": BENCH_VERSION,
+        "config": dataclasses.asdict(cfg),
+        "conditions": _condition_settings(cfg),
+        "target": make_target(cfg.target).to_json(),
+        "labels": labels,
+    }
     (out / "labels.json").write_text(json.dumps(meta))
     return meta
 
@@ -369,6 +376,12 @@ def _plots(results: dict[str, dict], fovs: list[int], out: Path) -> list[Path]:
     return paths
 
 
+def _condition_settings(cfg: EvalConfig) -> dict:
+    """The render settings of the set's conditions as labels.json stores them (a set rendered with
+    other settings for a condition of the same name is rendered again)."""
+    return json.loads(json.dumps({c: CONDITIONS[c] for c in cfg.conditions}))
+
+
 def load_or_render(cfg: EvalConfig, out: Path, progress: bool = True) -> dict:
     """The set's labels from ``out/labels.json`` when they were rendered with this version and
     config; otherwise the set is rendered again and predictions saved for another set are removed."""
@@ -376,7 +389,8 @@ def load_or_render(cfg: EvalConfig, out: Path, progress: bool = True) -> dict:
     labels_path = out / "labels.json"
     if labels_path.is_file():
         meta = json.loads(labels_path.read_text())
-        if meta.get("version") == BENCH_VERSION and meta.get("config") == dataclasses.asdict(cfg):
+        same = meta.get("version") == BENCH_VERSION and meta.get("config") == dataclasses.asdict(cfg)
+        if same and meta.get("conditions", {}) == _condition_settings(cfg):
             return meta
     for stale in out.glob("predictions_*.json"):
         stale.unlink()  # from another set
@@ -403,9 +417,13 @@ def evaluate_detection(model: str | None, cfg: EvalConfig, out: Path, progress: 
     # Second pass: scores from the saved predictions.
     order = [n for n in DETECTORS if n in detectors or n in kept]
     results = {name: score(json.loads((out / f"predictions_{name}.json").read_text()), meta["labels"]) for name in order}
-    table = _table(results, cfg.fovs)
+    # The per-slot read-out is the network's own experimental output, not a detector a user
+    # would pick: it gets a section of its own, below the detectors.
+    found = {k: v for k, v in results.items() if k not in EXPERIMENTAL}
+    slots = {k: v for k, v in results.items() if k in EXPERIMENTAL}
+    table = _table(found, cfg.fovs)
     elapsed = time.time() - t0
-    plots = _plots(results, cfg.fovs, out)
+    plots = _plots(found, cfg.fovs, out)
     md = [
         f"# Detection evaluation (benchmark v{BENCH_VERSION}, seed {cfg.seed})",
         "",
@@ -420,6 +438,17 @@ def evaluate_detection(model: str | None, cfg: EvalConfig, out: Path, progress: 
         "",
         *[f"![{p.stem}]({p.name})" for p in plots],
     ]
+    if slots:
+        md += [
+            "",
+            "## Experimental: the network's per-slot read-out (`cotrain detect --slots`)",
+            "",
+            "One heatmap channel per corner id, read out by the network itself (the paper's contract). It is not a "
+            "detector to use: its ids are right for few corners, and most of what it reports is an outlier. The "
+            "figures show how far the network has learned global identity.",
+            "",
+            _table(slots, cfg.fovs),
+        ]
     (out / "results.md").write_text("\n".join(md) + "\n")
     slim = {k: {kk: vv for kk, vv in v.items() if kk not in ("errors", "radial")} for k, v in results.items()}
     (out / "results.json").write_text(

@@ -79,8 +79,8 @@ def identifiable(seen: np.ndarray, visible: np.ndarray, nx: int, ny: int) -> boo
 
 
 def ceiling(labels: list[dict], nx: int, ny: int) -> dict:
-    """Share of detectable corners in identifiable frames, per FoV and overall, with the detectable
-    corners or all visible ones as what is seen."""
+    """Share of detectable corners in identifiable frames, per FoV (or hard condition) and over the
+    FoV rows ("all"), with the detectable corners or all visible ones as what is seen."""
     acc: dict = {}
     for lab in labels:
         if not lab.get("has_target", True):
@@ -89,7 +89,7 @@ def ceiling(labels: list[dict], nx: int, ny: int) -> dict:
         n = int(det.sum())
         if not n:
             continue
-        for key in (lab.get("fov"), "all"):
+        for key in (lab.get("condition") or lab.get("fov"), "all" if not lab.get("condition") else "all conditions"):
             a = acc.setdefault(key, [0, 0, 0])
             a[0] += n
             a[1] += n * identifiable(np.nonzero(det)[0], vis, nx, ny)

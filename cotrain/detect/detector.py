@@ -26,7 +26,7 @@ import numpy as np
 
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.grid_pass import GridResult, grid_pass
-from cotrain.detect.images import MIN_SIDE, ImageError, to_grey_float
+from cotrain.detect.images import MIN_SIDE, ImageError, brighten, to_grey_float
 from cotrain.detect.onnx_model import OnnxModel
 from cotrain.detect.saddle import saddle_fit, smooth_for, window_half
 from cotrain.detect.tag_pass import TagConfig, tag_pass
@@ -126,7 +126,7 @@ class Detector:
         h, w = grey.shape
         if min(h, w) < MIN_SIDE:
             raise ImageError(f"image too small ({w}x{h}); need at least {MIN_SIDE} px per side")
-        return grey
+        return brighten(grey)
 
     def _grid(self, grey: np.ndarray, box: Letterbox, out: dict[str, np.ndarray], cfg: GridConfig) -> GridResult:
         logp_col, logp_row = out["col_logp"][0], out["row_logp"][0]

@@ -51,6 +51,7 @@ class RenderConfig:
     max_blur_sigma: float = 1.2  # defocus sigma (pixels) upper bound
     p_motion: float = 0.15  # probability of motion blur
     motion_kernel: tuple[int, int] = (5, 5)  # motion-blur length (pixels, odd) drawn in this range
+    motion_direction: tuple[float, float] = (-1.0, 1.0)  # kornia's weighting along the blur (0: even, the label at mid-exposure)
     exposure_range: tuple[float, float] = (0.6, 1.4)  # exposure gain (over 1 clips the whites)
     gamma_range: tuple[float, float] = (0.7, 1.4)  # gamma after the exposure
     black_range: tuple[float, float] = (0.02, 0.2)  # reflectance of the printed black
@@ -419,7 +420,7 @@ def render_scene(cfg: RenderConfig, board: Target, scene: Scene, gens: list[torc
         if rr(g) < cfg.p_motion:
             lo, hi = cfg.motion_kernel
             k = lo if lo == hi else lo + 2 * int(rr(g) * ((hi - lo) // 2 + 1))  # odd lengths lo .. hi
-            img[b : b + 1] = kornia.filters.motion_blur(img[b : b + 1], min(k, hi), rr(g, 0, 180), rr(g, -1, 1))
+            img[b : b + 1] = kornia.filters.motion_blur(img[b : b + 1], min(k, hi), rr(g, 0, 180), rr(g, *cfg.motion_direction))
     noise = torch.tensor([rr(g, *cfg.noise_range) for g in gens])[:, None, None, None]
     noise_fields = torch.stack([torch.randn(1, H, W, generator=g) for g in gens])
     img = (img + noise * noise_fields * (0.5 + img)).clamp(0, 1)

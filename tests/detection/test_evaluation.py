@@ -56,3 +56,22 @@ def test_score_aggregates_and_empty_images():
     assert row["outlier_rate"] == pytest.approx(1 / 3)
     assert r["false_images"] == 1 and r["n_empty"] == 2
     assert r["ms_per_image"] == pytest.approx(20.0)
+
+
+def test_condition_frames_score_as_rows_of_their_own():
+    """A frame rendered under a hard condition counts in its condition's row, not in its FoV's;
+    the table lists the condition rows after the FoV rows."""
+    from calib_eval.detection.evaluation import _table
+
+    lab = {"image": "a.png", "has_target": True, "corners": GT.tolist(), "visible": VIS.tolist(), "detectable": DET.tolist()}
+    lab |= {"centre": [250.0, 100.0], "radius": 300.0}
+    labels = [{**lab, "fov": 200, "condition": None}, {**lab, "image": "b.png", "fov": 213.4, "condition": "motion blur"}]
+    preds = {
+        "a.png": {"corners": [[0, 100.0, 100.0], [1, 200.0, 100.0], [2, 300.0, 100.0]], "ms": 1.0, "error": None, "has_id": True},
+        "b.png": {"corners": [[0, 100.0, 100.0]], "ms": 1.0, "error": None, "has_id": True},
+    }
+    r = score(preds, labels)
+    assert set(r["per_fov"]) == {"200"} and set(r["per_condition"]) == {"motion blur"}
+    assert r["per_fov"]["200"]["recall"] == 1.0 and r["per_condition"]["motion blur"]["recall"] == pytest.approx(1 / 3)
+    table = _table({"learned": r}, [200])
+    assert table.index("| 200 | learned | 1.000") < table.index("| motion blur | learned | 0.333")

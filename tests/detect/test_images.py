@@ -1,0 +1,54 @@
+"""Images as the detector takes them: the exposure gain of under-exposed frames."""
+
+import numpy as np
+
+from cotrain.detect.images import brighten
+from tests.detect.boards import board_image
+
+
+def _circle_frame(img: np.ndarray) -> np.ndarray:
+    """The image inside a black image circle, as a fisheye frame."""
+    h, w = img.shape
+    yy, xx = np.mgrid[0:h, 0:w]
+    return np.where((xx - w / 2) ** 2 + (yy - h / 2) ** 2 < (0.48 * min(h, w)) ** 2 + (0.3 * w) ** 2, img, 0).astype(np.float32)
+
+
+def test_a_dark_frame_is_scaled_and_a_normal_one_kept():
+    img, _ = board_image(size=(240, 200))
+    frame = _circle_frame(img)
+    assert brighten(frame) is frame  # bright enough: untouched
+    dark = (frame * 0.2).astype(np.float32)
+    out = brighten(dark)
+    gain = out[frame > 0.5].mean() / dark[frame > 0.5].mean()
+    assert abs(gain - 0.9 / (0.2 * 0.92)) < 0.05  # its whites (0.92 x 0.2) brought to 0.9
+    np.testing.assert_allclose(out, np.minimum(dark * gain, 1.0), rtol=1e-5, atol=1e-6)  # one gain: no saddle point moves
+    assert (out[frame == 0] == 0).all()  # the black outside the circle stays black
+    very_dark = (frame * 0.05).astype(np.float32)
+    assert brighten(very_dark).max() <= 6.0 * very_dark.max() + 1e-6  # at most max_gain
+
+
+def test_a_black_frame_is_left_alone():
+    black = np.zeros((120, 160), np.float32)
+    assert brighten(black) is black
+
+
+def test_the_detector_finds_an_under_exposed_board(monkeypatch):
+    """A board rendered at a fifth of the normal exposure: found, with right ids, because the
+    frame is brightened first (without the gain the grid pass's intensity thresholds refuse it)."""
+    import cotrain.detect.detector as detector_mod
+    from cotrain.detect.detector import Detector
+    from cotrain.render.renderer import RenderConfig, render_batch
+
+    cfg = RenderConfig(height=432, width=768, p_occluder=0.0, p_no_target=0.0, p_jpeg=0.0, p_motion=0.0, p_blur=0.0)
+    cfg.exposure_range, cfg.gamma_range, cfg.distance_range, cfg.offaxis_margin_deg = (0.15, 0.15), (1.0, 1.0), (0.2, 0.35), -40.0
+    b = render_batch(cfg, [0, 1, 2], seed=8)
+    det = Detector(threads=1)
+    found = []
+    for k in range(3):
+        d = det.detect(b["image"][k, 0].numpy())
+        err = np.linalg.norm(d.xy - b["corners_raw"][k].numpy()[d.ids], axis=1)
+        assert (err < 1.0).all()
+        found.append(len(d.ids))
+    assert sum(found) >= 0.8 * int(b["visible"].sum())
+    monkeypatch.setattr(detector_mod, "brighten", lambda g: g)
+    assert sum(len(det.detect(b["image"][k, 0].numpy()).ids) for k in range(3)) < 0.5 * sum(found)
