@@ -17,6 +17,7 @@ def test_a_dark_frame_is_scaled_and_a_normal_one_kept():
     img, _ = board_image(size=(240, 200))
     frame = _circle_frame(img)
     assert brighten(frame) is frame  # bright enough: untouched
+    assert brighten((frame * 0.4).astype(np.float32)).max() == np.float32(0.4 * frame.max())  # dim, not dark: untouched
     dark = (frame * 0.2).astype(np.float32)
     out = brighten(dark)
     gain = out[frame > 0.5].mean() / dark[frame > 0.5].mean()
