@@ -43,7 +43,7 @@ from scipy.spatial import cKDTree
 
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.identity import assign_ids, canonical_ids, cell_darkness, corner_votes, edge_evidence
-from cotrain.detect.lattice import Lattice, grow_lattice, refine_positions, skipped_corners, verify_lattice
+from cotrain.detect.lattice import FillMemo, Lattice, grow_lattice, refine_positions, skipped_corners, verify_lattice
 from cotrain.detect.saddle import fit_saddles, outside_circle, saddle_candidates, saddle_response, smooth_cached, window_half
 from cotrain.geometry.letterbox import CELLS, Letterbox
 from cotrain.targets import Checkerboard
@@ -76,16 +76,16 @@ def find_candidates(
     smoothed: dict[int, np.ndarray],
     rim_dist: np.ndarray | None = None,
     response: np.ndarray | None = None,
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Saddle points inside ``roi`` (the network's corner / board region), best seeds first.
 
     ``grey`` (H, W), ``roi`` (H, W), ``rim_dist`` (H, W) and ``response`` (H, W) are a crop of the
     input whose top-left pixel is input pixel ``offset`` (2,); ``corner_prob`` (h, w) is the
-    network's corner score. Returns xy (K, 2) crop pixels and axes (K, 2, 2) (see
-    :func:`cotrain.detect.saddle.saddle_fit`)."""
+    network's corner score. Returns xy (K, 2) crop pixels, axes (K, 2, 2) (see
+    :func:`cotrain.detect.saddle.saddle_fit`) and the response maxima whose fit failed (R, 2)."""
     xy0, resp = saddle_candidates(grey, roi, cfg, response=response)
     if len(xy0) < 2:
-        return np.zeros((0, 2)), np.zeros((0, 2, 2))
+        return np.zeros((0, 2)), np.zeros((0, 2, 2)), xy0
     # Window per candidate from the spacing to its nearest other candidate.
     d, _ = cKDTree(xy0).query(xy0, k=2)
     halves = window_half(d[:, 1])
@@ -105,7 +105,7 @@ def find_candidates(
         if not drop[i]:
             drop[j] = True
     keep = keep[~drop]
-    return xy[keep], axes[keep]
+    return xy[keep], axes[keep], xy0[~ok]
 
 
 def grid_pass(
@@ -146,11 +146,12 @@ def grid_pass(
     rim_dist = cv2.distanceTransform(allowed.astype(np.uint8), cv2.DIST_L2, 3)
     smoothed: dict[int, np.ndarray] = {}
     response = saddle_response(grey)
-    xy, axes = find_candidates(grey, roi, offset, box, corner_prob, cfg, smoothed, rim_dist, response)
+    xy, axes, rejected = find_candidates(grey, roi, offset, box, corner_prob, cfg, smoothed, rim_dist, response)
     if len(xy) < cfg.min_corners:
         return empty
     # Grow from several seeds (distractors can hold the strongest saddles); a lattice must lie on
     # what the network calls board, and the one whose identity is surest wins.
+    memo = FillMemo(rejected)
     best: tuple[float, Lattice, np.ndarray] | None = None
     covered = np.zeros(len(xy), bool)
     tried = 0
@@ -160,7 +161,7 @@ def grid_pass(
         if covered[seed]:
             continue
         tried += 1
-        lat = grow_lattice(xy, axes, seed, grey, cfg, smoothed, rim_dist)
+        lat = grow_lattice(xy, axes, seed, grey, cfg, smoothed, rim_dist, memo)
         if lat is None:
             continue
         covered |= cKDTree(lat.xy).query(xy)[0] < cfg.merge_radius_px

@@ -59,15 +59,20 @@ def corner_votes(lat: Lattice, logp: np.ndarray, offset: np.ndarray, box: Letter
     corner, so all share its column and row). ``lat.xy`` + ``offset`` (2,) are input pixels;
     ``scale``: processing pixels per input pixel."""
     where = lat.where
-    acc = np.zeros((len(lat.ab), logp.shape[0]))
+    K = len(lat.ab)
+    # Column 0: the corner; 1-4: towards the diagonal neighbours' cells where both sides are known.
+    n1, n2 = np.zeros((K, 4), int), np.zeros((K, 4), int)
+    have = np.zeros((K, 5), bool)
+    have[:, 0] = True
     for k, (a, b) in enumerate(lat.ab.tolist()):
-        pts = [lat.xy[k]]
-        for da, db in ((1, 1), (1, -1), (-1, 1), (-1, -1)):
-            n1, n2 = where.get((a + da, b)), where.get((a, b + db))
-            if n1 is not None and n2 is not None:
-                pts.append(lat.xy[k] + cfg.vote_offset * (lat.xy[n1] - lat.xy[k]) + cfg.vote_offset * (lat.xy[n2] - lat.xy[k]))
-        acc[k] = CELLS.sample(logp, box.to_processing(np.array(pts) + offset)).mean(0)
-    return acc
+        for i, (da, db) in enumerate(((1, 1), (1, -1), (-1, 1), (-1, -1))):
+            m1, m2 = where.get((a + da, b)), where.get((a, b + db))
+            if m1 is not None and m2 is not None:
+                n1[k, i], n2[k, i], have[k, i + 1] = m1, m2, True
+    xy = lat.xy[:, None]
+    pts = np.concatenate([xy, xy + cfg.vote_offset * (lat.xy[n1] - xy) + cfg.vote_offset * (lat.xy[n2] - xy)], 1)  # (K, 5, 2)
+    votes = CELLS.sample(logp, box.to_processing(pts.reshape(-1, 2) + offset)).reshape(K, 5, -1).astype(np.float64)
+    return (votes * have[..., None]).sum(1) / have.sum(1)[:, None]
 
 
 def cell_darkness(blur: np.ndarray, lat: Lattice) -> dict[tuple[int, int], float]:

@@ -45,6 +45,27 @@ class Lattice:
         return {tuple(t): k for k, t in enumerate(self.ab.tolist())}
 
 
+class FillMemo:
+    """Saddle searches of one image at spots where no candidate was offered, remembered.
+
+    Almost all of them land on a saddle-response maximum whose candidate fit already failed (the
+    board's outer corners, where a square's corner meets the white margin: a strong response, no
+    X-junction), and every seed's growth, and both neighbours of such a spot, search there again.
+    A search near such a maximum (within the match radius) is made once per window size; later
+    ones take its result. ``rejected``: (R, 2) those maxima, pixels."""
+
+    def __init__(self, rejected: np.ndarray):
+        self.tree = cKDTree(rejected) if len(rejected) else None
+        self.done: dict[tuple[int, int], np.ndarray | None] = {}  # (maximum, half) -> saddle or None
+
+    def key(self, pred: np.ndarray, r: float, half: int) -> tuple[int, int] | None:
+        """The remembered search for a spot ``pred`` (2,): the nearest rejected maximum within ``r``, or None."""
+        if self.tree is None:
+            return None
+        dist, k = self.tree.query(pred)
+        return (int(k), half) if dist < r else None
+
+
 # --------------------------------------------------------------------------------------------
 # Colours
 # --------------------------------------------------------------------------------------------
@@ -112,11 +133,12 @@ def match_corner(
     cfg: GridConfig,
     rim_dist: np.ndarray | None = None,
     worth_fitting: Callable[[], bool] | None = None,
+    memo: FillMemo | None = None,
 ) -> tuple[np.ndarray | None, bool]:
     """The corner at a predicted spot ``pred`` (2,): the nearest candidate of xy (K, 2) within
     ``r`` not yet offered (``used`` gains it), otherwise a saddle fitted there in a window of
-    half-size ``half`` that lands within ``r`` (only if ``worth_fitting()`` says so, when given).
-    Returns (point or None, found by the fit).
+    half-size ``half`` that lands within ``r`` (only if ``worth_fitting()`` says so, when given;
+    taken from ``memo`` when the same search was made before). Returns (point or None, found by the fit).
 
     A candidate is offered once: if the growth's checks refuse it here, it is doubtful and is not
     tried again from another corner (measured: offering it again lets wrong corners into small
@@ -127,9 +149,16 @@ def match_corner(
         return xy[j], False
     if worth_fitting is not None and not worth_fitting():
         return None, False
-    q, ok, _ = fit_saddles(grey, smoothed, pred[None], half, cfg, rim_dist)
-    if ok[0] and np.linalg.norm(q[0] - pred) < r:
-        return q[0], True
+    key = memo.key(pred, r, half) if memo is not None else None
+    if key is not None and key in memo.done:
+        q = memo.done[key]
+    else:
+        fit, ok, _ = fit_saddles(grey, smoothed, pred[None], half, cfg, rim_dist)
+        q = fit[0] if ok[0] else None
+        if key is not None:
+            memo.done[key] = q
+    if q is not None and math.hypot(q[0] - pred[0], q[1] - pred[1]) < r:
+        return q, True
     return None, False
 
 
@@ -141,10 +170,12 @@ def grow_lattice(
     cfg: GridConfig,
     smoothed: dict[int, np.ndarray],
     rim_dist: np.ndarray | None = None,
+    memo: FillMemo | None = None,
 ) -> Lattice | None:
     """Breadth-first lattice growth from candidate ``seed`` among candidates xy (K, 2) with edge
     directions axes (K, 2, 2) (see :func:`cotrain.detect.saddle.saddle_fit`) on the image grey
-    (H, W); corners found by the saddle search are fitted with ``rim_dist`` (H, W). None when the
+    (H, W); corners found by the saddle search are fitted with ``rim_dist`` (H, W) (searches
+    remembered across seeds in ``memo``, see :class:`FillMemo`). None when the
     seed has no two neighbours along its edges or no checker colours.
 
     Lattice axes are oriented so that a x b > 0 in the image (x right, y down), as the board's own
@@ -216,7 +247,9 @@ def grow_lattice(
                 continue
             pa, pb = (v * da if da else sa), (v * db if db else sb)
             worth_fitting = functools.partial(_fill_alternates, sm1, pred, pa, pb, par[(a, b)], cfg)
-            found, was_filled = match_corner(pred, r, xy, tree, used, grey, smoothed, window_half(short), cfg, rim_dist, worth_fitting)
+            found, was_filled = match_corner(
+                pred, r, xy, tree, used, grey, smoothed, window_half(short), cfg, rim_dist, worth_fitting, memo
+            )
             if found is None:
                 continue
             new_v = found - pts[k]
@@ -294,16 +327,18 @@ def verify_lattice(
     H, W = grey.shape
     short, oblique = np.zeros(K), np.zeros(K, bool)
     todo = np.zeros(K, bool)
+    pts = lat.xy.tolist()  # scalar arithmetic in the per-corner loop
     for (a, b), k in where.items():
         sides = []
         straight = True
+        x, y = pts[k]
         for nbrs in (((a + 1, b), (a - 1, b)), ((a, b + 1), (a, b - 1))):
-            d = [np.linalg.norm(lat.xy[where[t]] - lat.xy[k]) for t in nbrs if t in where]
+            d = [math.hypot(pts[where[t]][0] - x, pts[where[t]][1] - y) for t in nbrs if t in where]
             if d:
                 sides.append(min(d))
             if len(d) == 2:
-                p1, p2 = lat.xy[where[nbrs[0]]], lat.xy[where[nbrs[1]]]
-                straight &= bool(np.linalg.norm((p1 + p2) / 2 - lat.xy[k]) < cfg.max_line_offset * np.linalg.norm(p1 - p2) / 2)
+                (x1, y1), (x2, y2) = pts[where[nbrs[0]]], pts[where[nbrs[1]]]
+                straight &= math.hypot((x1 + x2) / 2 - x, (y1 + y2) / 2 - y) < cfg.max_line_offset * math.hypot(x1 - x2, y1 - y2) / 2
         if sides and min(sides) >= cfg.min_step_px and straight:
             todo[k] = True
             short[k] = min(sides)
@@ -383,11 +418,12 @@ def final_fits(
     corners those are (K,) bool."""
     where = lat.where
     short = np.full(len(lat.ab), np.inf)
+    pts = lat.xy.tolist()  # scalar arithmetic in the per-corner loop
     for (a, b), k in where.items():
         for da, db in STEPS:
             t = (a + da, b + db)
             if t in where:
-                short[k] = min(short[k], float(np.linalg.norm(lat.xy[where[t]] - lat.xy[k])))
+                short[k] = min(short[k], math.hypot(pts[where[t]][0] - pts[k][0], pts[where[t]][1] - pts[k][1]))
     short = np.where(np.isfinite(short), short, 3 * cfg.min_step_px)
     halves = window_half(short, cfg.final_max_half)
     xy, fitted = lat.xy.copy(), np.zeros(len(lat.ab), bool)

@@ -17,6 +17,7 @@ Pure functions over numpy arrays; pixels follow docs/conventions.md (centre of t
 from __future__ import annotations
 
 import functools
+import math
 
 import cv2
 import numpy as np
@@ -76,6 +77,16 @@ def pixel_index(q: np.ndarray, W: int, H: int) -> np.ndarray:
     return np.minimum(np.maximum(qi, 0), np.array([W - 1, H - 1]))
 
 
+def _window(img: np.ndarray, x: float, y: float, half: int, border: int = cv2.BORDER_REPLICATE) -> np.ndarray:
+    """One bilinear window (n^2,) float64 of ``img`` (H, W) centred on (x, y), as :func:`_patches`
+    cuts it (one C call when the window lies inside the image)."""
+    n = 2 * half + 1
+    H, W = img.shape
+    if half + 1 < x < W - half - 2 and half + 1 < y < H - half - 2:
+        return cv2.getRectSubPix(img, (n, n), (x, y)).ravel().astype(np.float64)
+    return _patches(img, np.array([[x, y]]), half, border)[0]
+
+
 # --------------------------------------------------------------------------------------------
 # Saddle fit
 # --------------------------------------------------------------------------------------------
@@ -108,6 +119,8 @@ def saddle_fit(
     pinv = _design(half)
     xy = np.asarray(xy, np.float64).reshape(-1, 2)
     K = len(xy)
+    if K == 1:
+        return _saddle_fit_one(smoothed, xy[0], half, iterations, cfg, rim_dist)
     H, W = smoothed.shape
     reach = 1.0 + 0.8 * half
 
@@ -169,6 +182,79 @@ def saddle_fit(
         axes[idx, 1] = np.cos(t)[:, None] * e_pos - np.sin(t)[:, None] * e_neg
         ok[idx] = good
     return np.where(ok[:, None], p, xy), ok, axes
+
+
+def _saddle_fit_one(
+    smoothed: np.ndarray, xy: np.ndarray, half: int, iterations: int, cfg: GridConfig, rim_dist: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`saddle_fit` of one point xy (2,), in scalar arithmetic: the lattice growth fits one
+    predicted spot at a time, and the batched path's array operations on one point cost ten
+    times the arithmetic. Same steps, thresholds and outputs ((1, 2), (1,), (1, 2, 2)); the
+    tests hold the two paths to the same results."""
+    pinv = _design(half)
+    H, W = smoothed.shape
+    reach = 1.0 + 0.8 * half
+    n2 = (2 * half + 1) ** 2
+
+    def fit(x: float, y: float) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, bool]:
+        """Coefficients (6,), patch (n^2,), valid weights (n^2,) or None (all valid), posed."""
+        patch = _window(smoothed, x, y, half)
+        coef = pinv @ patch
+        if rim_dist is None:
+            return coef, patch, None, True
+        ix, iy = min(max(round(x), 0), W - 1), min(max(round(y), 0), H - 1)
+        if not rim_dist[iy, ix] < reach + 1.5 * half + 1:
+            return coef, patch, None, True
+        valid = (_window(rim_dist, x, y, half, cv2.BORDER_CONSTANT) > reach).astype(np.float64)
+        if valid.min() < 1:
+            c, posed = _masked_coefficients(patch[None], valid[None], half)
+            return c[0], patch, valid, bool(posed[0])
+        return coef, patch, valid, True
+
+    x0, y0 = float(xy[0]), float(xy[1])
+    x, y = x0, y0
+    alive = True
+    for _ in range(iterations):
+        coef, _, _, posed = fit(x, y)
+        a, b, c, d, e, _ = coef.tolist()
+        det = 4 * a * c - b * b  # of [[2a, b], [b, 2c]]; a saddle has det < 0
+        safe = det if det < 0 else -1.0
+        sx, sy = -(2 * c * d - b * e) / safe, -(-b * d + 2 * a * e) / safe
+        if det >= 0 or math.hypot(sx, sy) > half or not posed:
+            alive = False
+            break
+        x, y = x + sx, y + sy
+    if rim_dist is None:
+        inside = half <= x < W - 1 - half and half <= y < H - 1 - half
+    else:
+        ix, iy = min(max(round(x), 0), W - 1), min(max(round(y), 0), H - 1)
+        inside = 0 <= x <= W - 1 and 0 <= y <= H - 1 and rim_dist[iy, ix] >= cfg.min_rim_px
+    axes = np.zeros((1, 2, 2))
+    if not (alive and inside and math.hypot(x - x0, y - y0) <= half):
+        return xy[None].copy(), np.zeros(1, bool), axes
+    coef, patch, valid, posed = fit(x, y)
+    a, b, c = coef[:3].tolist()
+    # Point symmetry over the pixel pairs seen on both sides (a 180 deg turn = reversed order).
+    if valid is None:
+        z = patch - patch.mean()
+        sym = float(z @ z[::-1]) >= cfg.min_symmetry * max(float(z @ z), 1e-12) and cfg.min_symmetric_share <= 1
+    else:
+        pair = valid * valid[::-1]
+        z = patch - (patch * valid).sum() / max(valid.sum(), 1)
+        sym = float((z * z[::-1] * pair).sum()) >= cfg.min_symmetry * max(float((z * z * pair).sum()), 1e-12)
+        sym = sym and pair.sum() >= cfg.min_symmetric_share * n2
+    lam, vec = np.linalg.eigh(np.array([[a, b / 2], [b / 2, c]]))  # lam[0] <= lam[1]
+    neg, pos = -float(lam[0]), float(lam[1])
+    big = max(neg, pos, 1e-12)
+    good = posed and sym and neg > 0 and pos > 0 and big * half * half >= cfg.min_saddle_contrast
+    good = good and min(neg, pos) / big >= cfg.min_saddle_ratio
+    if not good:
+        return xy[None].copy(), np.zeros(1, bool), axes
+    t = math.atan(math.sqrt(pos / neg))  # zero lines: cos t e_pos +- sin t e_neg
+    e_pos, e_neg = vec[:, 1], vec[:, 0]
+    axes[0, 0] = math.cos(t) * e_pos + math.sin(t) * e_neg
+    axes[0, 1] = math.cos(t) * e_pos - math.sin(t) * e_neg
+    return np.array([[x, y]]), np.ones(1, bool), axes
 
 
 def fit_saddles(

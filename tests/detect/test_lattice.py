@@ -92,3 +92,53 @@ def test_growth_searches_saddles_only_where_colours_alternate(monkeypatch):
     assert all(near(at_gated, k) for k in missing)  # searched, and found
     assert all(near(at_plain, k) for k in hidden) and not any(near(at_gated, k) for k in hidden)
     assert len(at_gated) < len(at_plain)
+
+
+def test_fill_memo_searches_a_rejected_maximum_once(monkeypatch):
+    """Saddle searches near a response maximum whose candidate fit failed (here the board's outer
+    corners, where a square meets the white margin) are made once per window size: growing the
+    board again from another seed finds the same lattice with no new search there, and a search
+    that found a saddle is taken again only where it lies within the new match radius."""
+    from scipy.spatial import cKDTree
+
+    import cotrain.detect.lattice as lattice_mod
+    from cotrain.detect.grid_config import GridConfig
+    from cotrain.detect.lattice import FillMemo, grow_lattice, match_corner
+    from cotrain.detect.saddle import fit_saddles, saddle_candidates
+
+    sq, org = 24, (30, 30)
+    img, q = board_image(sq=sq, org=org, size=(330, 250))
+    cfg = GridConfig()
+    smoothed: dict[int, np.ndarray] = {}
+    xy, ok, axes = fit_saddles(img, smoothed, q + 0.2, 4, cfg)
+    assert ok.all()
+    maxima, _ = saddle_candidates(img, np.ones(img.shape, bool), cfg)
+    m_xy, m_ok, _ = fit_saddles(img, smoothed, maxima, 4, cfg)
+    rejected = maxima[~m_ok]
+    # The board's outer corners on its black corner squares (a square's corner on the margin) are
+    # among the rejected maxima.
+    outer = np.array([[org[0], org[1]], [org[0], org[1] + 7 * sq]], float)
+    assert cKDTree(rejected).query(outer)[0].max() < 2
+    calls = []
+
+    def counting(grey, smoothed, xy, *args, **kw):
+        calls.extend(xy.tolist())
+        return fit_saddles(grey, smoothed, xy, *args, **kw)
+
+    monkeypatch.setattr(lattice_mod, "fit_saddles", counting)
+    memo = FillMemo(rejected)
+    grown = []
+    for seed in (0, len(xy) - 1):
+        calls.clear()
+        grown.append((grow_lattice(xy, axes, seed, img, cfg, smoothed, None, memo), len(calls)))
+    (first, n_first), (second, n_second) = grown
+    assert len(first.ab) == len(second.ab) == NX * NY
+    assert n_second < n_first
+    assert not len(calls) or cKDTree(rejected).query(np.array(calls))[0].min() >= 0.45 * sq  # none repeated near a rejected maximum
+    # A remembered saddle is returned only within the radius of the spot asked about.
+    hit = FillMemo(xy[:1] + 0.5)
+    found, filled = match_corner(xy[0] + 1.0, 3.0, xy[1:2], cKDTree(xy[1:2]), set(), img, smoothed, 4, cfg, None, None, hit)
+    assert filled and np.linalg.norm(found - xy[0]) < 0.05
+    n = len(calls)
+    again, _ = match_corner(xy[0] + 1.5, 2.0, xy[1:2], cKDTree(xy[1:2]), set(), img, smoothed, 4, cfg, None, None, hit)
+    assert again is None and len(calls) == n  # remembered (same maximum, same window), but 2.1 px from this spot

@@ -63,3 +63,38 @@ def test_saddle_fit_next_to_the_rim_uses_the_part_that_is_seen():
     # Closer than min_rim_px (3 px): not reported.
     img, rim_dist = cut_at(23)
     assert not fit_saddles(img, {}, start, 8, GridConfig(), rim_dist)[1][0]
+
+
+def test_one_point_fit_equals_the_batched_fit():
+    """The lattice growth fits one spot at a time through a scalar path; it must give what the
+    batched path gives for the same point: X-junctions in the open, cut by the rim (masked fit),
+    at the image border, and points with no saddle (L-corner, flat)."""
+    rng = np.random.default_rng(3)
+    size = 61
+    g = np.arange(size) - 30.0
+    X, Y = np.meshgrid(g, g)
+    u, v = np.cos(0.4) * X + np.sin(0.4) * Y, -np.sin(0.4) * X + np.cos(0.4) * Y
+    checker = np.where((np.floor(u / 12) + np.floor(v / 12)) % 2 == 0, 0.85, 0.12).astype(np.float32)
+    checker[(X > 14) & (Y > 14)] = 0.5  # a flat patch: no saddle
+    allowed = np.hypot(X + 4, Y) < 27  # an image circle that cuts some junctions
+    img = np.where(allowed, checker, 0.0).astype(np.float32)
+    rim_dist = cv2.distanceTransform(allowed.astype(np.uint8), cv2.DIST_L2, 3)
+    corners = [
+        (30 + 12 * (np.cos(0.4) * i - np.sin(0.4) * j), 30 + 12 * (np.sin(0.4) * i + np.cos(0.4) * j))
+        for i in range(-3, 4)
+        for j in range(-3, 4)
+    ]
+    pts = np.array([c for c in corners if -2 < c[0] < size + 1 and -2 < c[1] < size + 1]) + rng.uniform(-1.2, 1.2, (1, 2))
+    pts = np.concatenate([pts, [[50.0, 50.0], [1.0, 30.0], [30.0, 59.5]]])  # flat, at the border
+    cfg = GridConfig()
+    for half in (2, 4):
+        sm = smooth_for(img, half)
+        for rd in (None, rim_dist):
+            q, ok, axes = saddle_fit(sm, pts, half, cfg=cfg, rim_dist=rd)
+            assert 3 < ok.sum() < len(pts)  # both outcomes are exercised
+            for k in range(len(pts)):
+                q1, ok1, axes1 = saddle_fit(sm, pts[k : k + 1], half, cfg=cfg, rim_dist=rd)
+                assert ok1[0] == ok[k]
+                assert np.abs(q1[0] - q[k]).max() < 1e-3
+                if ok[k]:  # the same two edge directions (up to sign and order)
+                    assert np.abs(np.abs(axes1[0] @ axes[k].T).max(1) - 1).max() < 1e-4
