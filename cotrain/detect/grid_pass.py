@@ -43,7 +43,7 @@ from scipy.spatial import cKDTree
 
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.identity import assign_ids, canonical_ids, cell_darkness, corner_votes, edge_evidence
-from cotrain.detect.lattice import FillMemo, Lattice, grow_lattice, refine_positions, skipped_corners, verify_lattice
+from cotrain.detect.lattice import Lattice, grow_lattice, refine_positions, skipped_corners, verify_lattice
 from cotrain.detect.saddle import fit_saddles, outside_circle, saddle_candidates, saddle_response, smooth_cached, window_half
 from cotrain.geometry.letterbox import CELLS, Letterbox
 from cotrain.targets import Checkerboard
@@ -76,16 +76,16 @@ def find_candidates(
     smoothed: dict[int, np.ndarray],
     rim_dist: np.ndarray | None = None,
     response: np.ndarray | None = None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray]:
     """Saddle points inside ``roi`` (the network's corner / board region), best seeds first.
 
     ``grey`` (H, W), ``roi`` (H, W), ``rim_dist`` (H, W) and ``response`` (H, W) are a crop of the
     input whose top-left pixel is input pixel ``offset`` (2,); ``corner_prob`` (h, w) is the
-    network's corner score. Returns xy (K, 2) crop pixels, axes (K, 2, 2) (see
-    :func:`cotrain.detect.saddle.saddle_fit`) and the response maxima whose fit failed (R, 2)."""
+    network's corner score. Returns xy (K, 2) crop pixels and axes (K, 2, 2) (see
+    :func:`cotrain.detect.saddle.saddle_fit`)."""
     xy0, resp = saddle_candidates(grey, roi, cfg, response=response)
     if len(xy0) < 2:
-        return np.zeros((0, 2)), np.zeros((0, 2, 2)), xy0
+        return np.zeros((0, 2)), np.zeros((0, 2, 2))
     # Window per candidate from the spacing to its nearest other candidate.
     d, _ = cKDTree(xy0).query(xy0, k=2)
     halves = window_half(d[:, 1])
@@ -105,7 +105,7 @@ def find_candidates(
         if not drop[i]:
             drop[j] = True
     keep = keep[~drop]
-    return xy[keep], axes[keep], xy0[~ok]
+    return xy[keep], axes[keep]
 
 
 def grid_pass(
@@ -146,12 +146,11 @@ def grid_pass(
     rim_dist = cv2.distanceTransform(allowed.astype(np.uint8), cv2.DIST_L2, 3)
     smoothed: dict[int, np.ndarray] = {}
     response = saddle_response(grey)
-    xy, axes, rejected = find_candidates(grey, roi, offset, box, corner_prob, cfg, smoothed, rim_dist, response)
+    xy, axes = find_candidates(grey, roi, offset, box, corner_prob, cfg, smoothed, rim_dist, response)
     if len(xy) < cfg.min_corners:
         return empty
     # Grow from several seeds (distractors can hold the strongest saddles); a lattice must lie on
     # what the network calls board, and the one whose identity is surest wins.
-    memo = FillMemo(rejected)
     best: tuple[float, Lattice, np.ndarray] | None = None
     covered = np.zeros(len(xy), bool)
     tried = 0
@@ -161,7 +160,7 @@ def grid_pass(
         if covered[seed]:
             continue
         tried += 1
-        lat = grow_lattice(xy, axes, seed, grey, cfg, smoothed, rim_dist, memo)
+        lat = grow_lattice(xy, axes, seed, grey, cfg, smoothed, rim_dist)
         if lat is None:
             continue
         covered |= cKDTree(lat.xy).query(xy)[0] < cfg.merge_radius_px
@@ -176,15 +175,16 @@ def grid_pass(
             continue  # a line of corners (or a diagonal) is not a checker lattice
         lc, lr = corner_votes(lat, logp_col, offset, box, cfg), corner_votes(lat, logp_row, offset, box, cfg)
         edges = edge_evidence(blur1, lat, cfg)
-        ids, _, margin, violated = assign_ids(lat.ab, lc, lr, dark, board, cfg, edges)
-        if violated > max(cfg.max_violated_edges, cfg.max_violated_share * sum(e[3] for e in edges)):
+        placed = assign_ids(lat.ab, lc, lr, dark, board, cfg, edges)
+        if placed.violated > max(cfg.max_violated_edges, cfg.max_violated_share * sum(e[3] for e in edges)):
             continue  # the board ends where the target goes on: another target, or a distractor
-        if best is None or margin > best[0]:
-            best = (margin, lat, ids)
+        if best is None or placed.margin > best[0]:
+            best = (placed.margin, lat, placed.ids, placed.geometry_margin)
     if best is None:
         return empty
-    margin, lat, ids = best
-    if margin < cfg.min_margin:
+    margin, lat, ids, geometry_margin = best
+    sure = margin >= cfg.min_margin or (margin >= cfg.min_margin_backed and geometry_margin >= cfg.min_geometry_margin)
+    if not sure:
         return GridResult(np.zeros(0, int), np.zeros((0, 2)), np.zeros(0), float(margin))
     lat = refine_positions(lat, grey, cfg, smoothed, rim_dist)
     ids = canonical_ids(ids, lat.xy, board)

@@ -16,6 +16,8 @@ and the best one wins if it beats the runner-up by a margin. A board that looks 
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from cotrain.detect.grid_config import GridConfig
@@ -171,6 +173,16 @@ def edge_evidence(blur: np.ndarray, lat: Lattice, cfg: GridConfig | None = None)
 # --------------------------------------------------------------------------------------------
 # Placement
 # --------------------------------------------------------------------------------------------
+class Placement(NamedTuple):
+    """The lattice placed on the board (see :func:`assign_ids`)."""
+
+    ids: np.ndarray  # (K,) corner ids, -1 where the placement puts a corner off the board
+    score: float  # the best placement's score (nats)
+    margin: float  # over the best placement that gives any corner another id (turns of a symmetric board excepted)
+    violated: float  # margin evidence the best placement contradicts (corners' worth)
+    geometry_margin: float  # the margin from colours, margin evidence and extent alone (no network votes)
+
+
 def assign_ids(
     ab: np.ndarray,
     logp_col: np.ndarray,
@@ -187,11 +199,12 @@ def assign_ids(
         log-probabilities of the corner column -1 .. nx / row -1 .. ny at each corner;
         dark: cell darkness (see :func:`cell_darkness`); board: the checkerboard (nx x ny inner
         corners); edges: margin evidence (see :func:`edge_evidence`).
-    Returns: ids (K,) (-1 where the placement puts a corner off the board), best score, margin
-    over the best placement that gives any corner another id (turns of a symmetric board, see
-    ``board.symmetries()``, do not count), and the margin evidence the best
+    Returns a :class:`Placement`: ids (K,) (-1 where the placement puts a corner off the board),
+    best score, margin over the best placement that gives any corner another id (turns of a
+    symmetric board, see ``board.symmetries()``, do not count), the margin evidence the best
     placement contradicts (sum of e over corners whose missing outward neighbour it puts on the
-    board: large when the lattice is a whole board of another size).
+    board: large when the lattice is a whole board of another size), and the margin of the best
+    placement under the geometry's terms alone (over the placement the geometry ranks next).
     """
     nx, ny = board.nx, board.ny
     lc = np.maximum(logp_col, cfg.logp_floor)
@@ -208,6 +221,8 @@ def assign_ids(
         jj = ij0[:, 1][:, None] + ojs[None]
         sc = np.where((ii >= 0) & (ii < nx), np.take_along_axis(lc, np.clip(ii + 1, 0, nx + 1), 1), -cfg.offboard_penalty).sum(0)
         sr = np.where((jj >= 0) & (jj < ny), np.take_along_axis(lr, np.clip(jj + 1, 0, ny + 1), 1), -cfg.offboard_penalty).sum(0)
+        off_c = -cfg.offboard_penalty * ((ii < 0) | (ii >= nx)).sum(0)  # the geometry's part of sc, sr
+        off_r = -cfg.offboard_penalty * ((jj < 0) | (jj >= ny)).sum(0)
         # Parity: the cell's min corner after rotation decides its colour; black when i + j even.
         par = np.zeros(2)
         if len(cells):
@@ -217,6 +232,7 @@ def assign_ids(
                 black = ((mn + e) % 2) == 0
                 par[e] = cfg.parity_weight * float((np.where(black, 1.0, -1.0) * dsign).sum())
         total = sc[:, None] + sr[None, :] + par[(ois[:, None] + ojs[None, :]) % 2]
+        geo = off_c[:, None] + off_r[None, :] + par[(ois[:, None] + ojs[None, :]) % 2]
         if edges:
             # Margin evidence: the missing outward neighbour must fall off the board.
             kk = np.array([e[0] for e in edges])
@@ -225,10 +241,12 @@ def assign_ids(
             ti = t0[:, 0, None, None] + ois[None, :, None]
             tj = t0[:, 1, None, None] + ojs[None, None, :]
             off = (ti < 0) | (ti >= nx) | (tj < 0) | (tj >= ny)  # (E, n_oi, n_oj)
-            total = total + cfg.edge_weight * (ev[:, None, None] * np.where(off, 1.0, -1.0)).sum(0)
+            margin_term = cfg.edge_weight * (ev[:, None, None] * np.where(off, 1.0, -1.0)).sum(0)
+            total = total + margin_term
+            geo = geo + margin_term
         for a, oi in enumerate(ois):
             for b, oj in enumerate(ojs):
-                results.append((float(total[a, b]), r, int(oi), int(oj)))
+                results.append((float(total[a, b]), r, int(oi), int(oj), float(geo[a, b])))
     results.sort(key=lambda t: -t[0])
     best = results[0]
 
@@ -241,8 +259,12 @@ def assign_ids(
     same = [ids] + [np.where(on, perm[np.where(on, ids, 0)], -1) for perm in board.symmetries()]
     runner = next((r for r in results[1:] if not any(np.array_equal(ids_of(r), v) for v in same)), None)
     margin = best[0] - runner[0] if runner is not None else np.inf
+    # The same margin from the geometry alone (colours, margin evidence, extent; no network votes).
+    by_geo = sorted(results[1:], key=lambda t: -t[4])
+    geo_runner = next((r for r in by_geo if not any(np.array_equal(ids_of(r), v) for v in same)), None)
+    geo_margin = best[4] - geo_runner[4] if geo_runner is not None else np.inf
     violated = 0.0
     for k, da, db, e in edges or []:
         i, j = (ab[k] + [da, db]) @ ROTATIONS[best[1]].T + [best[2], best[3]]
         violated += e if (0 <= i < nx and 0 <= j < ny) else 0.0
-    return ids, best[0], margin, violated
+    return Placement(ids, best[0], margin, violated, geo_margin)

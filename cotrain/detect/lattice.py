@@ -45,27 +45,6 @@ class Lattice:
         return {tuple(t): k for k, t in enumerate(self.ab.tolist())}
 
 
-class FillMemo:
-    """Saddle searches of one image at spots where no candidate was offered, remembered.
-
-    Almost all of them land on a saddle-response maximum whose candidate fit already failed (the
-    board's outer corners, where a square's corner meets the white margin: a strong response, no
-    X-junction), and every seed's growth, and both neighbours of such a spot, search there again.
-    A search near such a maximum (within the match radius) is made once per window size; later
-    ones take its result. ``rejected``: (R, 2) those maxima, pixels."""
-
-    def __init__(self, rejected: np.ndarray):
-        self.tree = cKDTree(rejected) if len(rejected) else None
-        self.done: dict[tuple[int, int], np.ndarray | None] = {}  # (maximum, half) -> saddle or None
-
-    def key(self, pred: np.ndarray, r: float, half: int) -> tuple[int, int] | None:
-        """The remembered search for a spot ``pred`` (2,): the nearest rejected maximum within ``r``, or None."""
-        if self.tree is None:
-            return None
-        dist, k = self.tree.query(pred)
-        return (int(k), half) if dist < r else None
-
-
 # --------------------------------------------------------------------------------------------
 # Colours
 # --------------------------------------------------------------------------------------------
@@ -133,12 +112,11 @@ def match_corner(
     cfg: GridConfig,
     rim_dist: np.ndarray | None = None,
     worth_fitting: Callable[[], bool] | None = None,
-    memo: FillMemo | None = None,
 ) -> tuple[np.ndarray | None, bool]:
     """The corner at a predicted spot ``pred`` (2,): the nearest candidate of xy (K, 2) within
     ``r`` not yet offered (``used`` gains it), otherwise a saddle fitted there in a window of
-    half-size ``half`` that lands within ``r`` (only if ``worth_fitting()`` says so, when given;
-    taken from ``memo`` when the same search was made before). Returns (point or None, found by the fit).
+    half-size ``half`` that lands within ``r`` (only if ``worth_fitting()`` says so, when given).
+    Returns (point or None, found by the fit).
 
     A candidate is offered once: if the growth's checks refuse it here, it is doubtful and is not
     tried again from another corner (measured: offering it again lets wrong corners into small
@@ -149,16 +127,9 @@ def match_corner(
         return xy[j], False
     if worth_fitting is not None and not worth_fitting():
         return None, False
-    key = memo.key(pred, r, half) if memo is not None else None
-    if key is not None and key in memo.done:
-        q = memo.done[key]
-    else:
-        fit, ok, _ = fit_saddles(grey, smoothed, pred[None], half, cfg, rim_dist)
-        q = fit[0] if ok[0] else None
-        if key is not None:
-            memo.done[key] = q
-    if q is not None and math.hypot(q[0] - pred[0], q[1] - pred[1]) < r:
-        return q, True
+    q, ok, _ = fit_saddles(grey, smoothed, pred[None], half, cfg, rim_dist)
+    if ok[0] and math.hypot(q[0, 0] - pred[0], q[0, 1] - pred[1]) < r:
+        return q[0], True
     return None, False
 
 
@@ -170,12 +141,10 @@ def grow_lattice(
     cfg: GridConfig,
     smoothed: dict[int, np.ndarray],
     rim_dist: np.ndarray | None = None,
-    memo: FillMemo | None = None,
 ) -> Lattice | None:
     """Breadth-first lattice growth from candidate ``seed`` among candidates xy (K, 2) with edge
     directions axes (K, 2, 2) (see :func:`cotrain.detect.saddle.saddle_fit`) on the image grey
-    (H, W); corners found by the saddle search are fitted with ``rim_dist`` (H, W) (searches
-    remembered across seeds in ``memo``, see :class:`FillMemo`). None when the
+    (H, W); corners found by the saddle search are fitted with ``rim_dist`` (H, W). None when the
     seed has no two neighbours along its edges or no checker colours.
 
     Lattice axes are oriented so that a x b > 0 in the image (x right, y down), as the board's own
@@ -247,9 +216,7 @@ def grow_lattice(
                 continue
             pa, pb = (v * da if da else sa), (v * db if db else sb)
             worth_fitting = functools.partial(_fill_alternates, sm1, pred, pa, pb, par[(a, b)], cfg)
-            found, was_filled = match_corner(
-                pred, r, xy, tree, used, grey, smoothed, window_half(short), cfg, rim_dist, worth_fitting, memo
-            )
+            found, was_filled = match_corner(pred, r, xy, tree, used, grey, smoothed, window_half(short), cfg, rim_dist, worth_fitting)
             if found is None:
                 continue
             new_v = found - pts[k]

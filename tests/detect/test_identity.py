@@ -29,7 +29,7 @@ def test_whole_board_is_identified_by_geometry_alone(rot):
         dark[tuple(quad.min(0))] = 1.0 if b else -1.0
     flat_c = np.full((len(ab), NX + 2), -np.log(NX + 2))
     flat_r = np.full((len(ab), NY + 2), -np.log(NY + 2))
-    got, _, margin, _ = assign_ids(ab, flat_c, flat_r, dark, BOARD, GridConfig())
+    got, _, margin, *_ = assign_ids(ab, flat_c, flat_r, dark, BOARD, GridConfig())
     np.testing.assert_array_equal(got, ids)
     assert margin > 10
 
@@ -43,7 +43,7 @@ def test_partial_lattice_follows_the_network_votes():
     lr = np.full((len(ab), NY + 2), np.log(0.05))
     lc[np.arange(len(ab)), ij[sel, 0] + 1] = np.log(0.5)
     lr[np.arange(len(ab)), ij[sel, 1] + 1] = np.log(0.5)
-    got, _, margin, _ = assign_ids(ab, lc, lr, {}, BOARD, GridConfig())
+    got, _, margin, *_ = assign_ids(ab, lc, lr, {}, BOARD, GridConfig())
     np.testing.assert_array_equal(got, ids[sel])
     assert margin > 5
 
@@ -98,7 +98,7 @@ def test_symmetric_board_is_placed_up_to_its_half_turn(rot):
         for j in range(ny - 1):
             quad = np.array([[i, j], [i + 1, j], [i, j + 1], [i + 1, j + 1]]) @ ROTATIONS[rot]
             dark[tuple(quad.min(0))] = 1.0 if (i + j) % 2 == 0 else -1.0
-    got, _, margin, _ = assign_ids(ab, np.zeros((len(ab), nx + 2)), np.zeros((len(ab), ny + 2)), dark, board, GridConfig())
+    got, _, margin, *_ = assign_ids(ab, np.zeros((len(ab), nx + 2)), np.zeros((len(ab), ny + 2)), dark, board, GridConfig())
     assert margin > 10
     assert np.array_equal(got, ids) or np.array_equal(got, board_symmetries(nx, ny)[0][ids])
     xy = 40.0 * ab  # the lattice as the image shows it (a x b > 0, x right, y down)
@@ -108,3 +108,29 @@ def test_symmetric_board_is_placed_up_to_its_half_turn(rot):
     assert xy[k0].sum() < xy[k1].sum()  # id 0 is the end of the board nearer the top left
     # An asymmetric board keeps its ids.
     np.testing.assert_array_equal(canonical_ids(np.array([0, 1, -1]), np.zeros((3, 2)), BOARD), [0, 1, -1])
+
+
+def test_geometry_margin_leaves_out_the_network_votes():
+    """The top two corner rows with the white margin seen left, right and above: the geometry
+    alone places them (its margin is what the margin evidence, colours and extent give). Row votes
+    that favour the placement one row lower lower the margin, not the geometry's."""
+    ids, ij = _board_ab()
+    sel = ij[:, 1] < 2
+    ab = ij[sel]
+    dark = {(i, 0): 1.0 if i % 2 == 0 else -1.0 for i in range(NX - 1)}
+    edges = [(k, -1, 0, 1.0) for k, (i, j) in enumerate(ab) if i == 0]
+    edges += [(k, 1, 0, 1.0) for k, (i, j) in enumerate(ab) if i == NX - 1]
+    edges += [(k, 0, -1, 1.0) for k, (i, j) in enumerate(ab) if j == 0]
+    flat_c = np.full((len(ab), NX + 2), -np.log(NX + 2))
+    flat_r = np.full((len(ab), NY + 2), -np.log(NY + 2))
+    cfg = GridConfig()
+    plain = assign_ids(ab, flat_c, flat_r, dark, BOARD, cfg, edges)
+    np.testing.assert_array_equal(plain.ids, ids[sel])
+    assert plain.geometry_margin == pytest.approx(plain.margin)  # flat votes add nothing
+    lower = flat_r.copy()
+    lower[np.arange(len(ab)), ab[:, 1] + 2] = np.log(0.9)  # votes for one row further down
+    lower[np.arange(len(ab)), ab[:, 1] + 1] = np.log(0.05)
+    swayed = assign_ids(ab, flat_c, lower, dark, BOARD, cfg, edges)
+    np.testing.assert_array_equal(swayed.ids, ids[sel])
+    assert swayed.margin < plain.margin - 10
+    assert swayed.geometry_margin == pytest.approx(plain.geometry_margin)
