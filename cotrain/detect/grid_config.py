@@ -61,6 +61,7 @@ class GridConfig:
     min_margin: float = 25.0  # the best placement must beat the runner-up by this (nats) to be reported ...
     min_margin_backed: float = 20.0  # ... or by this, where the geometry alone (no network votes) puts it ahead ...
     min_geometry_margin: float = 15.0  # ... by this much (colours, margin evidence, extent; see identity.Placement)
+    min_margin_votes_alone: float = 30.0  # where the geometry cannot tell the placement from another, the votes must win by this
     logp_floor: float = -3.0  # network log-probabilities are clamped here (one corner cannot veto a board)
     offboard_penalty: float = 10.0  # per lattice corner a placement puts off the board (they are verified X-junctions)
     edge_weight: float = 8.0  # per lattice corner whose outward neighbour is the board's white margin

@@ -134,3 +134,17 @@ def test_geometry_margin_leaves_out_the_network_votes():
     np.testing.assert_array_equal(swayed.ids, ids[sel])
     assert swayed.margin < plain.margin - 10
     assert swayed.geometry_margin == pytest.approx(plain.geometry_margin)
+
+
+def test_votes_alone_must_be_surer_than_votes_with_geometry():
+    """The grid pass's acceptance: where the geometry cannot tell the best placement from another
+    (a patch that fits the board turned as well), the network's votes must win by
+    ``min_margin_votes_alone``; where the geometry backs it, ``min_margin_backed`` is enough."""
+    from cotrain.detect.grid_pass import placement_is_sure
+
+    cfg = GridConfig()
+    assert placement_is_sure(cfg.min_margin + 1, 5.0, cfg)
+    assert not placement_is_sure(cfg.min_margin + 1, 0.0, cfg)  # votes alone, under their own threshold
+    assert placement_is_sure(cfg.min_margin_votes_alone + 1, 0.0, cfg)
+    assert placement_is_sure(cfg.min_margin_backed + 1, cfg.min_geometry_margin, cfg)
+    assert not placement_is_sure(cfg.min_margin_backed - 1, 100.0, cfg)
