@@ -4,7 +4,8 @@
                                      [--size 1280x720] [--grid KEY=VALUE ...]
 
 Renders (or reuses) a detection set with its own seed (the evaluation uses 2026: tune on another
-one), runs the network once per image, runs the grid pass with no margin threshold, and prints,
+one), runs the network once per image, runs the grid pass with no margin threshold (nor the
+geometry-backed and votes-alone ones of ``cotrain.detect.grid_pass.placement_is_sure``), and prints,
 per threshold, the recall of detectable corners and the share of reported corners that are wrong
 (wrong id or over 3 px off), plus the margins of the placements that were wrong. ``--grid``
 overrides fields of the grid pass's ``GridConfig`` (``--grid offboard_penalty=20``) to try a
@@ -75,7 +76,7 @@ def margin_table(
 
     meta = load_or_render(EvalConfig(seed=seed, width=size[0], height=size[1], conditions=[]), set_dir, progress)
     det = Detector(model)
-    gcfg = dataclasses.replace(det.grid, **(grid or {}), min_margin=-np.inf)
+    gcfg = dataclasses.replace(det.grid, **(grid or {}), min_margin=-np.inf, min_margin_votes_alone=-np.inf)  # every placement
     rows, total = [], 0
     for n, lab in enumerate(tqdm(meta["labels"], desc="grid pass", disable=not progress)):
         grey = degrade(load_image(set_dir / "images" / lab["image"]), how, seed=n)
