@@ -82,12 +82,16 @@ def test_board_margin_pins_a_partial_view():
     lc = np.where(np.arange(-1, NX + 1)[:, None, None] == col[None], 0.2, 0.8 / (NX + 1))
     lr = np.where(np.arange(-1, NY + 1)[:, None, None] == row[None], 0.2, 0.8 / (NY + 1))
     ones = np.ones((h, w))
-    with_edges = grid_pass(img, box, ones, ones, np.log(lc), np.log(lr), BOARD, GridConfig(min_margin=-np.inf))
+    with_edges = grid_pass(
+        img, box, ones, ones, np.log(lc), np.log(lr), BOARD, GridConfig(min_margin=-np.inf, min_margin_votes_alone=-np.inf)
+    )
     assert set(with_edges.ids) == set(np.nonzero(inside)[0])
     # Corners whose fit window is cut by the image border are fitted from the part that is seen:
     # a small bias, bounded here; the others are exact.
     err = np.linalg.norm(with_edges.xy - q[with_edges.ids], axis=1)
     cut = (H - 1 - q[with_edges.ids, 1] < 16) | (W - 1 - q[with_edges.ids, 0] < 16)  # window + blur reach the border
     assert cut.any() and err[cut].max() < 0.3 and err[~cut].max() < 0.1
-    no_edges = grid_pass(img, box, ones, ones, np.log(lc), np.log(lr), BOARD, GridConfig(edge_weight=0.0, min_margin=-np.inf))
+    no_edges = grid_pass(
+        img, box, ones, ones, np.log(lc), np.log(lr), BOARD, GridConfig(edge_weight=0.0, min_margin=-np.inf, min_margin_votes_alone=-np.inf)
+    )
     assert with_edges.margin > no_edges.margin + 10
