@@ -116,11 +116,11 @@ def saddle_fit(
         axes: (K, 2, 2) unit edge directions (the quadratic's zero lines) per point.
     """
     cfg = cfg or GridConfig()
-    pinv = _design(half)
     xy = np.asarray(xy, np.float64).reshape(-1, 2)
     K = len(xy)
-    if K == 1:
+    if K == 1:  # the lattice growth's single spots: the same fit in scalar arithmetic
         return _saddle_fit_one(smoothed, xy[0], half, iterations, cfg, rim_dist)
+    pinv = _design(half)
     H, W = smoothed.shape
     reach = 1.0 + 0.8 * half
 
