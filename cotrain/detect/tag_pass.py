@@ -56,7 +56,10 @@ class TagConfig:
     min_response: float = 0.0015  # saddle response a candidate needs (scale-normalised -det Hessian)
     max_candidates: int = 4000  # strongest response maxima kept
     # --- growth ---
-    seed_axis_angle: float = 12.0  # deg: a seed's neighbours lie within this of its fitted edge directions
+    seed_axis_angle: float = 12.0  # deg: a seed's neighbours lie within this of its edge rays
+    ray_tries: int = 5  # candidates tried along each edge ray, nearest first, for ones reached along an edge
+    ray_options: int = 3  # candidates reached along an edge kept per ray: a seed's tag sides are tried among them
+    ray_radius: float = 0.5  # the edge rays are read on a circle of this fraction of the distance to the nearest candidate
     min_long_short: float = 1.7  # at a seed, tag side / gap (Kalibr: 1 / tagSpacing) must exceed this on both axes
     max_seeds: int = 40  # seeds tried (strongest responses first); covered candidates are not tried again
     match_radius: float = 0.35  # a neighbour must lie within this fraction of its predicted step
@@ -72,6 +75,7 @@ class TagConfig:
     max_hamming: int = 2  # bit errors a tag read alone may have (tag36h11: codes differ in at least 11 bits)
     min_bit_contrast: float = 0.06  # white gap minus black border a tag needs to be read
     min_data_share: float = 0.15  # a seed's tag has at least this share of white and of black data cells (tag36h11: 0.2 .. 0.8)
+    min_data_contrast: float = 0.2  # a seed's white data cells must be lighter than its black ones by this share of the tag's contrast
     min_clean: float = 0.9  # share of its border samples darker, and gap samples lighter, than their midpoint
     min_cell_px: float = 1.0  # tags whose data cells are smaller than this (px) are not read
     # --- placement ---
@@ -79,6 +83,7 @@ class TagConfig:
     min_mean_corr: float = 0.4  # ... and its tags must correlate with their codes by this much on average (-1 .. 1)
     min_tag_corr: float = 0.5  # a tag that was read keeps its corners when it correlates with its code by this much
     max_cell_misfit: float = 0.25  # a corner must close one of its cells as a parallelogram within this fraction of its side
+    max_ray_angle: float = 20.0  # deg: a corner's steps to its lattice neighbours leave along its own edge rays within this
     rim_strict_px: float = 8.0  # corners this close to the rim are reported only in a complete lattice cell
     max_side_gap_ratio: float = 2.0  # a corner's tag side / gap on a lattice line may differ from the target's by this factor
     # --- boards ---
@@ -150,57 +155,110 @@ def cell_dark(a: int, b: int) -> bool:
     return (a + b) % 2 == 0
 
 
-def axis_neighbours(xy: np.ndarray, axes: np.ndarray, tree: cKDTree, cfg: TagConfig) -> np.ndarray:
-    """The nearest candidate along each candidate's edge directions, both ways, within
-    ``cfg.seed_axis_angle``: (K, axis, way (+, -), 2) step vectors, NaN where there is none."""
+RAY_SAMPLES = 48  # samples on the circle around a candidate that finds its four edge rays
+
+
+def corner_rays(img: np.ndarray, xy: np.ndarray, radius: np.ndarray) -> np.ndarray:
+    """The four edge rays of X-junctions xy (K, 2) in ``img`` (H, W, lightly smoothed): where the
+    intensity on a circle of ``radius`` (K,) px around each crosses the circle's mean, in order of
+    angle (x right, y down). The rays need not be opposite pairs: perspective and the fisheye shear
+    a tag corner. Returns (K, 4, 2) unit vectors, NaN where the circle does not cross its mean
+    exactly four times (not an X-junction at this scale)."""
+    K = len(xy)
+    ang = np.arange(RAY_SAMPLES) * (2 * np.pi / RAY_SAMPLES)
+    ring = np.stack([np.cos(ang), np.sin(ang)], 1)  # (n, 2)
+    vals = values_at(img, xy[:, None] + radius[:, None, None] * ring[None])  # (K, n)
+    d = vals - vals.mean(1, keepdims=True)
+    nxt = np.roll(d, -1, 1)
+    cross = (d > 0) != (nxt > 0)
+    out = np.full((K, 4, 2), np.nan)
+    good = (cross.sum(1) == 4) & np.isfinite(vals).all(1)
+    for k in np.nonzero(good)[0]:
+        i = np.nonzero(cross[k])[0]
+        t = d[k, i] / (d[k, i] - nxt[k, i])  # linear zero crossing between samples i and i + 1
+        a = (i + t) * (2 * np.pi / RAY_SAMPLES)
+        out[k] = np.stack([np.cos(a), np.sin(a)], 1)
+    return out
+
+
+def axis_neighbours(xy: np.ndarray, rays: np.ndarray, tree: cKDTree, img: np.ndarray, cfg: TagConfig) -> np.ndarray:
+    """The nearest candidate along each of a candidate's four edge rays (see :func:`corner_rays`),
+    within ``cfg.seed_axis_angle``, reached along an edge (:func:`edges_along`: a tag's own data
+    junctions lie in the cone of its side, but not on it), as lattice axes: rays 0 and 2 are axis
+    0 (+, -), rays 1 and 3 axis 1. Returns (K, axis, way (+, -), option, 2) step vectors to the
+    first ``cfg.ray_options`` such candidates, nearest first, NaN where there are fewer."""
     K = len(xy)
     d, nb = tree.query(xy, k=min(96, K))
     d, nb = d.reshape(K, -1), nb.reshape(K, -1)
     ok = np.isfinite(d) & (d >= 1.0)
     v = xy[np.minimum(nb, K - 1)] - xy[:, None]  # (K, n, 2), nearest first
-    cos = np.einsum("knd,kad->kna", v, axes) / np.where(ok, d, 1.0)[..., None]
+    cos = np.einsum("knd,krd->knr", v, np.nan_to_num(rays)) / np.where(ok, d, 1.0)[..., None]
     cos_max = np.cos(np.radians(cfg.seed_axis_angle))
-    out = np.full((K, 2, 2, 2), np.nan)
+    out = np.full((K, 2, 2, cfg.ray_options, 2), np.nan)
     rows = np.arange(K)
-    for ax in range(2):
-        for w, sgn in enumerate((1, -1)):
-            hit = ok & (sgn * cos[..., ax] > cos_max)
-            first = hit.argmax(1)
-            has = hit[rows, first]
-            out[has, ax, w] = v[rows[has], first[has]]
+    for r in range(4):
+        hit = ok & (cos[..., r] > cos_max)
+        rank = np.cumsum(hit, 1)
+        found = np.zeros(K, int)
+        for j in range(1, cfg.ray_tries + 1):  # the nearest few in the cone, nearest first
+            at = hit & (rank == j)
+            has = at.any(1) & (found < cfg.ray_options)
+            if not has.any():
+                break
+            step = v[rows[has], at.argmax(1)[has]]
+            edge = edges_along(img, xy[has], step, cfg.min_edge_contrast)
+            k = np.nonzero(has)[0][edge]
+            out[k, r % 2, r // 2, found[k]] = step[edge]
+            found[k] += 1
     return out
+
+
+def edges_along(img: np.ndarray, p: np.ndarray, step: np.ndarray, min_contrast: float) -> np.ndarray:
+    """(K,) bool: whether the segments p -> p + step (K, 2) run along an edge of ``img`` (H, W):
+    at a quarter, half and three quarters of the way, the samples 15 % of the segment's length to
+    one side are all lighter (or all darker) than those to the other, by ``min_contrast`` on average."""
+    n = np.linalg.norm(step, axis=1, keepdims=True)
+    normal = np.stack([-step[:, 1], step[:, 0]], 1) / np.maximum(n, 1e-9)
+    depth = np.maximum(0.15 * n, 0.8)
+    t = np.array([0.25, 0.5, 0.75])[None, :, None]
+    mid = p[:, None] + t * step[:, None]
+    a = values_at(img, mid + (depth * normal)[:, None])
+    b = values_at(img, mid - (depth * normal)[:, None])
+    diff = a - b
+    same = (diff > 0).all(1) | (diff < 0).all(1)
+    return same & (np.abs(diff.mean(1)) >= min_contrast)
 
 
 def _seed_frames(nbr: np.ndarray, spacing: float, cfg: TagConfig) -> list[np.ndarray]:
     """Step frames (axis, kind (long, short), 2) under which a candidate would be a tag corner with
     the tag in the (+a, +b) quadrant: one per quadrant whose two sides have a neighbour, surest
-    first (both sides the longer of their axis), from its neighbours ``nbr`` (axis, way, 2; see
-    :func:`axis_neighbours`). The short steps are the neighbours the other way
+    first (the nearest neighbours, both sides the longer of their axis), from its neighbours
+    ``nbr`` (axis, way, option, 2; see :func:`axis_neighbours`). The short steps are the neighbours the other way
     where they are shorter by ``cfg.min_long_short``, otherwise the target's gap (``spacing`` of
     the side): a corner on the board's outer edge has no gap beyond it."""
-    nbr = [[None if np.isnan(v[0]) else v for v in pair] for pair in nbr]
+    opts = [[[v for v in way if not np.isnan(v[0])] for way in axis] for axis in nbr]
     frames = []
     for s1 in (0, 1):
         for s2 in (0, 1):
-            A, B = nbr[0][s1], nbr[1][s2]
-            if A is None or B is None:
-                continue
-            nA, nB = float(np.linalg.norm(A)), float(np.linalg.norm(B))
-            if abs(_cross(A, B)) < 0.3 * nA * nB:
-                continue
-            shorts, rank = [], 0
-            for side, opp in ((A, nbr[0][1 - s1]), (B, nbr[1][1 - s2])):
-                n_side = np.linalg.norm(side)
-                if opp is not None and np.linalg.norm(opp) * cfg.min_long_short <= n_side:
-                    shorts.append(-opp)  # the gap behind the corner, pointing +a (+b)
-                else:
-                    shorts.append(side * spacing)
-                    rank += opp is not None and np.linalg.norm(opp) > n_side  # the other way is longer: less likely the tag
-            fa, fb = np.stack([A, shorts[0]]), np.stack([B, shorts[1]])
-            if _cross(A, B) < 0:
-                fa, fb = fb, fa
-            frames.append((rank, np.stack([fa, fb])))
-    return [f for _, f in sorted(frames, key=lambda x: x[0])]
+            for i, A in enumerate(opts[0][s1]):
+                for j, B in enumerate(opts[1][s2]):
+                    nA, nB = float(np.linalg.norm(A)), float(np.linalg.norm(B))
+                    if abs(_cross(A, B)) < 0.3 * nA * nB:
+                        continue
+                    shorts, rank = [], 0
+                    for side, others in ((A, opts[0][1 - s1]), (B, opts[1][1 - s2])):
+                        opp = others[0] if others else None
+                        n_side = np.linalg.norm(side)
+                        if opp is not None and np.linalg.norm(opp) * cfg.min_long_short <= n_side:
+                            shorts.append(-opp)  # the gap behind the corner, pointing +a (+b)
+                        else:
+                            shorts.append(side * spacing)
+                            rank += opp is not None and np.linalg.norm(opp) > n_side  # the other way is longer: less likely the tag
+                    fa, fb = np.stack([A, shorts[0]]), np.stack([B, shorts[1]])
+                    if _cross(A, B) < 0:
+                        fa, fb = fb, fa
+                    frames.append((i + j, rank, np.stack([fa, fb])))
+    return [f for *_, f in sorted(frames, key=lambda x: x[:2])]
 
 
 def edge_contrast(img: np.ndarray, p: np.ndarray, q: np.ndarray, normal: np.ndarray, depth: float, rim_dist: np.ndarray) -> float:
@@ -237,13 +295,32 @@ def seed_tag(
         c = np.array([p0, p0 + frame[0, 0], xy[j], p0 + frame[1, 0]])
         if min(np.linalg.norm(c - np.roll(c, 1, 0), axis=1)) / CELLS < cfg.min_cell_px:
             continue
+        if not ring_in_gaps(img, c, spacing):
+            continue  # a quick look first: most quads of candidates are no tag
         look = look_at_tag(img, c, spacing)
         if look is None or look.contrast < cfg.min_bit_contrast or look.clean < cfg.min_clean:
             continue
-        if min((look.soft > 0).mean(), (look.soft < 0).mean()) < cfg.min_data_share:
+        if min(look.white.mean(), 1 - look.white.mean()) < cfg.min_data_share or look.data_contrast < cfg.min_data_contrast:
             continue  # uniform inside: a crossing square, not a tag
         return frame
     return None
+
+
+def ring_in_gaps(img: np.ndarray, corners: np.ndarray, spacing: float) -> bool:
+    """A quick test that the quad ``corners`` (4, 2) (lattice (0, 0), (1, 0), (1, 1), (0, 1)) could
+    be a tag: at a third and two thirds of each side, the black border (a cell in) is darker than
+    the white gap beyond the side (half a gap out). Bilinear in the quad: 16 samples."""
+    t = np.array([1 / 3, 2 / 3])
+
+    def on_sides(d: float) -> np.ndarray:  # (8, 2): two points on each side, ``d`` in from it (unit square)
+        lo, hi = np.full(2, d), np.full(2, 1 - d)
+        return np.concatenate([np.stack(p, 1) for p in ((t, lo), (t, hi), (lo, t), (hi, t))])
+
+    uv = np.concatenate([on_sides(1.0 / CELLS), on_sides(-spacing / 2)])
+    u, v = uv[:, :1], uv[:, 1:]
+    pts = (1 - u) * (1 - v) * corners[0] + u * (1 - v) * corners[1] + u * v * corners[2] + (1 - u) * v * corners[3]
+    vals = values_at(img, pts)
+    return bool((vals[:8] < vals[8:]).all())
 
 
 def inside_cells(lat: Lattice, xy: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -428,9 +505,16 @@ def _unit_points(spacing: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 @dataclass
 class TagLook:
-    soft: np.ndarray  # (36,) data cells in lattice order (p + 6 q), -1 black .. +1 white
+    soft: np.ndarray  # (36,) data cells in lattice order (p + 6 q), sharpened, zero mean and unit RMS (white > 0)
+    threshold: float  # the split of ``soft`` into black and white cells (two-class Otsu)
     contrast: float  # white gaps minus black border, intensity
+    data_contrast: float  # mean white minus mean black data cell (split at ``threshold``), in units of ``contrast``
     clean: float  # share of border samples darker, and gap samples lighter, than their midpoint
+
+    @property
+    def white(self) -> np.ndarray:
+        """(36,) bool: the data cells read white."""
+        return self.soft > self.threshold
 
 
 def _quadratic(u: np.ndarray) -> np.ndarray:
@@ -479,15 +563,55 @@ def look_at_tag(
     n = len(data)
     d, bv, gv = vals[:n].reshape(36, -1).mean(1), vals[n : n + 64], vals[n + 64 :]
     bl, wh = float(np.median(bv)), float(np.median(gv))
-    mid, half = (bl + wh) / 2, max((wh - bl) / 2, 1e-6)
+    mid = (bl + wh) / 2
     clean = float(np.concatenate([bv < mid, gv > mid]).mean())
-    return TagLook(np.clip((d - mid) / half, -1, 1), wh - bl, clean)
+    # Undo some of the blur: a white data cell among black ones reads darker than one among white
+    # ones (cells of small tags are 1-2 px). Sharpen the 10 x 10 cells (border cells from their
+    # centres) with a 4-neighbour Laplacian.
+    grid = np.empty((CELLS, CELLS))
+    inner = slice(BORDER_BITS, CELLS - BORDER_BITS)
+    grid[_border_mask()] = bv
+    grid[inner, inner] = d.reshape(DATA_BITS, DATA_BITS)  # [q, p]
+    lap = grid[:-2, 1:-1] + grid[2:, 1:-1] + grid[1:-1, :-2] + grid[1:-1, 2:] - 4 * grid[1:-1, 1:-1]
+    sharp = (grid[1:-1, 1:-1] - SHARPEN * lap / 4)[1:-1, 1:-1].ravel()
+    centred = sharp - sharp.mean()
+    rms = max(float(np.sqrt((centred**2).mean())), 1e-9)
+    soft = centred / rms
+    thr = otsu_split(soft)
+    white = soft > thr
+    spread = float(sharp[white].mean() - sharp[~white].mean()) if 0 < white.sum() < 36 else 0.0
+    return TagLook(soft, thr, wh - bl, spread / max(wh - bl, 1e-6), clean)
 
 
-def decode_bits(soft: np.ndarray) -> tuple[int, int, int]:
-    """The tag36h11 code nearest to lattice-order data cells (36,) (their signs) over the four
-    turns: (id, turn index, Hamming distance)."""
-    codes, bits = _codes(), np.where(soft > 0, 1.0, -1.0)
+SHARPEN = 1.5  # weight of the Laplacian that undoes blur over the tag's cells (measured on rendered tags of 10-30 px)
+
+
+@functools.lru_cache(maxsize=1)
+def _border_mask() -> np.ndarray:
+    """(10, 10) bool: the border cells, in the order of :func:`_unit_points`'s border samples."""
+    idx = np.arange(CELLS)
+    inner = (idx >= BORDER_BITS) & (idx < CELLS - BORDER_BITS)
+    return ~(inner[:, None] & inner[None, :])
+
+
+def otsu_split(x: np.ndarray) -> float:
+    """The threshold that splits values x (n,) into two classes of least summed variance (Otsu):
+    the midpoint between the two values it falls between."""
+    s = np.sort(x)
+    n = len(s)
+    k = np.arange(1, n)
+    c1 = np.cumsum(s)[:-1]
+    c2 = np.cumsum(s**2)[:-1]
+    t1, t2 = s.sum(), (s**2).sum()
+    within = (c2 - c1**2 / k) + ((t2 - c2) - (t1 - c1) ** 2 / (n - k))
+    i = int(np.argmin(within))
+    return float((s[i] + s[i + 1]) / 2)
+
+
+def decode_bits(white: np.ndarray) -> tuple[int, int, int]:
+    """The tag36h11 code nearest to lattice-order data cells (36,) bool (True: white) over the
+    four turns: (id, turn index, Hamming distance)."""
+    codes, bits = _codes(), np.where(white, 1.0, -1.0)
     best = (-1, -1, 99)
     for m in range(len(TURNS)):
         dist = (codes != page_order(bits, m)[None]).sum(1)
@@ -495,6 +619,15 @@ def decode_bits(soft: np.ndarray) -> tuple[int, int, int]:
         if dist[t] < best[2]:
             best = (t, m, int(dist[t]))
     return best
+
+
+@functools.lru_cache(maxsize=1)
+def _templates() -> np.ndarray:
+    """(N_CODES, 36): every code of :func:`_codes` with zero mean and unit RMS, so that a tag's
+    ``soft`` (also zero mean, unit RMS) against it gives 36 times their correlation (-36 .. 36;
+    about +-6 for a tag that is not this one)."""
+    c = _codes() - _codes().mean(1, keepdims=True)
+    return c / np.sqrt((c**2).mean(1, keepdims=True))
 
 
 @dataclass
@@ -531,7 +664,7 @@ def read_cells(lat: Lattice, img: np.ndarray, spacing: float, cfg: TagConfig) ->
         if look is None:
             continue
         ok = look.contrast >= cfg.min_bit_contrast and look.clean >= cfg.min_clean
-        out.append(TagCell((a, b), look, *decode_bits(look.soft), ok))
+        out.append(TagCell((a, b), look, *decode_bits(look.white), ok))
     return out
 
 
@@ -568,7 +701,7 @@ def place_board(cells: list[TagCell], board: AprilGrid) -> Placement | None:
         return None
     ab = np.array([c.cell for c in cells])
     soft = np.array([c.look.soft for c in cells])
-    codes = _codes()[: board.n_tags]
+    codes = _templates()[: board.n_tags]
     c0 = 2 * (np.arange(board.n_tags) % board.tc)
     r0 = 2 * (np.arange(board.n_tags) // board.tc)
     scored = []
@@ -638,6 +771,28 @@ def cells_close(lat: Lattice, tol: float, strict: np.ndarray | None = None) -> n
     return ok
 
 
+def rays_agree(lat: Lattice, img: np.ndarray, cfg: TagConfig) -> np.ndarray:
+    """(K,) bool: lattice corners whose steps to their lattice neighbours each leave along one of
+    the corner's own edge rays (:func:`corner_rays` on ``img`` (H, W), read at half the shortest
+    step), within ``cfg.max_ray_angle``. A junction between a tag's data cells and its border, taken
+    for a corner, sees its neighbours off its rays."""
+    where = lat.where
+    K = len(lat.ab)
+    steps = np.full((K, 4, 2), np.nan)
+    for (a, b), k in where.items():
+        for n, (da, db) in enumerate(STEPS):
+            m = where.get((a + da, b + db))
+            if m is not None:
+                steps[k, n] = lat.xy[m] - lat.xy[k]
+    dist = np.linalg.norm(steps, axis=2)
+    shortest = np.nanmin(np.where(np.isnan(dist), np.inf, dist), axis=1)
+    rays = corner_rays(img, lat.xy, np.clip(0.5 * shortest, 1.5, 8.0))
+    cos = np.einsum("knd,krd->knr", steps / np.where(np.isnan(dist), 1.0, dist)[..., None], rays)
+    best = np.nanmax(np.where(np.isnan(cos), -2.0, cos), axis=2)  # (K, 4): the nearest ray of each step
+    ok = (best >= np.cos(np.radians(cfg.max_ray_angle))) | np.isnan(dist)
+    return ok.all(1) & ~np.isnan(rays[:, 0, 0])
+
+
 def verified_corners(lat: Lattice, cells: list[TagCell], under: np.ndarray, turn: int, cfg: TagConfig) -> np.ndarray:
     """(K,) bool: the lattice corners whose tag the board's placement is sure of. Every corner
     belongs to one tag (lattice cell (a - a mod 2, b - b mod 2)). A tag that was read (its four
@@ -646,7 +801,7 @@ def verified_corners(lat: Lattice, cells: list[TagCell], under: np.ndarray, turn
     lattice that slipped by a row there). A tag that could not be read (too small, cut by the rim)
     keeps its corners if a tag next to it (8-neighbourhood) matched: its ids come through the
     lattice."""
-    codes = _codes()
+    codes = _templates()
     good, read = set(), set()
     for c, t in zip(cells, under):
         read.add(c.cell)
@@ -690,7 +845,10 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
     if len(xy) < cfg.min_corners:
         return empty()
     tree = cKDTree(xy)
-    nbr = axis_neighbours(xy, axes, tree, cfg)
+    near = tree.query(xy, k=2)[0][:, 1]
+    sm = smooth_cached(smoothed, grey, 1)
+    rays = corner_rays(sm, xy, np.clip(cfg.ray_radius * near, 1.5, 8.0))
+    nbr = axis_neighbours(xy, rays, tree, sm, cfg)
     spacing = board.cfg.tag_spacing
     covered = np.zeros(len(xy), bool)
     found: list[_Board] = []
@@ -723,6 +881,7 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
             ~verified_corners(lat, cells, under, place.turn, cfg)
             | ~steps_alternate(lat, spacing, cfg.max_side_gap_ratio)
             | ~cells_close(lat, cfg.max_cell_misfit, near_rim(lat, rim_dist, cfg.rim_strict_px))
+            | ~rays_agree(lat, sm, cfg)
         ] = -1
         found.append(_Board(lat, ids, place, decoded, len(alone) - len(decoded)))
     if not found:

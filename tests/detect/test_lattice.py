@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from cotrain.detect.lattice import Lattice, next_step, skipped_corners
+from cotrain.detect.lattice import Lattice, next_step, skipped_corners, values_at
 from cotrain.detect.saddle import saddle_response
 from tests.detect.boards import NX, NY, board_image
 
@@ -92,3 +92,18 @@ def test_growth_searches_saddles_only_where_colours_alternate(monkeypatch):
     assert all(near(at_gated, k) for k in missing)  # searched, and found
     assert all(near(at_plain, k) for k in hidden) and not any(near(at_gated, k) for k in hidden)
     assert len(at_gated) < len(at_plain)
+
+
+def test_values_at_is_bilinear_for_any_number_of_points():
+    """Known values of a linear ramp (bilinear sampling is exact on it), for one point, for more
+    points than cv2.remap takes in one column (32767), and none; NaN outside the image."""
+    H, W = 40, 50
+    yy, xx = np.mgrid[0:H, 0:W].astype(np.float32)
+    img = 2 * xx + 3 * yy
+    rng = np.random.default_rng(0)
+    for n in (1, 40000):
+        p = rng.uniform([0, 0], [W - 1, H - 1], (n, 2))
+        np.testing.assert_allclose(values_at(img, p), 2 * p[:, 0] + 3 * p[:, 1], atol=1e-2)
+    assert values_at(img, np.zeros((0, 2))).shape == (0,)
+    assert values_at(img, np.zeros((3, 4, 2))).shape == (3, 4)
+    assert np.isnan(values_at(img, np.array([[-5.0, 3.0], [10.0, H + 5.0]]))).all()
