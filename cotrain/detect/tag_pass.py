@@ -37,14 +37,16 @@ from __future__ import annotations
 
 import collections
 import functools
+import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
 from cotrain.detect.grid_config import GridConfig
-from cotrain.detect.lattice import STEPS, Lattice, final_fits, match_corner, values_at
+from cotrain.detect.lattice import STEPS, Lattice, final_fits, values_at
 from cotrain.detect.saddle import fit_saddles, outside_circle, saddle_response, smooth_cached, window_half
 from cotrain.targets.aprilgrid import BORDER_BITS, CELLS, DATA_BITS, N_CODES, AprilGrid, printed_bits
 
@@ -63,6 +65,7 @@ class TagConfig:
     min_long_short: float = 1.7  # at a seed, tag side / gap (Kalibr: 1 / tagSpacing) must exceed this on both axes
     max_seeds: int = 40  # seeds tried (strongest responses first); covered candidates are not tried again
     match_radius: float = 0.35  # a neighbour must lie within this fraction of its predicted step
+    match_tries: int = 3  # candidates within reach tried at a predicted spot, nearest first, before a saddle is fitted there
     agree_radius: float = 0.3  # predictions from different neighbours must agree within this fraction of the step
     min_step_ratio: float = 0.7  # a new step may be this much shorter than predicted ...
     max_step_ratio: float = 1.4  # ... or this much longer
@@ -336,10 +339,11 @@ def inside_cells(lat: Lattice, xy: np.ndarray, shape: tuple[int, int]) -> np.nda
     return mask[q[:, 1], q[:, 0]] > 0
 
 
-def _junction_on_step(p: np.ndarray, q: np.ndarray, xy: np.ndarray, tree: cKDTree, tol: float) -> bool:
+def _junction_on_step(p: np.ndarray, q: np.ndarray, xy: np.ndarray, tree: cKDTree, tol: float, across: float) -> bool:
     """Whether a candidate lies on the segment p -> q (2,) between 15 % and 85 % of the way, within
-    ``tol`` of its length: a step that jumped over a corner. (A tag's own data junctions lie at
-    least two cells, a fifth of the tag, off its sides.)"""
+    ``tol`` of its length and of ``across`` (px, the lattice's long step across the segment): a step
+    that jumped over a corner. (A tag's own data junctions lie at least two cells, a fifth of the
+    tag, off its sides: a fifth of ``across`` where perspective narrows the tag.)"""
     n = float(np.linalg.norm(q - p))
     near = tree.query_ball_point((p + q) / 2, 0.5 * n)
     if not near:
@@ -348,7 +352,36 @@ def _junction_on_step(p: np.ndarray, q: np.ndarray, xy: np.ndarray, tree: cKDTre
     u = (q - p) / max(n, 1e-9)
     t = d @ u / max(n, 1e-9)
     off = np.abs(d[:, 0] * u[1] - d[:, 1] * u[0])
-    return bool(((t > 0.15) & (t < 0.85) & (off < tol * n)).any())
+    return bool(((t > 0.15) & (t < 0.85) & (off < tol * min(n, across))).any())
+
+
+class _Step(NamedTuple):
+    """A step the growth is about to take from corner ``p``."""
+
+    p: np.ndarray  # (2,) the corner it leaves
+    length: float  # px, predicted
+    gap: float  # px, the local gap (short step)
+    across: float  # px, the long step across it
+    normal: np.ndarray  # (2,) unit, toward +b (or +a) across the step
+    sign: float  # expected sign of the +normal side minus the -normal side (the lattice's parity)
+
+
+def step_taken(
+    s: _Step, q: np.ndarray, pts: list, xy: np.ndarray, tree: cKDTree, sm: np.ndarray, rim_dist: np.ndarray, cfg: TagConfig
+) -> bool:
+    """Whether the growth takes the step ``s`` to point q (2,): its length within
+    ``cfg.min_step_ratio`` .. ``cfg.max_step_ratio`` of the prediction, not crowding a lattice
+    corner ``pts``, passing over no candidate of xy (a tag side and a gap taken as one step), and
+    an edge with the dark cell on the side the lattice's parity says (on ``sm``, smoothed)."""
+    n_q = math.hypot(q[0] - s.p[0], q[1] - s.p[1])
+    if not cfg.min_step_ratio * s.length <= n_q <= cfg.max_step_ratio * s.length:
+        return False
+    if min(np.linalg.norm(np.array(pts) - q, axis=1)) < cfg.crowd_radius * s.gap:
+        return False
+    if _junction_on_step(s.p, q, xy, tree, cfg.max_step_junction, s.across):
+        return False
+    c = edge_contrast(sm, s.p, q, s.normal, cfg.edge_depth * s.gap, rim_dist)
+    return bool(np.isfinite(c) and s.sign * c >= cfg.min_edge_contrast)
 
 
 def grow_tag_lattice(
@@ -400,26 +433,30 @@ def grow_tag_lattice(
             if not (0 <= pred[0] < W and 0 <= pred[1] < H) or gap < cfg.min_gap_px:
                 continue
             r = cfg.match_radius * step
-            found, was_filled = match_corner(pred, r, xy, tree, used, grey, smoothed, window_half(gap), cfg.grid, rim_dist)
-            if found is None:
-                continue
-            new_v = found - pts[k]
-            n_new = float(np.linalg.norm(new_v))
-            if not cfg.min_step_ratio * step <= n_new <= cfg.max_step_ratio * step:
-                continue
-            if min(np.linalg.norm(np.array(pts) - found, axis=1)) < cfg.crowd_radius * gap:
-                continue
-            if _junction_on_step(pts[k], found, xy, tree, cfg.max_step_junction):
-                continue  # the step passed over a corner: a tag side and a gap taken as one step
             # The step is an edge: the dark cell on the side the lattice's parity says.
             other = fr[1 - axis, 0]
             normal = other / max(np.linalg.norm(other), 1e-9)  # toward +b (or +a)
             lo = min(m, m + sgn)
             cells = ((lo, b), (lo, b - 1)) if axis == 0 else ((a, lo), (a - 1, lo))  # the +normal side first
             sign = -1.0 if cell_dark(*cells[0]) else 1.0  # expected sign of (+normal side - -normal side)
-            c = edge_contrast(sm, pts[k], found, normal, cfg.edge_depth * gap, rim_dist)
-            if not np.isfinite(c) or sign * c < cfg.min_edge_contrast:
+            want = _Step(pts[k], step, gap, float(np.linalg.norm(other)), normal, sign)
+            # The nearest candidates within reach that are not lattice corners yet (a data junction
+            # of a tag may lie nearer than the corner), then a saddle fitted at the prediction.
+            near = sorted((math.hypot(*(xy[j] - pred)), j) for j in tree.query_ball_point(pred, r) if j not in used)
+            found, was_filled = None, False
+            for _, j in near[: cfg.match_tries]:
+                if step_taken(want, xy[j], pts, xy, tree, sm, rim_dist, cfg):
+                    found = xy[j]
+                    used.add(int(j))
+                    break
+            if found is None:
+                q, ok, _ = fit_saddles(grey, smoothed, pred[None], window_half(gap), cfg.grid, rim_dist)
+                if ok[0] and math.hypot(*(q[0] - pred)) < r and step_taken(want, q[0], pts, xy, tree, sm, rim_dist, cfg):
+                    found, was_filled = q[0], True
+            if found is None:
                 continue
+            new_v = found - pts[k]
+            n_new = float(np.linalg.norm(new_v))
             # Carry the frame: this axis's steps turn with the new step and scale with it.
             nf = fr.copy()
             unit = sgn * new_v / n_new
@@ -799,7 +836,7 @@ def verified_corners(lat: Lattice, cells: list[TagCell], under: np.ndarray, turn
     corners there, big enough, inside the image) must look like a tag and match the code the
     placement puts under it (correlation ``cfg.min_tag_corr``); its corners are dropped otherwise (a
     lattice that slipped by a row there). A tag that could not be read (too small, cut by the rim)
-    keeps its corners if a tag next to it (8-neighbourhood) matched: its ids come through the
+    keeps its corners if a tag beside it (sharing a side, not a corner) matched: its ids come through the
     lattice."""
     codes = _templates()
     good, read = set(), set()
@@ -813,7 +850,7 @@ def verified_corners(lat: Lattice, cells: list[TagCell], under: np.ndarray, turn
         if cell in good:
             keep[k] = True
         elif cell not in read:
-            keep[k] = any((cell[0] + 2 * i, cell[1] + 2 * j) in good for i in (-1, 0, 1) for j in (-1, 0, 1))
+            keep[k] = any((cell[0] + 2 * i, cell[1] + 2 * j) in good for i, j in STEPS)
     return keep
 
 
