@@ -311,7 +311,8 @@ def seed_tag(
 
 def ring_in_gaps(img: np.ndarray, corners: np.ndarray, spacing: float) -> bool:
     """A quick test that the quad ``corners`` (4, 2) (lattice (0, 0), (1, 0), (1, 1), (0, 1)) could
-    be a tag: at a third and two thirds of each side, the black border (a cell in) is darker than
+    be a tag: at a third and two thirds of each side, the black border (its inner ring, a cell and a
+    half in) is darker than (at 7 of the 8 points)
     the white gap beyond the side (half a gap out). Bilinear in the quad: 16 samples."""
     t = np.array([1 / 3, 2 / 3])
 
@@ -319,11 +320,11 @@ def ring_in_gaps(img: np.ndarray, corners: np.ndarray, spacing: float) -> bool:
         lo, hi = np.full(2, d), np.full(2, 1 - d)
         return np.concatenate([np.stack(p, 1) for p in ((t, lo), (t, hi), (lo, t), (hi, t))])
 
-    uv = np.concatenate([on_sides(1.0 / CELLS), on_sides(-spacing / 2)])
+    uv = np.concatenate([on_sides(1.5 / CELLS), on_sides(-spacing / 2)])
     u, v = uv[:, :1], uv[:, 1:]
     pts = (1 - u) * (1 - v) * corners[0] + u * (1 - v) * corners[1] + u * v * corners[2] + (1 - u) * v * corners[3]
     vals = values_at(img, pts)
-    return bool((vals[:8] < vals[8:]).all())
+    return bool((vals[:8] < vals[8:]).sum() >= 7)
 
 
 def inside_cells(lat: Lattice, xy: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -601,7 +602,9 @@ def look_at_tag(
     d, bv, gv = vals[:n].reshape(36, -1).mean(1), vals[n : n + 64], vals[n + 64 :]
     bl, wh = float(np.median(bv)), float(np.median(gv))
     mid = (bl + wh) / 2
-    clean = float(np.concatenate([bv < mid, gv > mid]).mean())
+    # Clean: the inner ring of the border (a cell and a half in from the sides) and the gaps; the
+    # outer ring lies within half a cell of the sides, which the fisheye bends at the rim.
+    clean = float(np.concatenate([bv[_inner_ring()] < mid, gv > mid]).mean())
     # Undo some of the blur: a white data cell among black ones reads darker than one among white
     # ones (cells of small tags are 1-2 px). Sharpen the 10 x 10 cells (border cells from their
     # centres) with a 4-neighbour Laplacian.
@@ -629,6 +632,15 @@ def _border_mask() -> np.ndarray:
     idx = np.arange(CELLS)
     inner = (idx >= BORDER_BITS) & (idx < CELLS - BORDER_BITS)
     return ~(inner[:, None] & inner[None, :])
+
+
+@functools.lru_cache(maxsize=1)
+def _inner_ring() -> np.ndarray:
+    """(64,) bool over the border samples of :func:`_unit_points`: those of the border's inner ring."""
+    idx = np.arange(CELLS)
+    ring = (idx >= 1) & (idx < CELLS - 1)
+    inner_ring = ring[:, None] & ring[None, :] & _border_mask()
+    return inner_ring[_border_mask()]
 
 
 def otsu_split(x: np.ndarray) -> float:
