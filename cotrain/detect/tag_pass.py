@@ -85,6 +85,7 @@ class TagConfig:
     min_margin: float = 12.0  # the board's placement must beat the runner-up by this (correlation; a clean tag gives 36)
     min_mean_corr: float = 0.4  # ... and its tags must correlate with their codes by this much on average (-1 .. 1)
     min_tag_corr: float = 0.5  # a tag that was read keeps its corners when it correlates with its code by this much
+    min_lend_corr: float = 0.7  # ... and lends its ids to an unread tag beside it when it correlates by this much
     max_cell_misfit: float = 0.25  # a corner must close one of its cells as a parallelogram within this fraction of its side
     max_ray_angle: float = 20.0  # deg: a corner's steps to its lattice neighbours leave along its own edge rays within this
     rim_strict_px: float = 8.0  # corners this close to the rim are reported only in a complete lattice cell
@@ -163,15 +164,17 @@ RAY_SAMPLES = 48  # samples on the circle around a candidate that finds its four
 
 def corner_rays(img: np.ndarray, xy: np.ndarray, radius: np.ndarray) -> np.ndarray:
     """The four edge rays of X-junctions xy (K, 2) in ``img`` (H, W, lightly smoothed): where the
-    intensity on a circle of ``radius`` (K,) px around each crosses the circle's mean, in order of
-    angle (x right, y down). The rays need not be opposite pairs: perspective and the fisheye shear
-    a tag corner. Returns (K, 4, 2) unit vectors, NaN where the circle does not cross its mean
-    exactly four times (not an X-junction at this scale)."""
+    intensity on a circle of ``radius`` (K,) px around each crosses the level halfway between its
+    dark and light samples (10th and 90th percentiles), in order of angle (x right, y down). The
+    rays need not be opposite pairs: perspective and the fisheye shear a tag corner. Returns
+    (K, 4, 2) unit vectors, NaN where the circle does not cross that level exactly four times (not
+    an X-junction at this scale)."""
     K = len(xy)
     ang = np.arange(RAY_SAMPLES) * (2 * np.pi / RAY_SAMPLES)
     ring = np.stack([np.cos(ang), np.sin(ang)], 1)  # (n, 2)
     vals = values_at(img, xy[:, None] + radius[:, None, None] * ring[None])  # (K, n)
-    d = vals - vals.mean(1, keepdims=True)
+    lo, hi = np.percentile(np.where(np.isfinite(vals), vals, 0.0), [10, 90], axis=1)  # rows with NaN are dropped below
+    d = vals - ((lo + hi) / 2)[:, None]  # the level halfway between dark and light (not the mean: sectors differ in width)
     nxt = np.roll(d, -1, 1)
     cross = (d > 0) != (nxt > 0)
     out = np.full((K, 4, 2), np.nan)
@@ -849,21 +852,24 @@ def verified_corners(lat: Lattice, cells: list[TagCell], under: np.ndarray, turn
     corners there, big enough, inside the image) must look like a tag and match the code the
     placement puts under it (correlation ``cfg.min_tag_corr``); its corners are dropped otherwise (a
     lattice that slipped by a row there). A tag that could not be read (too small, cut by the rim)
-    keeps its corners if a tag beside it (sharing a side, not a corner) matched: its ids come through the
-    lattice."""
+    keeps its corners if a tag beside it (sharing a side, not a corner) matched surely
+    (``cfg.min_lend_corr``): its ids come through the lattice."""
     codes = _templates()
-    good, read = set(), set()
+    good, sure, read = set(), set(), set()
     for c, t in zip(cells, under):
         read.add(c.cell)
-        if c.clean and t >= 0 and float(page_order(c.look.soft, turn) @ codes[t]) >= cfg.min_tag_corr * 36:
+        corr = float(page_order(c.look.soft, turn) @ codes[t]) / 36 if t >= 0 else -1.0
+        if c.clean and corr >= cfg.min_tag_corr:
             good.add(c.cell)
+        if c.clean and corr >= cfg.min_lend_corr:
+            sure.add(c.cell)
     keep = np.zeros(len(lat.ab), bool)
     for k, (a, b) in enumerate(lat.ab.tolist()):
         cell = (a - a % 2, b - b % 2)
         if cell in good:
             keep[k] = True
         elif cell not in read:
-            keep[k] = any((cell[0] + 2 * i, cell[1] + 2 * j) in good for i, j in STEPS)
+            keep[k] = any((cell[0] + 2 * i, cell[1] + 2 * j) in sure for i, j in STEPS)
     return keep
 
 

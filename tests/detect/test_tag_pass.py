@@ -7,12 +7,13 @@ import numpy as np
 import pytest
 import torch
 
+from cotrain.detect import tag_pass as tag_pass_module
 from cotrain.detect.detector import AprilGridDetector
-from cotrain.detect.tag_pass import _turn_index, decode_bits, page_order, tag_pass
+from cotrain.detect.tag_pass import _turn_index, corner_rays, decode_bits, look_at_tag, otsu_split, page_order, tag_pass
 from cotrain.geometry import cameras, poses
 from cotrain.render.renderer import RenderConfig, Scene, render_scene, sample_generator
 from cotrain.targets import TargetConfig, make_target
-from cotrain.targets.aprilgrid import printed_bits
+from cotrain.targets.aprilgrid import BORDER_BITS, CELLS, printed_bits
 
 CLEAN = dict(p_occluder=0.0, p_no_target=0.0, p_motion=0.0, max_blur_sigma=0.3, p_distractor=0.0, p_jpeg=0.0)
 
@@ -127,3 +128,75 @@ def test_wild_tags_and_a_second_board_give_no_corners():
     assert len(det.ids) > 0.8 * vis.sum()
     check_ids(det, q, vis)
     assert (det.xy[:, 0] < 640).all()
+
+
+def tag_image(t: int, px: float, blur: float, spacing: float = 0.3, sub: int = 8):
+    """Tag ``t`` as Kalibr prints it, ``px`` pixels across, white gaps around, area-sampled and
+    blurred by ``blur`` px (sigma); grey print (0.15 .. 0.85). Returns the float32 image and the
+    tag's corners (4, 2): top-left, top-right, bottom-right, bottom-left (pixel centres at integers)."""
+    cells = np.zeros((CELLS, CELLS))
+    cells[BORDER_BITS:-BORDER_BITS, BORDER_BITS:-BORDER_BITS] = printed_bits(t + 1)[t][::-1]  # page rows y up -> image rows
+    g = int(round(spacing * CELLS))
+    canvas = np.ones((CELLS + 2 * g, CELLS + 2 * g))
+    canvas[g : g + CELLS, g : g + CELLS] = cells
+    hi = np.kron(canvas, np.ones((sub, sub))).astype(np.float32)
+    scale = px / (CELLS * sub)
+    n = int(round(hi.shape[0] * scale))
+    img = cv2.GaussianBlur(cv2.resize(hi, (n, n), interpolation=cv2.INTER_AREA), (0, 0), blur)
+    o = g * sub * scale - 0.5
+    corners = np.array([[o, o], [o + px, o], [o + px, o + px], [o, o + px]])
+    return (0.15 + 0.7 * img).astype(np.float32), corners
+
+
+def test_blurred_small_tags_read_after_sharpening(monkeypatch):
+    """Tags 20 px across (cells of 2 px) blurred by 1 px: every one of the 36 board tags reads as
+    itself within AprilTag's 2 bit errors; without the sharpening of the cells, white cells among
+    black ones read black and some tags do not."""
+
+    def decoded() -> int:
+        n = 0
+        for t in range(36):
+            img, c = tag_image(t, 20, 1.0)
+            tid, _, ham = decode_bits(look_at_tag(img, c, 0.3).white)
+            n += tid == t and ham <= 2
+        return n
+
+    assert decoded() == 36
+    monkeypatch.setattr(tag_pass_module, "SHARPEN", 0.0)
+    assert decoded() < 33
+
+
+def test_otsu_split_matches_opencv():
+    """The two-class split of 36 values is OpenCV's Otsu threshold on the same uint8 values."""
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        share = rng.uniform(0.2, 0.8)
+        v = np.where(rng.random(36) < share, rng.normal(170, 30, 36), rng.normal(80, 30, 36))
+        v = np.clip(v, 0, 255).round().astype(np.uint8)
+        thr, _ = cv2.threshold(v[None], 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+        np.testing.assert_array_equal(v > otsu_split(v.astype(np.float64)), v > thr)
+
+
+def x_junction(theta1: float, theta2: float, size: int = 41, blur: float = 1.0) -> np.ndarray:
+    """An X-junction at the image centre whose edges run at angles theta1 and theta2 (rad, x right,
+    y down): dark where the signed distances to the two lines have the same sign."""
+    yy, xx = np.mgrid[0:size, 0:size].astype(np.float64) - size // 2
+    d1 = -np.sin(theta1) * xx + np.cos(theta1) * yy
+    d2 = -np.sin(theta2) * xx + np.cos(theta2) * yy
+    img = np.where(d1 * d2 > 0, 0.2, 0.8).astype(np.float32)
+    return cv2.GaussianBlur(img, (0, 0), blur)
+
+
+def test_corner_rays_follow_sheared_edges():
+    """A junction whose edges meet at 55 deg (shear at the rim): the four rays lie along the two
+    edges, both ways, to within 2 deg; an edge and a flat patch have no rays."""
+    t1, t2 = np.radians(20.0), np.radians(75.0)
+    img = x_junction(t1, t2)
+    c = np.array([[20.0, 20.0]])
+    rays = corner_rays(img, c, np.array([5.0]))[0]
+    got = np.sort(np.degrees(np.arctan2(rays[:, 1], rays[:, 0])) % 360)
+    np.testing.assert_allclose(got, [20, 75, 200, 255], atol=2.0)
+    edge = np.where(np.mgrid[0:41, 0:41][1] < 20.3, 0.2, 0.8).astype(np.float32)
+    flat = np.full((41, 41), 0.5, np.float32)
+    assert np.isnan(corner_rays(edge, c, np.array([5.0]))).all()
+    assert np.isnan(corner_rays(flat, c, np.array([5.0]))).all()
