@@ -824,22 +824,26 @@ def cells_close(lat: Lattice, tol: float, strict: np.ndarray | None = None) -> n
     return ok
 
 
-def rays_agree(lat: Lattice, img: np.ndarray, cfg: TagConfig) -> np.ndarray:
+def rays_agree(lat: Lattice, img: np.ndarray, spacing: float, cfg: TagConfig) -> np.ndarray:
     """(K,) bool: lattice corners whose steps to their lattice neighbours each leave along one of
-    the corner's own edge rays (:func:`corner_rays` on ``img`` (H, W), read at half the shortest
-    step), within ``cfg.max_ray_angle``. A junction between a tag's data cells and its border, taken
-    for a corner, sees its neighbours off its rays."""
+    the corner's own edge rays (:func:`corner_rays` on ``img`` (H, W)), within
+    ``cfg.max_ray_angle``. The rays are read at half the local gap (the shortest gap step, or
+    ``spacing`` of the shortest tag side where no gap step is there: a corner on the board's
+    outer edge). A junction between a tag's data cells and its border, taken for a corner, sees its
+    neighbours off its rays."""
     where = lat.where
     K = len(lat.ab)
     steps = np.full((K, 4, 2), np.nan)
+    gap = np.full(K, np.inf)
     for (a, b), k in where.items():
         for n, (da, db) in enumerate(STEPS):
             m = where.get((a + da, b + db))
             if m is not None:
                 steps[k, n] = lat.xy[m] - lat.xy[k]
+                length = math.hypot(*steps[k, n])
+                gap[k] = min(gap[k], length * spacing if is_long(a if da else b, da or db) else length)
     dist = np.linalg.norm(steps, axis=2)
-    shortest = np.nanmin(np.where(np.isnan(dist), np.inf, dist), axis=1)
-    rays = corner_rays(img, lat.xy, np.clip(0.5 * shortest, 1.5, 8.0))
+    rays = corner_rays(img, lat.xy, np.clip(0.5 * np.where(np.isfinite(gap), gap, 3.0), 1.5, 8.0))
     cos = np.einsum("knd,krd->knr", steps / np.where(np.isnan(dist), 1.0, dist)[..., None], rays)
     best = np.nanmax(np.where(np.isnan(cos), -2.0, cos), axis=2)  # (K, 4): the nearest ray of each step
     ok = (best >= np.cos(np.radians(cfg.max_ray_angle))) | np.isnan(dist)
@@ -937,7 +941,7 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
             ~verified_corners(lat, cells, under, place.turn, cfg)
             | ~steps_alternate(lat, spacing, cfg.max_side_gap_ratio)
             | ~cells_close(lat, cfg.max_cell_misfit, near_rim(lat, rim_dist, cfg.rim_strict_px))
-            | ~rays_agree(lat, sm, cfg)
+            | ~rays_agree(lat, sm, spacing, cfg)
         ] = -1
         found.append(_Board(lat, ids, place, decoded, len(alone) - len(decoded)))
     if not found:

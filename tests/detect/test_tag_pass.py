@@ -9,7 +9,18 @@ import torch
 
 from cotrain.detect import tag_pass as tag_pass_module
 from cotrain.detect.detector import AprilGridDetector
-from cotrain.detect.tag_pass import _turn_index, corner_rays, decode_bits, look_at_tag, otsu_split, page_order, tag_pass
+from cotrain.detect.lattice import Lattice
+from cotrain.detect.tag_pass import (
+    TagConfig,
+    _turn_index,
+    corner_rays,
+    decode_bits,
+    look_at_tag,
+    otsu_split,
+    page_order,
+    rays_agree,
+    tag_pass,
+)
 from cotrain.geometry import cameras, poses
 from cotrain.render.renderer import RenderConfig, Scene, render_scene, sample_generator
 from cotrain.targets import TargetConfig, make_target
@@ -200,3 +211,24 @@ def test_corner_rays_follow_sheared_edges():
     flat = np.full((41, 41), 0.5, np.float32)
     assert np.isnan(corner_rays(edge, c, np.array([5.0]))).all()
     assert np.isnan(corner_rays(flat, c, np.array([5.0]))).all()
+
+
+def test_corners_off_their_junctions_fail_the_ray_check():
+    """On a rendered board, every labelled corner's steps to its lattice neighbours leave along its
+    own edge rays; a corner moved a third of the way into its tag (where a data junction would be
+    taken for it) does not."""
+    g = make_target(TargetConfig(kind="aprilgrid", margin=0.3))
+    c = centre(g)
+    img, q, vis, _ = render(g, "kb4", 150, [c[0] + 0.05, c[1] - 0.04, 0.4], c)
+    assert vis.all()
+    ids = np.arange(g.n_corners)
+    ab = np.stack([ids % (2 * g.tc), ids // (2 * g.tc)], 1)  # Kalibr's grid columns and rows
+    grey = cv2.GaussianBlur(img.astype(np.float32) / 255, (0, 0), 0.7)
+    assert rays_agree(Lattice(q.astype(np.float64), ab, np.zeros(len(q), bool)), grey, g.cfg.tag_spacing, TagConfig()).all()
+    moved = q.astype(np.float64).copy()
+    t = 14  # tag 14: its first corner moved toward the tag's centre
+    k = g.tag_corners(t)
+    moved[k[0]] += (q[k].mean(0) - q[k[0]]) / 3
+    ok = rays_agree(Lattice(moved, ab, np.zeros(len(q), bool)), grey, g.cfg.tag_spacing, TagConfig())
+    assert not ok[k[0]]
+    assert ok.sum() >= len(q) - 5  # its neighbours may lose their step to it, nothing else
