@@ -65,10 +65,12 @@ class TagConfig:
     min_long_short: float = 1.7  # at a seed, tag side / gap (Kalibr: 1 / tagSpacing) must exceed this on both axes
     max_seeds: int = 40  # seeds tried (strongest responses first); covered candidates are not tried again
     match_radius: float = 0.35  # a neighbour must lie within this fraction of its predicted step
+    match_gap: float = 0.6  # ... and within this fraction of the local gap: under strong perspective the next row lies a gap away
     match_tries: int = 3  # candidates within reach tried at a predicted spot, nearest first, before a saddle is fitted there
     agree_radius: float = 0.3  # predictions from different neighbours must agree within this fraction of the step
     min_step_ratio: float = 0.7  # a new step may be this much shorter than predicted ...
     max_step_ratio: float = 1.4  # ... or this much longer
+    ray_step_angle: float = 25.0  # deg: where nothing lies at a prediction, a candidate an edge ray leads to within this of the step
     max_step_junction: float = 0.1  # a candidate this close to a step's middle part (fraction of the step) refuses it
     crowd_radius: float = 0.5  # a new corner this close (fraction of the local gap) to a placed one is refused
     min_gap_px: float = 1.6  # no growth across gaps smaller than this
@@ -359,6 +361,29 @@ def _junction_on_step(p: np.ndarray, q: np.ndarray, xy: np.ndarray, tree: cKDTre
     return bool(((t > 0.15) & (t < 0.85) & (off < tol * min(n, across))).any())
 
 
+def ray_step(
+    p: np.ndarray, options: np.ndarray, v: np.ndarray, xy: np.ndarray, tree: cKDTree, used: set[int], cfg: TagConfig
+) -> int | None:
+    """The candidate (index into xy (K, 2)) that the nearest ray neighbour ``options`` of the corner
+    at p (2,) along one of its rays (axis, way, option, 2 step vectors; see :func:`axis_neighbours`) reaches in the
+    direction of the predicted step v (2,), within ``cfg.ray_step_angle`` and the growth's
+    step-length ratios, nearest in direction first; None where there is none that is not a lattice
+    corner yet (``used``)."""
+    steps = options[:, :, 0].reshape(-1, 2)  # the nearest along each ray: a farther one may skip a corner
+    steps = steps[~np.isnan(steps[:, 0])]
+    if not len(steps):
+        return None
+    n = np.linalg.norm(steps, axis=1)
+    nv = math.hypot(*v)
+    cos = steps @ v / np.maximum(n * nv, 1e-9)
+    ok = (cos >= np.cos(np.radians(cfg.ray_step_angle))) & (n >= cfg.min_step_ratio * nv) & (n <= cfg.max_step_ratio * nv)
+    for i in np.nonzero(ok)[0][np.argsort(-cos[ok])]:
+        d, j = tree.query(p + steps[i])
+        if d < 0.5 and int(j) not in used:
+            return int(j)
+    return None
+
+
 class _Step(NamedTuple):
     """A step the growth is about to take from corner ``p``."""
 
@@ -390,7 +415,7 @@ def step_taken(
 
 def grow_tag_lattice(
     xy: np.ndarray,
-    axes: np.ndarray,
+    nbr: np.ndarray,
     seed: int,
     frame0: np.ndarray,
     grey: np.ndarray,
@@ -400,13 +425,15 @@ def grow_tag_lattice(
     tree: cKDTree | None = None,
 ) -> Lattice:
     """Breadth-first growth of an AprilGrid corner lattice from candidate ``seed`` among candidates
-    xy (K, 2) with edge directions axes (K, 2, 2), on the image grey (H, W), starting with the
+    xy (K, 2) with their neighbours along edge rays ``nbr`` (see :func:`axis_neighbours`), on the
+    image grey (H, W), starting with the
     seed's step frame ``frame0`` (axis, kind (long, short), 2; see :func:`seed_tag`). Lattice cell
     (0, 0) is a tag; axes are oriented so that a x b > 0 in the image (x right, y down)."""
     tree = tree or cKDTree(xy)
     sm = smooth_cached(smoothed, grey, 2)
     H, W = grey.shape
     pts = [xy[seed].copy()]
+    index = [seed]  # candidate index of each lattice corner, -1 where a saddle was fitted
     lab = [(0, 0)]
     filled = [False]
     frames = {(0, 0): frame0}
@@ -436,7 +463,7 @@ def grow_tag_lattice(
             gap = float(min(np.linalg.norm(fr[0, 1]), np.linalg.norm(fr[1, 1])))  # the local gap (short step)
             if not (0 <= pred[0] < W and 0 <= pred[1] < H) or gap < cfg.min_gap_px:
                 continue
-            r = cfg.match_radius * step
+            r = min(cfg.match_radius * step, cfg.match_gap * gap)  # never as far as the next row across (a gap away)
             # The step is an edge: the dark cell on the side the lattice's parity says.
             other = fr[1 - axis, 0]
             normal = other / max(np.linalg.norm(other), 1e-9)  # toward +b (or +a)
@@ -451,14 +478,22 @@ def grow_tag_lattice(
             for _, j in near[: cfg.match_tries]:
                 if step_taken(want, xy[j], pts, xy, tree, sm, rim_dist, cfg):
                     found = xy[j]
-                    used.add(int(j))
                     break
             if found is None:
                 q, ok, _ = fit_saddles(grey, smoothed, pred[None], window_half(gap), cfg.grid, rim_dist)
                 if ok[0] and math.hypot(*(q[0] - pred)) < r and step_taken(want, q[0], pts, xy, tree, sm, rim_dist, cfg):
                     found, was_filled = q[0], True
+            if found is None and index[k] >= 0:
+                # Where the fisheye bends the lattice away from the prediction: the candidates the
+                # corner's own edge rays lead to, in the step's direction, within twice the reach.
+                j = ray_step(pts[k], nbr[index[k]], v, xy, tree, used, cfg)
+                if j is not None and math.hypot(*(xy[j] - pred)) < 2 * r and step_taken(want, xy[j], pts, xy, tree, sm, rim_dist, cfg):
+                    found = xy[j]
             if found is None:
                 continue
+            if not was_filled:
+                used.add(int(tree.query(found)[1]))
+            index.append(-1 if was_filled else int(tree.query(found)[1]))
             new_v = found - pts[k]
             n_new = float(np.linalg.norm(new_v))
             # Carry the frame: this axis's steps turn with the new step and scale with it.
@@ -923,7 +958,7 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
         if frame is None:
             continue
         tried += 1
-        lat = grow_tag_lattice(xy, axes, seed, frame, grey, cfg, smoothed, rim_dist, tree)
+        lat = grow_tag_lattice(xy, nbr, seed, frame, grey, cfg, smoothed, rim_dist, tree)
         covered |= cKDTree(lat.xy).query(xy)[0] < cfg.grid.merge_radius_px
         covered |= inside_cells(lat, xy, grey.shape)  # a grown tag's own data junctions are no seeds
         if len(lat.ab) < cfg.min_corners:
