@@ -87,6 +87,8 @@ class TagConfig:
     min_margin: float = 12.0  # the board's placement must beat the runner-up by this (correlation; a clean tag gives 36)
     min_mean_corr: float = 0.4  # ... and its tags must correlate with their codes by this much on average (-1 .. 1)
     min_tag_corr: float = 0.5  # a tag that was read keeps its corners when it correlates with its code by this much
+    min_tag_corr_local: float = 0.25  # ... or by this much where it beats the codes a slip by one tag would put there ...
+    min_slip_margin: float = 0.15  # ... by this much
     min_lend_corr: float = 0.7  # ... and lends its ids to an unread tag beside it when it correlates by this much
     max_cell_misfit: float = 0.25  # a corner must close one of its cells as a parallelogram within this fraction of its side
     max_ray_angle: float = 20.0  # deg: a corner's steps to its lattice neighbours leave along its own edge rays within this
@@ -885,20 +887,33 @@ def rays_agree(lat: Lattice, img: np.ndarray, spacing: float, cfg: TagConfig) ->
     return ok.all(1) & ~np.isnan(rays[:, 0, 0])
 
 
-def verified_corners(lat: Lattice, cells: list[TagCell], under: np.ndarray, turn: int, cfg: TagConfig) -> np.ndarray:
+def slipped_corr(cell: TagCell, t: int, turn: int, board: AprilGrid) -> float:
+    """The best correlation (-1 .. 1) of a read tag cell with the codes that a lattice slipped by
+    one tag (a row or a column either way) would put under it instead of tag t."""
+    x, y = t % board.tc, t // board.tc
+    others = [(y + dy) * board.tc + x + dx for dx, dy in STEPS if 0 <= x + dx < board.tc and 0 <= y + dy < board.tr]
+    if not others:
+        return -1.0
+    return float((_templates()[others] @ page_order(cell.look.soft, turn)).max()) / 36
+
+
+def verified_corners(lat: Lattice, cells: list[TagCell], under: np.ndarray, turn: int, board: AprilGrid, cfg: TagConfig) -> np.ndarray:
     """(K,) bool: the lattice corners whose tag the board's placement is sure of. Every corner
     belongs to one tag (lattice cell (a - a mod 2, b - b mod 2)). A tag that was read (its four
     corners there, big enough, inside the image) must look like a tag and match the code the
-    placement puts under it (correlation ``cfg.min_tag_corr``); its corners are dropped otherwise (a
-    lattice that slipped by a row there). A tag that could not be read (too small, cut by the rim)
-    keeps its corners if a tag beside it (sharing a side, not a corner) matched surely
-    (``cfg.min_lend_corr``): its ids come through the lattice."""
+    placement puts under it (correlation ``cfg.min_tag_corr``, or ``cfg.min_tag_corr_local`` where it
+    beats the codes a slip by one tag would put there by ``cfg.min_slip_margin``: small blurred
+    tags); its corners are dropped otherwise (a lattice that slipped by a row there). A tag that
+    could not be read (too small, cut by the rim) keeps its corners if a tag beside it (sharing a
+    side, not a corner) matched surely (``cfg.min_lend_corr``): its ids come through the lattice."""
     codes = _templates()
     good, sure, read = set(), set(), set()
     for c, t in zip(cells, under):
         read.add(c.cell)
         corr = float(page_order(c.look.soft, turn) @ codes[t]) / 36 if t >= 0 else -1.0
-        if c.clean and corr >= cfg.min_tag_corr:
+        if c.clean and (
+            corr >= cfg.min_tag_corr or (corr >= cfg.min_tag_corr_local and corr - slipped_corr(c, t, turn, board) >= cfg.min_slip_margin)
+        ):
             good.add(c.cell)
         if c.clean and corr >= cfg.min_lend_corr:
             sure.add(c.cell)
@@ -973,7 +988,7 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
         decoded = [c for c, t in alone if c.tag == t and c.turn == place.turn]
         ids = board.id_of(lat.ab @ TURNS[place.turn].T + place.offset)
         ids[
-            ~verified_corners(lat, cells, under, place.turn, cfg)
+            ~verified_corners(lat, cells, under, place.turn, board, cfg)
             | ~steps_alternate(lat, spacing, cfg.max_side_gap_ratio)
             | ~cells_close(lat, cfg.max_cell_misfit, near_rim(lat, rim_dist, cfg.rim_strict_px))
             | ~rays_agree(lat, sm, spacing, cfg)
