@@ -87,7 +87,8 @@ class TagConfig:
     min_margin: float = 12.0  # the board's placement must beat the runner-up by this (correlation; a clean tag gives 36)
     min_mean_corr: float = 0.4  # ... and its tags must correlate with their codes by this much on average (-1 .. 1)
     min_tag_corr: float = 0.5  # a tag that was read keeps its corners when it correlates with its code by this much
-    min_tag_corr_local: float = 0.25  # ... or by this much where it beats the codes a slip by one tag would put there ...
+    small_tag_px: float = 20.0  # tags narrower than this (px; cells of 2 px) blur: for them ...
+    min_tag_corr_local: float = 0.25  # ... this much is enough where it beats the codes a slip by one tag would put there ...
     min_slip_margin: float = 0.15  # ... by this much
     min_lend_corr: float = 0.7  # ... and lends its ids to an unread tag beside it when it correlates by this much
     max_cell_misfit: float = 0.25  # a corner must close one of its cells as a parallelogram within this fraction of its side
@@ -727,6 +728,7 @@ class TagCell:
     turn: int  # its turn (index into TURNS)
     hamming: int  # bits that differ from it
     clean: bool  # a black border inside white gaps: only such cells place and verify the board
+    side: float  # px, the tag's shortest side
 
 
 def read_cells(lat: Lattice, img: np.ndarray, spacing: float, cfg: TagConfig) -> list[TagCell]:
@@ -742,7 +744,8 @@ def read_cells(lat: Lattice, img: np.ndarray, spacing: float, cfg: TagConfig) ->
         if None in ks:
             continue
         c = lat.xy[ks]
-        if min(np.linalg.norm(c - np.roll(c, 1, 0), axis=1)) / CELLS < cfg.min_cell_px:
+        side = float(min(np.linalg.norm(c - np.roll(c, 1, 0), axis=1)))
+        if side / CELLS < cfg.min_cell_px:
             continue
         # The lattice corners around the tag (a 4 x 4 patch of the lattice without the tag's own).
         ring = [(i, j) for i in (-1, 0, 1, 2) for j in (-1, 0, 1, 2) if not (0 <= i <= 1 and 0 <= j <= 1) and (a + i, b + j) in where]
@@ -753,7 +756,7 @@ def read_cells(lat: Lattice, img: np.ndarray, spacing: float, cfg: TagConfig) ->
         if look is None:
             continue
         ok = look.contrast >= cfg.min_bit_contrast and look.clean >= cfg.min_clean
-        out.append(TagCell((a, b), look, *decode_bits(look.white), ok))
+        out.append(TagCell((a, b), look, *decode_bits(look.white), ok, side))
     return out
 
 
@@ -901,9 +904,9 @@ def verified_corners(lat: Lattice, cells: list[TagCell], under: np.ndarray, turn
     """(K,) bool: the lattice corners whose tag the board's placement is sure of. Every corner
     belongs to one tag (lattice cell (a - a mod 2, b - b mod 2)). A tag that was read (its four
     corners there, big enough, inside the image) must look like a tag and match the code the
-    placement puts under it (correlation ``cfg.min_tag_corr``, or ``cfg.min_tag_corr_local`` where it
-    beats the codes a slip by one tag would put there by ``cfg.min_slip_margin``: small blurred
-    tags); its corners are dropped otherwise (a lattice that slipped by a row there). A tag that
+    placement puts under it (correlation ``cfg.min_tag_corr``; for tags under ``cfg.small_tag_px``,
+    whose cells blur, ``cfg.min_tag_corr_local`` where it beats the codes a slip by one tag would
+    put there by ``cfg.min_slip_margin``); its corners are dropped otherwise (a lattice that slipped by a row there). A tag that
     could not be read (too small, cut by the rim) keeps its corners if a tag beside it (sharing a
     side, not a corner) matched surely (``cfg.min_lend_corr``): its ids come through the lattice."""
     codes = _templates()
@@ -911,9 +914,9 @@ def verified_corners(lat: Lattice, cells: list[TagCell], under: np.ndarray, turn
     for c, t in zip(cells, under):
         read.add(c.cell)
         corr = float(page_order(c.look.soft, turn) @ codes[t]) / 36 if t >= 0 else -1.0
-        if c.clean and (
-            corr >= cfg.min_tag_corr or (corr >= cfg.min_tag_corr_local and corr - slipped_corr(c, t, turn, board) >= cfg.min_slip_margin)
-        ):
+        blurred = c.side < cfg.small_tag_px  # cells of 2 px or less: blur, not a misprint, lowers the correlation
+        local = blurred and corr >= cfg.min_tag_corr_local and corr - slipped_corr(c, t, turn, board) >= cfg.min_slip_margin
+        if c.clean and (corr >= cfg.min_tag_corr or local):
             good.add(c.cell)
         if c.clean and corr >= cfg.min_lend_corr:
             sure.add(c.cell)
