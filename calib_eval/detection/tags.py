@@ -37,6 +37,7 @@ from cotrain.targets import AprilGrid, TargetConfig, make_target
 
 TOL_PX = 3.0
 BINS = list(range(0, 120, 10))  # off-axis bins, deg: [0, 10) ... [110, 120)
+SIZES = [8, 10, 12, 16, 20, 30]  # tag-size bins, px across: [8, 10) ... [30, inf)
 
 
 @dataclass
@@ -200,7 +201,7 @@ def evaluate(cfg: TagEvalConfig, out: Path) -> dict:
 
 
 def summarise(rows: list) -> dict:
-    per_fov, per_bin = {}, {b: [0, 0] for b in BINS}
+    per_fov, per_bin, per_size = {}, {b: [0, 0] for b in BINS}, {z: [0, 0] for z in SIZES}
     det_all = hit_all = wrong = empty_reports = 0
     errs, ms = [], []
     for lab, s, t, n in rows:
@@ -221,6 +222,11 @@ def summarise(rows: list) -> dict:
             m = s["det"] & (ang >= b) & (ang < b + 10)
             per_bin[b][0] += int(m.sum())
             per_bin[b][1] += int((s["hit"] & m).sum())
+        px = np.array(lab["tag_px"])
+        for z, z1 in zip(SIZES, SIZES[1:] + [np.inf]):
+            m = s["det"] & (px >= z) & (px < z1)
+            per_size[z][0] += int(m.sum())
+            per_size[z][1] += int((s["hit"] & m).sum())
     return {
         "recall": hit_all / max(det_all, 1),
         "wrong": wrong,
@@ -230,6 +236,7 @@ def summarise(rows: list) -> dict:
         "ms": statistics.median(ms),
         "fov": {k: {"recall": v[1] / max(v[0], 1), "corners": v[0], "wrong": v[2]} for k, v in sorted(per_fov.items())},
         "bins": {b: {"recall": v[1] / v[0] if v[0] else None, "corners": v[0]} for b, v in per_bin.items()},
+        "sizes": {z: {"recall": v[1] / v[0] if v[0] else None, "corners": v[0]} for z, v in per_size.items()},
     }
 
 
@@ -259,6 +266,14 @@ def table(res: dict, cfg: TagEvalConfig) -> str:
             cells.append("-" if v["recall"] is None else f"{v['recall']:.2f}")
         lines.append(f"| {n} | " + " | ".join(cells) + " |")
     lines.append("| (corners) | " + " | ".join(str(res[names[0]]["bins"][b]["corners"]) for b in BINS) + " |")
+    lines += ["", "Recall per tag size (px across, the smaller side of one tag's image; corners in brackets):", ""]
+    heads = [f"{z}-{z1}" for z, z1 in zip(SIZES, SIZES[1:])] + [f">= {SIZES[-1]}"]
+    lines.append("| detector | " + " | ".join(heads) + " |")
+    lines.append("|---" * (1 + len(SIZES)) + "|")
+    for n in names:
+        cells = ["-" if res[n]["sizes"][z]["recall"] is None else f"{res[n]['sizes'][z]['recall']:.2f}" for z in SIZES]
+        lines.append(f"| {n} | " + " | ".join(cells) + " |")
+    lines.append("| (corners) | " + " | ".join(str(res[names[0]]["sizes"][z]["corners"]) for z in SIZES) + " |")
     return "\n".join(lines) + "\n"
 
 

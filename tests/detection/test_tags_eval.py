@@ -3,7 +3,7 @@ recall counts detectable corners within 3 px of their own label, everything else
 
 import numpy as np
 
-from calib_eval.detection.tags import score_frame, tags_to_corners
+from calib_eval.detection.tags import score_frame, summarise, tags_to_corners
 from cotrain.targets import TargetConfig, make_target
 
 
@@ -22,3 +22,22 @@ def test_peer_tags_take_kalibr_ids_and_wrong_ones_count():
     assert s["det"].sum() == g.n_corners - 1
     assert s["hit"].sum() == 3 and s["wrong"] == 4
     np.testing.assert_allclose(s["err"], [np.sqrt(0.5)] * 3)
+
+
+def test_summary_counts_recall_per_fov_angle_and_tag_size():
+    """Two frames: recall per FoV, per 10-degree off-axis bin and per tag-size bin from the corners
+    each frame makes detectable and hits; a report on an empty frame is counted."""
+    n = 4
+    lab_a = {"fov": 180, "angle": [5.0, 15.0, 15.0, 95.0], "tag_px": [9.0, 11.0, 40.0, 40.0]}
+    lab_b = {"fov": 220, "angle": [105.0] * n, "tag_px": [13.0] * n}
+    s_a = {"det": np.array([True, True, True, False]), "hit": np.array([True, False, True, False]), "err": [0.1, 0.2], "wrong": 1}
+    s_b = {"det": np.ones(n, bool), "hit": np.array([True, True, True, False]), "err": [0.3] * 3, "wrong": 0}
+    empty = {"fov": None}
+    r = summarise([(lab_a, s_a, 10.0, 3), (lab_b, s_b, 30.0, 3), (empty, None, 20.0, 2)])
+    assert r["recall"] == 5 / 7 and r["wrong"] == 1 and r["empty_reports"] == 1 and r["ms"] == 20.0
+    assert r["fov"][180]["recall"] == 2 / 3 and r["fov"][220]["recall"] == 3 / 4
+    assert r["bins"][0]["recall"] == 1.0 and r["bins"][10]["recall"] == 0.5 and r["bins"][90]["corners"] == 0
+    assert r["bins"][100]["recall"] == 3 / 4
+    assert r["sizes"][8]["recall"] == 1.0 and r["sizes"][10]["recall"] == 0.0 and r["sizes"][12]["recall"] == 3 / 4
+    assert r["sizes"][30] == {"recall": 1.0, "corners": 1} and r["sizes"][20]["recall"] is None
+    np.testing.assert_allclose(r["mean_err"], np.mean([0.1, 0.2, 0.3, 0.3, 0.3]))
