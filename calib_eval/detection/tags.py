@@ -7,7 +7,7 @@
    detectors a user would otherwise pick, where installed (``make peers``): OpenCV's aruco with
    ``DICT_APRILTAG_36h11`` and Kalibr's 2-bit border, ``aprilgrid`` (PyPI, a port of Kalibr's
    detector) and ``pupil-apriltags`` (AprilTag 3).
-3. Score per FoV and per 10-degree bin of the corner's off-axis angle.
+3. Score per FoV, per 10-degree bin of the corner's off-axis angle and per bin of tag size.
 
 Detectable corners: visible, and the tag at least ``min_tag_px`` across (the smaller singular
 value of the image of one tag side). A peer's tag gives its four corners the ids of that tag's
@@ -256,7 +256,7 @@ def table(res: dict, cfg: TagEvalConfig) -> str:
         fovs = " | ".join(f"{r['fov'].get(f, {}).get('recall', float('nan')):.3f}" for f in cfg.fovs)
         err = f"{r['mean_err']:.3f} / {r['median_err']:.3f}"
         lines.append(f"| {n} | {r['recall']:.3f} | {fovs} | {r['wrong']} | {err} | {r['empty_reports']} | {r['ms']:.1f} |")
-    lines += ["", "Recall per off-axis angle of the corner (deg; corners in the bin in brackets):", ""]
+    lines += ["", "Recall per off-axis angle of the corner (deg; corners in the last row):", ""]
     lines.append("| detector | " + " | ".join(f"{b}-{b + 10}" for b in BINS) + " |")
     lines.append("|---" * (1 + len(BINS)) + "|")
     for n in names:
@@ -266,7 +266,7 @@ def table(res: dict, cfg: TagEvalConfig) -> str:
             cells.append("-" if v["recall"] is None else f"{v['recall']:.2f}")
         lines.append(f"| {n} | " + " | ".join(cells) + " |")
     lines.append("| (corners) | " + " | ".join(str(res[names[0]]["bins"][b]["corners"]) for b in BINS) + " |")
-    lines += ["", "Recall per tag size (px across, the smaller side of one tag's image; corners in brackets):", ""]
+    lines += ["", "Recall per tag size (px across: the smaller singular value of the image of one tag side; corners in the last row):", ""]
     heads = [f"{z}-{z1}" for z, z1 in zip(SIZES, SIZES[1:])] + [f">= {SIZES[-1]}"]
     lines.append("| detector | " + " | ".join(heads) + " |")
     lines.append("|---" * (1 + len(SIZES)) + "|")

@@ -53,6 +53,9 @@ def value_at(img: np.ndarray, q: np.ndarray) -> float:
     return float(cv2.getRectSubPix(img, (1, 1), (float(q[0]), float(q[1])))[0, 0])
 
 
+_REMAP_COLS = 1024  # points per row of the maps of :func:`values_at` for long lists
+
+
 def values_at(img: np.ndarray, pts: np.ndarray) -> np.ndarray:
     """Bilinear values (...) of ``img`` (H, W) at points (..., 2); NaN outside the image."""
     flat = pts.reshape(-1, 2).astype(np.float32)
@@ -65,9 +68,6 @@ def values_at(img: np.ndarray, pts: np.ndarray) -> np.ndarray:
         flat = flat[:, None]
     v = cv2.remap(img, flat[..., 0], flat[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
     return v.reshape(-1)[:n].reshape(pts.shape[:-1])
-
-
-_REMAP_COLS = 1024  # points per row of the maps of :func:`values_at` for long lists
 
 
 def _diag_contrast(img: np.ndarray, p: np.ndarray, ea: np.ndarray, eb: np.ndarray, offset: float) -> float:

@@ -6,24 +6,27 @@ square of a gap crossing. Along a row of corners the steps alternate: a tag side
 checkerboard's: tags and crossing squares are dark, the gap strips between them light. So:
 
 1. candidates (:func:`tag_candidates`): saddle points of the full-resolution image (inside the
-   image circle), fitted as the grid pass fits them (:mod:`cotrain.detect.saddle`);
-2. seeds (:func:`seed_tag`): a candidate whose edge directions lead to the three other corners of
+   image circle), fitted as the grid pass fits them (:mod:`cotrain.detect.saddle`); their four
+   edge rays (:func:`corner_rays`) and the candidates along them (:func:`axis_neighbours`);
+2. seeds (:func:`seed_tag`): a candidate whose ray neighbours lead to the three other corners of
    a tag that looks like one (black border ring in white gaps, black and white data cells);
 3. growth (:func:`grow_tag_lattice`): breadth first; each neighbour is predicted one long or one
    short step along a lattice axis (step lengths carried from corner to corner, and the
-   parallelograms of neighbours already placed) and matched to a candidate or to a saddle found at
-   the prediction; every step must be an edge with the dark cell on the side the lattice's parity
-   says, and must not pass over another candidate;
+   parallelograms of neighbours already placed) and matched to a nearby candidate, a saddle found
+   at the prediction, or the candidate the corner's own ray leads to (:func:`ray_step`); every
+   step must be an edge with the dark cell on the side the lattice's parity says, and must not
+   pass over another candidate (:func:`step_taken`);
 4. reading (:func:`read_cells`, :func:`look_at_tag`): each tag cell with its four corners is read
    through its own homography, bent by the lattice corners around it (never one homography per
-   board: the fisheye bends a tag at the rim), data cells scaled between the black border and the
-   white gaps; a tag decodes alone within ``max_hamming`` bit errors (AprilTag's own default: 2 of
-   tag36h11's 11);
+   board: the fisheye bends a tag at the rim), the cells sharpened against blur and the data split
+   into black and white by Otsu's threshold; a tag decodes alone within ``max_hamming`` bit errors
+   (AprilTag's own default: 2 of tag36h11's 11);
 5. placement (:func:`place_board`): the turn and offset of the lattice on the board that all read
    tags support together (correlation with the codes it puts under them); tags that decode alone
    elsewhere are dropped and counted; :func:`verified_corners` keeps the corners of tags that
-   match, and of unread tags next to them (ids through the lattice), and :func:`cells_close`,
-   :func:`steps_alternate` drop corners that slid;
+   match (small blurred tags: better than a slip by one tag would), and of unread tags beside a
+   tag that matched surely (ids through the lattice); :func:`cells_close`, :func:`steps_alternate`
+   and :func:`rays_agree` drop corners that slid or sit on a junction inside a tag;
 6. boards: lattices that place no tag of the target (a second board with other tags; free tags
    have no X-junctions at their corners) give no corners; lattices of one board are merged where
    they agree, and of two that claim the same ids elsewhere the surer placement stays;
@@ -61,7 +64,7 @@ class TagConfig:
     seed_axis_angle: float = 12.0  # deg: a seed's neighbours lie within this of its edge rays
     ray_tries: int = 5  # candidates tried along each edge ray, nearest first, for ones reached along an edge
     ray_options: int = 3  # candidates reached along an edge kept per ray: a seed's tag sides are tried among them
-    ray_radius: float = 0.5  # the edge rays are read on a circle of this fraction of the distance to the nearest candidate
+    ray_radius: float = 0.5  # edge rays are read on a circle of this fraction of the local gap (of a candidate: its nearest candidate)
     min_long_short: float = 1.7  # at a seed, tag side / gap (Kalibr: 1 / tagSpacing) must exceed this on both axes
     max_seeds: int = 40  # seeds tried (strongest responses first); covered candidates are not tried again
     match_radius: float = 0.35  # a neighbour must lie within this fraction of its predicted step
@@ -81,7 +84,8 @@ class TagConfig:
     min_bit_contrast: float = 0.06  # white gap minus black border a tag needs to be read
     min_data_share: float = 0.15  # a seed's tag has at least this share of white and of black data cells (tag36h11: 0.2 .. 0.8)
     min_data_contrast: float = 0.2  # a seed's white data cells must be lighter than its black ones by this share of the tag's contrast
-    min_clean: float = 0.9  # share of its border samples darker, and gap samples lighter, than their midpoint
+    min_clean: float = 0.9  # share of its border's inner-ring samples darker, and gap samples lighter, than their midpoint
+    sharpen: float = 1.5  # weight of the 4-neighbour Laplacian that undoes blur over a tag's cells (rendered tags of 10-30 px)
     min_cell_px: float = 1.0  # tags whose data cells are smaller than this (px) are not read
     # --- placement ---
     min_margin: float = 12.0  # the board's placement must beat the runner-up by this (correlation; a clean tag gives 36)
@@ -90,7 +94,7 @@ class TagConfig:
     small_tag_px: float = 20.0  # tags narrower than this (px; cells of 2 px) blur: for them ...
     min_tag_corr_local: float = 0.25  # ... this much is enough where it beats the codes a slip by one tag would put there ...
     min_slip_margin: float = 0.15  # ... by this much
-    min_lend_corr: float = 0.7  # ... and lends its ids to an unread tag beside it when it correlates by this much
+    min_lend_corr: float = 0.7  # a read tag lends its ids to an unread tag beside it when it correlates with its code by this much
     max_cell_misfit: float = 0.25  # a corner must close one of its cells as a parallelogram within this fraction of its side
     max_ray_angle: float = 20.0  # deg: a corner's steps to its lattice neighbours leave along its own edge rays within this
     rim_strict_px: float = 8.0  # corners this close to the rim are reported only in a complete lattice cell
@@ -119,8 +123,7 @@ def tag_candidates(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fitted saddle points inside ``allowed`` (H, W), strongest first.
 
-    Returns xy (K, 2), axes (K, 2, 2) (edge directions, see :func:`cotrain.detect.saddle.saddle_fit`)
-    and the response (K,)."""
+    Returns xy (K, 2) and the response (K,)."""
     D = saddle_response(grey, cfg.response_sigma)
     peak = (D >= cv2.dilate(D, np.ones((3, 3), np.uint8))) & (D > cfg.min_response) & allowed
     ys, xs = np.nonzero(peak)
@@ -132,17 +135,17 @@ def tag_candidates(
         return np.zeros((0, 2)), np.zeros((0, 2, 2)), np.zeros(0)
     d, _ = cKDTree(xy0).query(xy0, k=2)
     halves = window_half(np.maximum(d[:, 1], 2.0))
-    xy, ok, axes = np.zeros_like(xy0), np.zeros(len(xy0), bool), np.zeros((len(xy0), 2, 2))
+    xy, ok = np.zeros_like(xy0), np.zeros(len(xy0), bool)
     for h in np.unique(halves):
         m = halves == h
-        xy[m], ok[m], axes[m] = fit_saddles(grey, smoothed, xy0[m], int(h), cfg.grid, rim_dist)
+        xy[m], ok[m], _ = fit_saddles(grey, smoothed, xy0[m], int(h), cfg.grid, rim_dist)
     keep = np.nonzero(ok)[0]
     drop = np.zeros(len(keep), bool)
     for i, j in sorted(cKDTree(xy[keep]).query_pairs(cfg.grid.merge_radius_px)):
         if not drop[i]:
             drop[j] = True
     keep = keep[~drop]
-    return xy[keep], axes[keep], r[keep]
+    return xy[keep], r[keep]
 
 
 # --------------------------------------------------------------------------------------------
@@ -165,11 +168,12 @@ def cell_dark(a: int, b: int) -> bool:
 
 
 RAY_SAMPLES = 48  # samples on the circle around a candidate that finds its four edge rays
+RAY_RADIUS_PX = (1.5, 8.0)  # the circle's radius is kept within these (px): enough samples per edge, inside the X
 
 
 def corner_rays(img: np.ndarray, xy: np.ndarray, radius: np.ndarray) -> np.ndarray:
     """The four edge rays of X-junctions xy (K, 2) in ``img`` (H, W, lightly smoothed): where the
-    intensity on a circle of ``radius`` (K,) px around each crosses the level halfway between its
+    intensity on a circle of ``radius`` (K,) px (kept within :data:`RAY_RADIUS_PX`) around each crosses the level halfway between its
     dark and light samples (10th and 90th percentiles), in order of angle (x right, y down). The
     rays need not be opposite pairs: perspective and the fisheye shear a tag corner. Returns
     (K, 4, 2) unit vectors, NaN where the circle does not cross that level exactly four times (not
@@ -177,6 +181,7 @@ def corner_rays(img: np.ndarray, xy: np.ndarray, radius: np.ndarray) -> np.ndarr
     K = len(xy)
     ang = np.arange(RAY_SAMPLES) * (2 * np.pi / RAY_SAMPLES)
     ring = np.stack([np.cos(ang), np.sin(ang)], 1)  # (n, 2)
+    radius = np.clip(radius, *RAY_RADIUS_PX)
     vals = values_at(img, xy[:, None] + radius[:, None, None] * ring[None])  # (K, n)
     lo, hi = np.percentile(np.where(np.isfinite(vals), vals, 0.0), [10, 90], axis=1)  # rows with NaN are dropped below
     d = vals - ((lo + hi) / 2)[:, None]  # the level halfway between dark and light (not the mean: sectors differ in width)
@@ -224,18 +229,21 @@ def axis_neighbours(xy: np.ndarray, rays: np.ndarray, tree: cKDTree, img: np.nda
     return out
 
 
+def _beside(p: np.ndarray, step: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    """(K, 3, 2): the points a quarter, half and three quarters of the way along segments
+    p -> p + step (K, 2), moved by offset (K, 2) to one side (the samples of the edge tests)."""
+    t = np.array([0.25, 0.5, 0.75])[None, :, None]
+    return p[:, None] + t * step[:, None] + offset[:, None]
+
+
 def edges_along(img: np.ndarray, p: np.ndarray, step: np.ndarray, min_contrast: float) -> np.ndarray:
     """(K,) bool: whether the segments p -> p + step (K, 2) run along an edge of ``img`` (H, W):
     at a quarter, half and three quarters of the way, the samples 15 % of the segment's length to
     one side are all lighter (or all darker) than those to the other, by ``min_contrast`` on average."""
     n = np.linalg.norm(step, axis=1, keepdims=True)
     normal = np.stack([-step[:, 1], step[:, 0]], 1) / np.maximum(n, 1e-9)
-    depth = np.maximum(0.15 * n, 0.8)
-    t = np.array([0.25, 0.5, 0.75])[None, :, None]
-    mid = p[:, None] + t * step[:, None]
-    a = values_at(img, mid + (depth * normal)[:, None])
-    b = values_at(img, mid - (depth * normal)[:, None])
-    diff = a - b
+    side = np.maximum(0.15 * n, 0.8) * normal
+    diff = values_at(img, _beside(p, step, side)) - values_at(img, _beside(p, step, -side))
     same = (diff > 0).all(1) | (diff < 0).all(1)
     return same & (np.abs(diff.mean(1)) >= min_contrast)
 
@@ -276,9 +284,8 @@ def edge_contrast(img: np.ndarray, p: np.ndarray, q: np.ndarray, normal: np.ndar
     """Mean brightness on the ``+normal`` side of segment p -> q minus the ``-normal`` side, sampled
     at a quarter, half and three quarters of the way, ``depth`` px to each side; NaN where no
     sample pair lies inside the image circle (``rim_dist`` (H, W) > 1)."""
-    t = np.array([0.25, 0.5, 0.75])[:, None]
-    mid = p[None] + t * (q - p)[None]
-    pts = np.concatenate([mid + depth * normal, mid - depth * normal])
+    side = (depth * normal)[None]
+    pts = np.concatenate([_beside(p[None], (q - p)[None], side)[0], _beside(p[None], (q - p)[None], -side)[0]])
     vals = values_at(img, pts)
     rd = values_at(rim_dist, pts)
     ok = (rd[:3] > 1) & (rd[3:] > 1) & np.isfinite(vals[:3]) & np.isfinite(vals[3:])
@@ -292,7 +299,7 @@ def seed_tag(
     xy: np.ndarray, nbr: np.ndarray, seed: int, img: np.ndarray, spacing: float, cfg: TagConfig, tree: cKDTree
 ) -> np.ndarray | None:
     """A seed for the growth: candidate ``seed`` (of xy (K, 2), neighbours along its edges ``nbr``
-    (K, 2, 2, 2), see :func:`axis_neighbours`) is
+    (K, 2, 2, options, 2), see :func:`axis_neighbours`) is
     a tag corner whose tag, lattice cell (0, 0), has its three other corners among the candidates
     and looks like a tag in ``img`` (H, W): a black border ring inside white gaps, black and white
     data cells (see :func:`look_at_tag`). Returns the seed's step frame (axis, kind (long, short),
@@ -304,17 +311,22 @@ def seed_tag(
         if dist > cfg.match_radius * min(np.linalg.norm(frame[0, 0]), np.linalg.norm(frame[1, 0])):
             continue
         c = np.array([p0, p0 + frame[0, 0], xy[j], p0 + frame[1, 0]])
-        if min(np.linalg.norm(c - np.roll(c, 1, 0), axis=1)) / CELLS < cfg.min_cell_px:
+        if shortest_side(c) / CELLS < cfg.min_cell_px:
             continue
         if not ring_in_gaps(img, c, spacing):
             continue  # a quick look first: most quads of candidates are no tag
-        look = look_at_tag(img, c, spacing)
+        look = look_at_tag(img, c, spacing, sharpen=cfg.sharpen)
         if look is None or look.contrast < cfg.min_bit_contrast or look.clean < cfg.min_clean:
             continue
         if min(look.white.mean(), 1 - look.white.mean()) < cfg.min_data_share or look.data_contrast < cfg.min_data_contrast:
             continue  # uniform inside: a crossing square, not a tag
         return frame
     return None
+
+
+def shortest_side(corners: np.ndarray) -> float:
+    """The shortest side (px) of the quad ``corners`` (4, 2)."""
+    return float(np.linalg.norm(corners - np.roll(corners, 1, 0), axis=1).min())
 
 
 def ring_in_gaps(img: np.ndarray, corners: np.ndarray, spacing: float) -> bool:
@@ -494,9 +506,10 @@ def grow_tag_lattice(
                     found = xy[j]
             if found is None:
                 continue
-            if not was_filled:
-                used.add(int(tree.query(found)[1]))
-            index.append(-1 if was_filled else int(tree.query(found)[1]))
+            j_found = -1 if was_filled else int(tree.query(found)[1])
+            if j_found >= 0:
+                used.add(j_found)  # only lattice corners: a candidate refused from one corner may be taken from another
+            index.append(j_found)
             new_v = found - pts[k]
             n_new = float(np.linalg.norm(new_v))
             # Carry the frame: this axis's steps turn with the new step and scale with it.
@@ -567,7 +580,7 @@ def _unit_points(spacing: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     data = np.stack([U[np.ix_(inner, inner)].ravel(), V[np.ix_(inner, inner)].ravel()], 1)
     sub = np.stack(np.meshgrid([-0.25, 0, 0.25], [-0.25, 0, 0.25]), -1).reshape(-1, 2) / CELLS
     data = (data[:, None] + sub[None]).reshape(-1, 2)
-    border = ~(inner[:, None] & inner[None, :])
+    border = _border_mask()
     bord = np.stack([U[border], V[border]], 1)
     out = -spacing / 2
     s = np.array([0.3, 0.5, 0.7])
@@ -584,11 +597,11 @@ def _unit_points(spacing: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 @dataclass
 class TagLook:
-    soft: np.ndarray  # (36,) data cells in lattice order (p + 6 q), sharpened, zero mean and unit RMS (white > 0)
+    soft: np.ndarray  # (36,) data cells in lattice order (p + 6 q), sharpened, zero mean and unit RMS
     threshold: float  # the split of ``soft`` into black and white cells (two-class Otsu)
     contrast: float  # white gaps minus black border, intensity
     data_contrast: float  # mean white minus mean black data cell (split at ``threshold``), in units of ``contrast``
-    clean: float  # share of border samples darker, and gap samples lighter, than their midpoint
+    clean: float  # share of the border's inner-ring samples darker, and gap samples lighter, than their midpoint
 
     @property
     def white(self) -> np.ndarray:
@@ -626,14 +639,21 @@ def tag_map(corners: np.ndarray, unit_more: np.ndarray | None = None, more: np.n
 
 
 def look_at_tag(
-    img: np.ndarray, corners: np.ndarray, spacing: float, unit_more: np.ndarray | None = None, more: np.ndarray | None = None
+    img: np.ndarray,
+    corners: np.ndarray,
+    spacing: float,
+    unit_more: np.ndarray | None = None,
+    more: np.ndarray | None = None,
+    *,
+    sharpen: float,
 ) -> TagLook | None:
     """Read the tag whose corners, lattice (0, 0), (1, 0), (1, 1), (0, 1), are ``corners`` (4, 2)
     from ``img`` (H, W; unblurred: cells of small tags are 1-2 px) through the tag's own geometry
     (:func:`tag_map`, with the lattice corners around it where given; never one homography per
-    board: the fisheye bends the board); None where samples fall outside the image. The data cells
-    are scaled between the black border and the white gaps around the tag, so a grey print or a dim
-    corner reads as well as a clean one."""
+    board: the fisheye bends the board); None where samples fall outside the image. The 10 x 10
+    cells are sharpened (a 4-neighbour Laplacian of weight ``sharpen``: blur darkens a white cell
+    among black ones), the data cells standardised and split by Otsu's threshold, so a grey print,
+    a dim corner or a blurred small tag reads as well as a clean one."""
     data, bord, gaps = _unit_points(float(spacing))
     pts = tag_map(corners, unit_more, more)(np.concatenate([data, bord, gaps]))
     vals = values_at(img, pts.astype(np.float64))
@@ -654,7 +674,7 @@ def look_at_tag(
     grid[_border_mask()] = bv
     grid[inner, inner] = d.reshape(DATA_BITS, DATA_BITS)  # [q, p]
     lap = grid[:-2, 1:-1] + grid[2:, 1:-1] + grid[1:-1, :-2] + grid[1:-1, 2:] - 4 * grid[1:-1, 1:-1]
-    sharp = (grid[1:-1, 1:-1] - SHARPEN * lap / 4)[1:-1, 1:-1].ravel()
+    sharp = (grid[1:-1, 1:-1] - sharpen * lap / 4)[1:-1, 1:-1].ravel()
     centred = sharp - sharp.mean()
     rms = max(float(np.sqrt((centred**2).mean())), 1e-9)
     soft = centred / rms
@@ -662,9 +682,6 @@ def look_at_tag(
     white = soft > thr
     spread = float(sharp[white].mean() - sharp[~white].mean()) if 0 < white.sum() < 36 else 0.0
     return TagLook(soft, thr, wh - bl, spread / max(wh - bl, 1e-6), clean)
-
-
-SHARPEN = 1.5  # weight of the Laplacian that undoes blur over the tag's cells (measured on rendered tags of 10-30 px)
 
 
 @functools.lru_cache(maxsize=1)
@@ -720,6 +737,12 @@ def _templates() -> np.ndarray:
     return c / np.sqrt((c**2).mean(1, keepdims=True))
 
 
+def tag_corr(soft: np.ndarray, turn: int, tags: np.ndarray) -> np.ndarray:
+    """(..., T) correlation (-1 .. 1; Pearson) of read data cells ``soft`` (..., 36; lattice order,
+    see :class:`TagLook`) under turn ``turn`` of :data:`TURNS` with the codes of tags (T,)."""
+    return page_order(soft, turn) @ _templates()[tags].T / 36
+
+
 @dataclass
 class TagCell:
     cell: tuple[int, int]  # lattice cell (a, b) of the tag (both even)
@@ -744,7 +767,7 @@ def read_cells(lat: Lattice, img: np.ndarray, spacing: float, cfg: TagConfig) ->
         if None in ks:
             continue
         c = lat.xy[ks]
-        side = float(min(np.linalg.norm(c - np.roll(c, 1, 0), axis=1)))
+        side = shortest_side(c)
         if side / CELLS < cfg.min_cell_px:
             continue
         # The lattice corners around the tag (a 4 x 4 patch of the lattice without the tag's own).
@@ -752,7 +775,7 @@ def read_cells(lat: Lattice, img: np.ndarray, spacing: float, cfg: TagConfig) ->
         pos = {-1: -spacing, 0: 0.0, 1: 1.0, 2: 1.0 + spacing}
         unit_more = np.array([(pos[i], pos[j]) for i, j in ring]).reshape(-1, 2)
         more = lat.xy[[where[(a + i, b + j)] for i, j in ring]].reshape(-1, 2)
-        look = look_at_tag(img, c, spacing, unit_more, more)
+        look = look_at_tag(img, c, spacing, unit_more, more, sharpen=cfg.sharpen)
         if look is None:
             continue
         ok = look.contrast >= cfg.min_bit_contrast and look.clean >= cfg.min_clean
@@ -794,12 +817,11 @@ def place_board(cells: list[TagCell], board: AprilGrid) -> Placement | None:
         return None
     ab = np.array([c.cell for c in cells])
     soft = np.array([c.look.soft for c in cells])
-    codes = _templates()[: board.n_tags]
     c0 = 2 * (np.arange(board.n_tags) % board.tc)
     r0 = 2 * (np.arange(board.n_tags) // board.tc)
     scored = []
     for m, M in enumerate(TURNS):
-        corr = page_order(soft, m) @ codes.T  # (n, tags)
+        corr = 36 * tag_corr(soft, m, np.arange(board.n_tags))  # (n, tags)
         lo = np.stack([c0, r0], 1)[None] + 0.5 - ((ab + 0.5) @ M.T)[:, None]  # (n, tags, 2) offsets
         offs = np.unique(np.rint(lo.reshape(-1, 2)).astype(int), axis=0)  # (P, 2)
         t = tag_under(ab, m, offs, board)  # (P, n)
@@ -867,10 +889,10 @@ def cells_close(lat: Lattice, tol: float, strict: np.ndarray | None = None) -> n
 def rays_agree(lat: Lattice, img: np.ndarray, spacing: float, cfg: TagConfig) -> np.ndarray:
     """(K,) bool: lattice corners whose steps to their lattice neighbours each leave along one of
     the corner's own edge rays (:func:`corner_rays` on ``img`` (H, W)), within
-    ``cfg.max_ray_angle``. The rays are read at half the local gap (the shortest gap step, or
-    ``spacing`` of the shortest tag side where no gap step is there: a corner on the board's
-    outer edge). A junction between a tag's data cells and its border, taken for a corner, sees its
-    neighbours off its rays."""
+    ``cfg.max_ray_angle``. The rays are read at ``cfg.ray_radius`` of the local gap: the shortest of
+    the corner's gap steps and of its tag sides times ``spacing`` (a corner on the board's outer
+    edge has no gap step). A junction between a tag's data cells and its border, taken for a
+    corner, sees its neighbours off its rays; a corner without rays fails."""
     where = lat.where
     K = len(lat.ab)
     steps = np.full((K, 4, 2), np.nan)
@@ -883,9 +905,9 @@ def rays_agree(lat: Lattice, img: np.ndarray, spacing: float, cfg: TagConfig) ->
                 length = math.hypot(*steps[k, n])
                 gap[k] = min(gap[k], length * spacing if is_long(a if da else b, da or db) else length)
     dist = np.linalg.norm(steps, axis=2)
-    rays = corner_rays(img, lat.xy, np.clip(0.5 * np.where(np.isfinite(gap), gap, 3.0), 1.5, 8.0))
+    rays = corner_rays(img, lat.xy, cfg.ray_radius * np.where(np.isfinite(gap), gap, 0.0))
     cos = np.einsum("knd,krd->knr", steps / np.where(np.isnan(dist), 1.0, dist)[..., None], rays)
-    best = np.nanmax(np.where(np.isnan(cos), -2.0, cos), axis=2)  # (K, 4): the nearest ray of each step
+    best = np.where(np.isnan(cos), -2.0, cos).max(axis=2)  # (K, 4): the nearest ray of each step
     ok = (best >= np.cos(np.radians(cfg.max_ray_angle))) | np.isnan(dist)
     return ok.all(1) & ~np.isnan(rays[:, 0, 0])
 
@@ -897,7 +919,7 @@ def slipped_corr(cell: TagCell, t: int, turn: int, board: AprilGrid) -> float:
     others = [(y + dy) * board.tc + x + dx for dx, dy in STEPS if 0 <= x + dx < board.tc and 0 <= y + dy < board.tr]
     if not others:
         return -1.0
-    return float((_templates()[others] @ page_order(cell.look.soft, turn)).max()) / 36
+    return float(tag_corr(cell.look.soft, turn, np.array(others)).max())
 
 
 def verified_corners(lat: Lattice, cells: list[TagCell], under: np.ndarray, turn: int, board: AprilGrid, cfg: TagConfig) -> np.ndarray:
@@ -909,11 +931,10 @@ def verified_corners(lat: Lattice, cells: list[TagCell], under: np.ndarray, turn
     put there by ``cfg.min_slip_margin``); its corners are dropped otherwise (a lattice that slipped by a row there). A tag that
     could not be read (too small, cut by the rim) keeps its corners if a tag beside it (sharing a
     side, not a corner) matched surely (``cfg.min_lend_corr``): its ids come through the lattice."""
-    codes = _templates()
     good, sure, read = set(), set(), set()
     for c, t in zip(cells, under):
         read.add(c.cell)
-        corr = float(page_order(c.look.soft, turn) @ codes[t]) / 36 if t >= 0 else -1.0
+        corr = float(tag_corr(c.look.soft, turn, np.array([t]))[0]) if t >= 0 else -1.0
         blurred = c.side < cfg.small_tag_px  # cells of 2 px or less: blur, not a misprint, lowers the correlation
         local = blurred and corr >= cfg.min_tag_corr_local and corr - slipped_corr(c, t, turn, board) >= cfg.min_slip_margin
         if c.clean and (corr >= cfg.min_tag_corr or local):
@@ -954,13 +975,13 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
     allowed[:, [0, -1]] = False
     rim_dist = cv2.distanceTransform(allowed.astype(np.uint8), cv2.DIST_L2, 3)
     smoothed: dict[int, np.ndarray] = {}
-    xy, axes, _ = tag_candidates(grey, allowed, cfg, smoothed, rim_dist)
+    xy, _ = tag_candidates(grey, allowed, cfg, smoothed, rim_dist)
     if len(xy) < cfg.min_corners:
         return empty()
     tree = cKDTree(xy)
     near = tree.query(xy, k=2)[0][:, 1]
     sm = smooth_cached(smoothed, grey, 1)
-    rays = corner_rays(sm, xy, np.clip(cfg.ray_radius * near, 1.5, 8.0))
+    rays = corner_rays(sm, xy, cfg.ray_radius * near)
     nbr = axis_neighbours(xy, rays, tree, sm, cfg)
     spacing = board.cfg.tag_spacing
     covered = np.zeros(len(xy), bool)

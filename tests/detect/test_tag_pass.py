@@ -7,7 +7,6 @@ import numpy as np
 import pytest
 import torch
 
-from cotrain.detect import tag_pass as tag_pass_module
 from cotrain.detect.detector import AprilGridDetector
 from cotrain.detect.lattice import Lattice
 from cotrain.detect.tag_pass import (
@@ -159,22 +158,21 @@ def tag_image(t: int, px: float, blur: float, spacing: float = 0.3, sub: int = 8
     return (0.15 + 0.7 * img).astype(np.float32), corners
 
 
-def test_blurred_small_tags_read_after_sharpening(monkeypatch):
+def test_blurred_small_tags_read_after_sharpening():
     """Tags 20 px across (cells of 2 px) blurred by 1 px: every one of the 36 board tags reads as
     itself within AprilTag's 2 bit errors; without the sharpening of the cells, white cells among
     black ones read black and some tags do not."""
 
-    def decoded() -> int:
+    def decoded(sharpen: float) -> int:
         n = 0
         for t in range(36):
             img, c = tag_image(t, 20, 1.0)
-            tid, _, ham = decode_bits(look_at_tag(img, c, 0.3).white)
+            tid, _, ham = decode_bits(look_at_tag(img, c, 0.3, sharpen=sharpen).white)
             n += tid == t and ham <= 2
         return n
 
-    assert decoded() == 36
-    monkeypatch.setattr(tag_pass_module, "SHARPEN", 0.0)
-    assert decoded() < 33
+    assert decoded(TagConfig().sharpen) == 36
+    assert decoded(0.0) < 33
 
 
 def test_otsu_split_matches_opencv():
