@@ -6,18 +6,24 @@ import cv2
 import numpy as np
 import pytest
 import torch
+from scipy.spatial import cKDTree
 
 from cotrain.detect.detector import AprilGridDetector
 from cotrain.detect.lattice import Lattice
 from cotrain.detect.tag_pass import (
+    TagCell,
     TagConfig,
     _turn_index,
     corner_rays,
     decode_bits,
+    edges_along,
     look_at_tag,
     otsu_split,
     page_order,
+    ray_step,
     rays_agree,
+    slipped_corr,
+    tag_corr,
     tag_pass,
 )
 from cotrain.geometry import cameras, poses
@@ -230,3 +236,57 @@ def test_corners_off_their_junctions_fail_the_ray_check():
     ok = rays_agree(Lattice(moved, ab, np.zeros(len(q), bool)), grey, g.cfg.tag_spacing, TagConfig())
     assert not ok[k[0]]
     assert ok.sum() >= len(q) - 5  # its neighbours may lose their step to it, nothing else
+
+
+def test_slipped_corr_is_the_best_match_among_the_tags_a_one_tag_slip_would_give():
+    """A clean read of tag 14 correlates with its own code by nearly 1 and with the codes of tags
+    8, 13, 15 and 20 (where a lattice slipped by one tag would put it) far less; read where tag 13
+    is expected, the slip's best match is tag 14 itself."""
+    g = make_target(TargetConfig(kind="aprilgrid"))
+    img, c = tag_image(14, 40, 0.5)
+    look = look_at_tag(img, c, 0.3, sharpen=TagConfig().sharpen)
+    tag, turn, ham = decode_bits(look.white)
+    assert (tag, ham) == (14, 0)
+    cell = TagCell((0, 0), look, tag, turn, ham, True, 40.0)
+    own = tag_corr(look.soft, turn, np.array([14]))[0]
+    assert own > 0.95
+    assert slipped_corr(cell, 14, turn, g) < 0.5
+    others = tag_corr(look.soft, turn, np.array([8, 13, 15, 20]))
+    assert slipped_corr(cell, 14, turn, g) == pytest.approx(others.max())
+    assert slipped_corr(cell, 13, turn, g) == pytest.approx(own)  # 14 is beside 13
+
+
+def test_edges_along_finds_segments_on_an_edge_only():
+    """On a junction's image: segments along either of its edges are edges; a segment through the
+    middle of a sector (across no edge) and one crossing an edge are not."""
+    t1, t2 = np.radians(20.0), np.radians(75.0)
+    img = x_junction(t1, t2, size=81)
+    p = np.full((4, 2), 40.0)
+    along1 = 30 * np.array([np.cos(t1), np.sin(t1)])
+    along2 = -30 * np.array([np.cos(t2), np.sin(t2)])
+    mid = 30 * np.array([np.cos((t1 + t2) / 2), np.sin((t1 + t2) / 2)])  # inside one sector
+    start = p[3] + 15 * np.array([np.cos(t1), np.sin(t1)]) - 10 * np.array([-np.sin(t1), np.cos(t1)])
+    p[3] = start
+    across = 20 * np.array([-np.sin(t1), np.cos(t1)])  # crosses edge 1
+    ok = edges_along(img, p, np.stack([along1, along2, mid, across]), 0.04)
+    np.testing.assert_array_equal(ok, [True, True, False, False])
+
+
+def test_ray_step_takes_the_candidate_along_a_ray_in_the_steps_direction():
+    """Of a corner's nearest ray neighbours, the one within 25 deg of the predicted step and of a
+    length the growth allows is taken; none when it is already a lattice corner, when the step
+    points elsewhere, or when it is twice as long as predicted."""
+    cfg = TagConfig()
+    xy = np.array([[0.0, 0.0], [30.0, 4.0], [0.0, 28.0], [-31.0, 0.0], [60.0, 8.0]])
+    tree = cKDTree(xy)
+    options = np.full((2, 2, cfg.ray_options, 2), np.nan)
+    options[0, 0, 0] = xy[1]  # ray 0: toward candidate 1 (8 deg below the x axis direction)
+    options[0, 0, 1] = xy[4]  # a farther one on the same ray: never taken
+    options[1, 0, 0] = xy[2]
+    options[0, 1, 0] = xy[3]
+    p = xy[0]
+    assert ray_step(p, options, np.array([28.0, -4.0]), xy, tree, set(), cfg) == 1  # 16 deg off: taken
+    assert ray_step(p, options, np.array([28.0, -4.0]), xy, tree, {1}, cfg) is None
+    assert ray_step(p, options, np.array([20.0, 20.0]), xy, tree, set(), cfg) is None  # 37 deg off ray 0, 45 off ray 1
+    assert ray_step(p, options, np.array([15.0, 2.0]), xy, tree, set(), cfg) is None  # twice the predicted length
+    assert ray_step(p, options, np.array([0.0, 30.0]), xy, tree, set(), cfg) == 2
