@@ -62,7 +62,9 @@ class TagConfig:
     max_candidates: int = 1500  # strongest response maxima kept (all true corners of the evaluation set rank within 1500)
     # --- growth ---
     seed_axis_angle: float = 12.0  # deg: a seed's neighbours lie within this of its edge rays
+    ray_search: int = 96  # nearest candidates searched for ray neighbours
     ray_tries: int = 5  # candidates tried along each edge ray, nearest first, for ones reached along an edge
+    ray_edge_depth: float = 0.6  # that edge test samples at most this multiple of the nearest-candidate distance aside
     ray_options: int = 3  # candidates reached along an edge kept per ray: a seed's tag sides are tried among them
     ray_radius: float = 0.5  # edge rays are read on a circle of this fraction of the local gap (of a candidate: its nearest candidate)
     min_long_short: float = 1.7  # at a seed, tag side / gap (Kalibr: 1 / tagSpacing) must exceed this on both axes
@@ -204,7 +206,7 @@ def axis_neighbours(xy: np.ndarray, rays: np.ndarray, tree: cKDTree, img: np.nda
     0 (+, -), rays 1 and 3 axis 1. Returns (K, axis, way (+, -), option, 2) step vectors to the
     first ``cfg.ray_options`` such candidates, nearest first, NaN where there are fewer."""
     K = len(xy)
-    d, nb = tree.query(xy, k=min(96, K))
+    d, nb = tree.query(xy, k=min(cfg.ray_search, K))
     d, nb = d.reshape(K, -1), nb.reshape(K, -1)
     ok = np.isfinite(d) & (d >= 1.0)
     v = xy[np.minimum(nb, K - 1)] - xy[:, None]  # (K, n, 2), nearest first
@@ -222,7 +224,7 @@ def axis_neighbours(xy: np.ndarray, rays: np.ndarray, tree: cKDTree, img: np.nda
             if not has.any():
                 break
             step = v[rows[has], at.argmax(1)[has]]
-            edge = edges_along(img, xy[has], step, cfg.min_edge_contrast)
+            edge = edges_along(img, xy[has], step, cfg.min_edge_contrast, cfg.ray_edge_depth * d[has, 1])
             k = np.nonzero(has)[0][edge]
             out[k, r % 2, r // 2, found[k]] = step[edge]
             found[k] += 1
@@ -236,13 +238,16 @@ def _beside(p: np.ndarray, step: np.ndarray, offset: np.ndarray) -> np.ndarray:
     return p[:, None] + t * step[:, None] + offset[:, None]
 
 
-def edges_along(img: np.ndarray, p: np.ndarray, step: np.ndarray, min_contrast: float) -> np.ndarray:
+def edges_along(
+    img: np.ndarray, p: np.ndarray, step: np.ndarray, min_contrast: float, max_depth: np.ndarray | float = np.inf
+) -> np.ndarray:
     """(K,) bool: whether the segments p -> p + step (K, 2) run along an edge of ``img`` (H, W):
-    at a quarter, half and three quarters of the way, the samples 15 % of the segment's length to
-    one side are all lighter (or all darker) than those to the other, by ``min_contrast`` on average."""
+    at a quarter, half and three quarters of the way, the samples 15 % of the segment's length (at
+    most ``max_depth`` (K,) px: the border of a tag foreshortened across is narrow) to one side are
+    all lighter (or all darker) than those to the other, by ``min_contrast`` on average."""
     n = np.linalg.norm(step, axis=1, keepdims=True)
     normal = np.stack([-step[:, 1], step[:, 0]], 1) / np.maximum(n, 1e-9)
-    side = np.maximum(0.15 * n, 0.8) * normal
+    side = np.maximum(np.minimum(0.15 * n, np.reshape(max_depth, (-1, 1))), 0.8) * normal
     diff = values_at(img, _beside(p, step, side)) - values_at(img, _beside(p, step, -side))
     same = (diff > 0).all(1) | (diff < 0).all(1)
     return same & (np.abs(diff.mean(1)) >= min_contrast)

@@ -290,3 +290,15 @@ def test_ray_step_takes_the_candidate_along_a_ray_in_the_steps_direction():
     assert ray_step(p, options, np.array([20.0, 20.0]), xy, tree, set(), cfg) is None  # 37 deg off ray 0, 45 off ray 1
     assert ray_step(p, options, np.array([15.0, 2.0]), xy, tree, set(), cfg) is None  # twice the predicted length
     assert ray_step(p, options, np.array([0.0, 30.0]), xy, tree, set(), cfg) == 2
+
+
+def test_edges_along_a_narrow_border_needs_a_shallow_look():
+    """A 4 px dark strip (a foreshortened tag's border) between the light gap and black and white
+    data cells: sampled 15 % of a 60 px segment (9 px) aside, the far samples fall on the data and
+    the segment is not an edge; sampled at most 2 px aside, it is."""
+    img = np.full((60, 100), 0.85, np.float32)
+    img[30:34] = 0.15  # the border, below the gap
+    img[34:] = np.where((np.arange(100) // 6) % 2 == 0, 0.85, 0.15)[None]  # data cells 6 px wide beyond it
+    p, step = np.array([[20.0, 29.5]]), np.array([[60.0, 0.0]])
+    assert not edges_along(img, p, step, 0.04)[0]
+    assert edges_along(img, p, step, 0.04, np.array([2.0]))[0]
