@@ -300,20 +300,43 @@ def edge_contrast(img: np.ndarray, p: np.ndarray, q: np.ndarray, normal: np.ndar
     return float(diff[ok].mean()) if (diff[ok] > 0).all() or (diff[ok] < 0).all() else 0.0
 
 
+def fourth_corner(
+    xy: np.ndarray, nbr: np.ndarray, tree: cKDTree, p0: np.ndarray, A: np.ndarray, B: np.ndarray, cfg: TagConfig
+) -> int | None:
+    """The candidate (index into xy (K, 2)) that closes the quad p0, p0 + A, ?, p0 + B (2,): the
+    one the ray neighbours of p0 + A (toward B) and of p0 + B (toward A) lead to (see
+    :func:`ray_step`), where they agree or only one leads anywhere, within ``cfg.match_radius`` of
+    the shorter side from the parallelogram's fourth corner; where neither does, the candidate
+    there if it is the only one. Under perspective a crossing square's far corner may lie nearer the
+    parallelogram's corner than the tag's own."""
+    pred = p0 + A + B
+    r = cfg.match_radius * min(math.hypot(*A), math.hypot(*B))
+    ja, jb = int(tree.query(p0 + A)[1]), int(tree.query(p0 + B)[1])
+    via = {ray_step(xy[ja], nbr[ja], B, xy, tree, set(), cfg), ray_step(xy[jb], nbr[jb], A, xy, tree, set(), cfg)} - {None}
+    if len(via) == 1:
+        j = via.pop()
+        return j if math.hypot(*(xy[j] - pred)) < r else None
+    if via:
+        return None  # the two sides disagree
+    near = tree.query_ball_point(pred, r)
+    return int(near[0]) if len(near) == 1 else None
+
+
 def seed_tag(
     xy: np.ndarray, nbr: np.ndarray, seed: int, img: np.ndarray, spacing: float, cfg: TagConfig, tree: cKDTree
-) -> np.ndarray | None:
+) -> tuple[np.ndarray, list[int]] | None:
     """A seed for the growth: candidate ``seed`` (of xy (K, 2), neighbours along its edges ``nbr``
-    (K, 2, 2, options, 2), see :func:`axis_neighbours`) is
-    a tag corner whose tag, lattice cell (0, 0), has its three other corners among the candidates
-    and looks like a tag in ``img`` (H, W): a black border ring inside white gaps, black and white
-    data cells (see :func:`look_at_tag`). Returns the seed's step frame (axis, kind (long, short),
-    2); None otherwise. This keeps the growth off the X-junctions between a tag's own data cells,
-    and off the black squares at the gap crossings."""
+    (K, 2, 2, options, 2), see :func:`axis_neighbours`) is a tag corner whose tag, lattice cell
+    (0, 0), has its three other corners among the candidates and looks like a tag in ``img``
+    (H, W): a black border ring inside white gaps, black and white data cells (see
+    :func:`look_at_tag`). Returns the seed's step frame (axis, kind (long, short), 2) and the
+    candidates at the tag's other corners, lattice (1, 0), (1, 1), (0, 1); None otherwise. This
+    keeps the growth off the X-junctions between a tag's own data cells, and off the black squares
+    at the gap crossings."""
     p0 = xy[seed]
     for frame in _seed_frames(nbr[seed], spacing, cfg):
-        dist, j = tree.query(p0 + frame[0, 0] + frame[1, 0])
-        if dist > cfg.match_radius * min(np.linalg.norm(frame[0, 0]), np.linalg.norm(frame[1, 0])):
+        j = fourth_corner(xy, nbr, tree, p0, frame[0, 0], frame[1, 0], cfg)
+        if j is None:
             continue
         c = np.array([p0, p0 + frame[0, 0], xy[j], p0 + frame[1, 0]])
         if shortest_side(c) / CELLS < cfg.min_cell_px:
@@ -325,7 +348,7 @@ def seed_tag(
             continue
         if min(look.white.mean(), 1 - look.white.mean()) < cfg.min_data_share or look.data_contrast < cfg.min_data_contrast:
             continue  # uniform inside: a crossing square, not a tag
-        return frame
+        return frame, [int(tree.query(c[1])[1]), int(j), int(tree.query(c[3])[1])]
     return None
 
 
@@ -443,11 +466,14 @@ def grow_tag_lattice(
     smoothed: dict[int, np.ndarray],
     rim_dist: np.ndarray,
     tree: cKDTree | None = None,
+    tag_corners: list[int] | None = None,
 ) -> Lattice:
     """Breadth-first growth of an AprilGrid corner lattice from candidate ``seed`` among candidates
     xy (K, 2) with their neighbours along edge rays ``nbr`` (see :func:`axis_neighbours`), on the
     image grey (H, W), starting with the
-    seed's step frame ``frame0`` (axis, kind (long, short), 2; see :func:`seed_tag`). Lattice cell
+    seed's step frame ``frame0`` (axis, kind (long, short), 2; see :func:`seed_tag`) and, where
+    given, the seed tag's other corners ``tag_corners`` (candidates at lattice (1, 0), (1, 1), (0, 1):
+    the seed's look vouched for them, at the rim the growth's edge test may not). Lattice cell
     (0, 0) is a tag; axes are oriented so that a x b > 0 in the image (x right, y down)."""
     tree = tree or cKDTree(xy)
     sm = smooth_cached(smoothed, grey, 2)
@@ -460,6 +486,17 @@ def grow_tag_lattice(
     where = {(0, 0): 0}
     used = {seed}
     queue = collections.deque([(0, 0)])
+    for ab, j in zip(((1, 0), (1, 1), (0, 1)), tag_corners or []):
+        if j in used:
+            continue
+        where[ab] = len(pts)
+        pts.append(xy[j].copy())
+        index.append(j)
+        lab.append(ab)
+        filled.append(False)
+        frames[ab] = frame0
+        used.add(j)
+        queue.append(ab)
     while queue:
         a, b = queue.popleft()
         k = where[(a, b)]
@@ -998,11 +1035,12 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
             break
         if covered[seed]:
             continue
-        frame = seed_tag(xy, nbr, seed, grey, spacing, cfg, tree)
-        if frame is None:
+        found_seed = seed_tag(xy, nbr, seed, grey, spacing, cfg, tree)
+        if found_seed is None:
             continue
         tried += 1
-        lat = grow_tag_lattice(xy, nbr, seed, frame, grey, cfg, smoothed, rim_dist, tree)
+        frame, tag_corners = found_seed
+        lat = grow_tag_lattice(xy, nbr, seed, frame, grey, cfg, smoothed, rim_dist, tree, tag_corners)
         covered |= cKDTree(lat.xy).query(xy)[0] < cfg.grid.merge_radius_px
         covered |= inside_cells(lat, xy, grey.shape)  # a grown tag's own data junctions are no seeds
         if len(lat.ab) < cfg.min_corners:
