@@ -97,6 +97,7 @@ class TagConfig:
     min_tag_corr_local: float = 0.25  # ... this much is enough where it beats the codes a slip by one tag would put there ...
     min_slip_margin: float = 0.15  # ... by this much
     min_lend_corr: float = 0.7  # a read tag lends its ids to an unread tag beside it when it correlates with its code by this much
+    min_lend_slip_margin: float = 0.3  # ... or, under small_tag_px, by min_tag_corr_local and beating a slip by one tag by this much
     max_cell_misfit: float = 0.25  # a corner must close one of its cells as a parallelogram within this fraction of its side
     max_ray_angle: float = 20.0  # deg: a corner's steps to its lattice neighbours leave along its own edge rays within this
     rim_strict_px: float = 8.0  # corners this close to the rim are reported only in a complete lattice cell
@@ -972,16 +973,20 @@ def verified_corners(lat: Lattice, cells: list[TagCell], under: np.ndarray, turn
     whose cells blur, ``cfg.min_tag_corr_local`` where it beats the codes a slip by one tag would
     put there by ``cfg.min_slip_margin``); its corners are dropped otherwise (a lattice that slipped by a row there). A tag that
     could not be read (too small, cut by the rim) keeps its corners if a tag beside it (sharing a
-    side, not a corner) matched surely (``cfg.min_lend_corr``): its ids come through the lattice."""
+    side, not a corner) matched surely (``cfg.min_lend_corr``; under ``cfg.small_tag_px`` also by
+    ``cfg.min_tag_corr_local`` where it beats a slip by ``cfg.min_lend_slip_margin``): its ids come
+    through the lattice."""
     good, sure, read = set(), set(), set()
     for c, t in zip(cells, under):
         read.add(c.cell)
         corr = float(tag_corr(c.look.soft, turn, np.array([t]))[0]) if t >= 0 else -1.0
         blurred = c.side < cfg.small_tag_px  # cells of 2 px or less: blur, not a misprint, lowers the correlation
-        local = blurred and corr >= cfg.min_tag_corr_local and corr - slipped_corr(c, t, turn, board) >= cfg.min_slip_margin
+        slip_margin = corr - slipped_corr(c, t, turn, board) if t >= 0 else -2.0
+        local = blurred and corr >= cfg.min_tag_corr_local and slip_margin >= cfg.min_slip_margin
         if c.clean and (corr >= cfg.min_tag_corr or local):
             good.add(c.cell)
-        if c.clean and corr >= cfg.min_lend_corr:
+        lends_small = blurred and corr >= cfg.min_tag_corr_local and slip_margin >= cfg.min_lend_slip_margin
+        if c.clean and (corr >= cfg.min_lend_corr or lends_small):
             sure.add(c.cell)
     keep = np.zeros(len(lat.ab), bool)
     for k, (a, b) in enumerate(lat.ab.tolist()):
