@@ -76,6 +76,7 @@ class TagConfig:
     min_step_ratio: float = 0.7  # a new step may be this much shorter than predicted ...
     max_step_ratio: float = 1.4  # ... or this much longer
     ray_step_angle: float = 25.0  # deg: where nothing lies at a prediction, a candidate an edge ray leads to within this of the step
+    ray_step_reach: float = 2.0  # ... and within this multiple of the reach of the prediction
     max_step_junction: float = 0.1  # a candidate this close to a step's middle part (fraction of the step) refuses it
     crowd_radius: float = 0.5  # a new corner this close (fraction of the local gap) to a placed one is refused
     min_gap_px: float = 1.6  # no growth across gaps smaller than this
@@ -543,9 +544,10 @@ def grow_tag_lattice(
                     found, was_filled = q[0], True
             if found is None and index[k] >= 0:
                 # Where the fisheye bends the lattice away from the prediction: the candidates the
-                # corner's own edge rays lead to, in the step's direction, within twice the reach.
+                # corner's own edge rays lead to, in the step's direction, within ``ray_step_reach`` of the reach.
                 j = ray_step(pts[k], nbr[index[k]], v, xy, tree, used, cfg)
-                if j is not None and math.hypot(*(xy[j] - pred)) < 2 * r and step_taken(want, xy[j], pts, xy, tree, sm, rim_dist, cfg):
+                near_enough = j is not None and math.hypot(*(xy[j] - pred)) < cfg.ray_step_reach * r
+                if near_enough and step_taken(want, xy[j], pts, xy, tree, sm, rim_dist, cfg):
                     found = xy[j]
             if found is None:
                 continue
