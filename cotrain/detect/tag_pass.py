@@ -472,11 +472,10 @@ def grow_tag_lattice(
 ) -> Lattice:
     """Breadth-first growth of an AprilGrid corner lattice from candidate ``seed`` among candidates
     xy (K, 2) with their neighbours along edge rays ``nbr`` (see :func:`axis_neighbours`), on the
-    image grey (H, W), starting with the
-    seed's step frame ``frame0`` (axis, kind (long, short), 2; see :func:`seed_tag`) and, where
-    given, the seed tag's other corners ``tag_corners`` (candidates at lattice (1, 0), (1, 1), (0, 1):
-    the seed's look vouched for them, at the rim the growth's edge test may not). Lattice cell
-    (0, 0) is a tag; axes are oriented so that a x b > 0 in the image (x right, y down)."""
+    image grey (H, W), starting with the seed's step frame ``frame0`` (axis, kind (long, short), 2;
+    see :func:`seed_tag`) and, where given, the seed tag's other corners ``tag_corners``
+    (candidates at lattice (1, 0), (1, 1), (0, 1): the seed's look vouched for them, at the rim
+    the growth's edge test may not). Lattice cell (0, 0) is a tag; axes are oriented so that a x b > 0 in the image (x right, y down)."""
     tree = tree or cKDTree(xy)
     sm = smooth_cached(smoothed, grey, 2)
     H, W = grey.shape
@@ -544,7 +543,7 @@ def grow_tag_lattice(
                     found, was_filled = q[0], True
             if found is None and index[k] >= 0:
                 # Where the fisheye bends the lattice away from the prediction: the candidates the
-                # corner's own edge rays lead to, in the step's direction, within ``ray_step_reach`` of the reach.
+                # corner's own edge rays lead to, in the step's direction, near the prediction.
                 j = ray_step(pts[k], nbr[index[k]], v, xy, tree, used, cfg)
                 near_enough = j is not None and math.hypot(*(xy[j] - pred)) < cfg.ray_step_reach * r
                 if near_enough and step_taken(want, xy[j], pts, xy, tree, sm, rim_dist, cfg):
@@ -973,11 +972,11 @@ def verified_corners(lat: Lattice, cells: list[TagCell], under: np.ndarray, turn
     corners there, big enough, inside the image) must look like a tag and match the code the
     placement puts under it (correlation ``cfg.min_tag_corr``; for tags under ``cfg.small_tag_px``,
     whose cells blur, ``cfg.min_tag_corr_local`` where it beats the codes a slip by one tag would
-    put there by ``cfg.min_slip_margin``); its corners are dropped otherwise (a lattice that slipped by a row there). A tag that
-    could not be read (too small, cut by the rim) keeps its corners if a tag beside it (sharing a
-    side, not a corner) matched surely (``cfg.min_lend_corr``; under ``cfg.small_tag_px`` also by
-    ``cfg.min_tag_corr_local`` where it beats a slip by ``cfg.min_lend_slip_margin``): its ids come
-    through the lattice."""
+    put there by ``cfg.min_slip_margin``); its corners are dropped otherwise (a lattice that
+    slipped by a row there). A tag that could not be read (too small, cut by the rim) keeps its
+    corners if a tag beside it (sharing a side, not a corner) matched surely
+    (``cfg.min_lend_corr``; under ``cfg.small_tag_px`` also by ``cfg.min_tag_corr_local`` where it
+    beats a slip by ``cfg.min_lend_slip_margin``): its ids come through the lattice."""
     good, sure, read = set(), set(), set()
     for c, t in zip(cells, under):
         read.add(c.cell)
