@@ -532,25 +532,25 @@ def grow_tag_lattice(
             # The nearest candidates within reach that are not lattice corners yet (a data junction
             # of a tag may lie nearer than the corner), then a saddle fitted at the prediction.
             near = sorted((math.hypot(*(xy[j] - pred)), j) for j in tree.query_ball_point(pred, r) if j not in used)
-            found, was_filled = None, False
+            found, j_found = None, -1  # the corner, and its candidate index (-1: a saddle fitted at the prediction)
             for _, j in near[: cfg.match_tries]:
                 if step_taken(want, xy[j], pts, xy, tree, sm, rim_dist, cfg):
-                    found = xy[j]
+                    found, j_found = xy[j], int(j)
                     break
             if found is None:
                 q, ok, _ = fit_saddles(grey, smoothed, pred[None], window_half(gap), cfg.grid, rim_dist)
                 if ok[0] and math.hypot(*(q[0] - pred)) < r and step_taken(want, q[0], pts, xy, tree, sm, rim_dist, cfg):
-                    found, was_filled = q[0], True
+                    found = q[0]
             if found is None and index[k] >= 0:
                 # Where the fisheye bends the lattice away from the prediction: the candidates the
                 # corner's own edge rays lead to, in the step's direction, near the prediction.
                 j = ray_step(pts[k], nbr[index[k]], v, xy, tree, used, cfg)
                 near_enough = j is not None and math.hypot(*(xy[j] - pred)) < cfg.ray_step_reach * r
                 if near_enough and step_taken(want, xy[j], pts, xy, tree, sm, rim_dist, cfg):
-                    found = xy[j]
+                    found, j_found = xy[j], j
             if found is None:
                 continue
-            j_found = -1 if was_filled else int(tree.query(found)[1])
+            was_filled = j_found < 0
             if j_found >= 0:
                 used.add(j_found)  # only lattice corners: a candidate refused from one corner may be taken from another
             index.append(j_found)
