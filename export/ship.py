@@ -1,9 +1,11 @@
-"""Ship a trained model: ``python -m export.ship CHECKPOINT`` writes ``export/default.pt`` (float16
-weights and config only, no optimizer state) and ``export/default.onnx`` (with the parity check)."""
+"""Ship a trained model: ``python -m export.ship CHECKPOINT [--name NAME]`` writes ``export/NAME.pt``
+(float16 weights and config only, no optimizer state) and ``export/NAME.onnx`` (with the parity
+check); NAME is ``default`` (the checkerboard model the detector loads) unless given, e.g.
+``aprilgrid`` for the AprilGrid network."""
 
 from __future__ import annotations
 
-import sys
+import argparse
 from pathlib import Path
 
 import torch
@@ -14,17 +16,25 @@ from export.onnx_export import export_onnx
 HERE = Path(__file__).resolve().parent
 
 
-def ship(checkpoint: str | Path) -> dict:
+def ship(checkpoint: str | Path, name: str = "default") -> dict:
     ck = load_checkpoint(checkpoint)
     # Half-precision storage keeps the repository light; loading casts back to float32.
     weights = {k: v.half() if v.is_floating_point() else v for k, v in ck["model"].items()}
     slim = {"model": weights, "config": ck["config"], "step": ck["step"], "best_score": ck["best_score"], "wall_time": ck["wall_time"]}
-    torch.save(slim, HERE / "default.pt")
-    r = export_onnx(HERE / "default.pt", HERE / "default.onnx")
+    pt, onnx_path = HERE / f"{name}.pt", HERE / f"{name}.onnx"
+    torch.save(slim, pt)
+    r = export_onnx(pt, onnx_path)
     sel = ck["config"]["train"].get("select_by", "recall")
-    print(f"shipped step {ck['step']} (validation {sel} {ck['best_score']:.3f}) -> {HERE / 'default.pt'}, {HERE / 'default.onnx'}")
+    print(f"shipped step {ck['step']} (validation {sel} {ck['best_score']:.3f}) -> {pt}, {onnx_path}")
     return r
 
 
 if __name__ == "__main__":
-    ship(sys.argv[1])
+    ap = argparse.ArgumentParser(description="ship a checkpoint as export/NAME.pt and export/NAME.onnx")
+    ap.add_argument("checkpoint")
+    ap.add_argument("--name", default="default", help="file stem under export/ (default: the checkerboard model)")
+    a = ap.parse_args()
+    try:
+        ship(a.checkpoint, a.name)
+    except (FileNotFoundError, ValueError) as e:
+        raise SystemExit(f"error: {e}") from None

@@ -25,7 +25,7 @@ from cotrain.geometry.letterbox import CELLS
 from cotrain.model.losses import LossConfig, compute_losses
 from cotrain.model.network import CornerNet, ModelConfig
 from cotrain.render.renderer import RenderConfig, render_batch
-from cotrain.targets import Checkerboard
+from cotrain.targets import make_target
 
 
 @dataclass
@@ -65,7 +65,7 @@ class TrainConfig:
 
 def finalize_config(cfg: TrainConfig) -> TrainConfig:
     """Tie the model to the target and the render size; reject inconsistent settings."""
-    board = Checkerboard(cfg.render.target)
+    board = make_target(cfg.render.target)
     cfg.model.n_corners = board.n_corners
     cfg.model.grid_nx = board.nx
     cfg.model.grid_ny = board.ny
@@ -246,7 +246,7 @@ def train(cfg: TrainConfig, resume: bool = False) -> dict:
         model.load_state_dict(init_state)
     ddp = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
 
-    board = Checkerboard(cfg.render.target)
+    board = make_target(cfg.render.target)
     easy = dataclasses.replace(cfg.render, distance_range=tuple(s.curriculum_distance), offaxis_margin_deg=s.curriculum_offaxis_margin_deg)
     val = render_batch(cfg.render, list(range(s.val_size)), seed=s.val_seed, board=board) if rank == 0 else None
     writer = None

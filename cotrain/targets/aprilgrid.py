@@ -204,11 +204,19 @@ class AprilGrid:
             v = self._value(x, y, bits)
             cover = ((x >= x0) & (x <= x1) & (y >= y0) & (y <= y1)).to(x.dtype)
             return torch.where(cover > 0, v, torch.ones_like(v)), cover
+        footprint = footprint.expand_as(xy)
+        # Only points whose footprint reaches the sheet are sampled (the rest are white, uncovered).
+        fx, fy = footprint[..., 0].abs() / 2, footprint[..., 1].abs() / 2
+        near = (x >= x0 - fx) & (x <= x1 + fx) & (y >= y0 - fy) & (y <= y1 + fy)
+        x, y, fp = x[near], y[near], footprint[near]
         off = (torch.arange(samples, dtype=xy.dtype, device=xy.device) + 0.5) / samples - 0.5
-        sx = x[..., None, None] + off[:, None] * footprint[..., 0, None, None]
-        sy = y[..., None, None] + off[None, :] * footprint[..., 1, None, None]
+        sx = x[..., None, None] + off[:, None] * fp[..., 0, None, None]
+        sy = y[..., None, None] + off[None, :] * fp[..., 1, None, None]
         sx, sy = torch.broadcast_tensors(sx, sy)
         on = (sx >= x0) & (sx <= x1) & (sy >= y0) & (sy <= y1)
         v = torch.where(on, self._value(sx, sy, bits), torch.ones_like(sx))
-        cover = on.to(xy.dtype).mean(dim=(-1, -2))
-        return v.mean(dim=(-1, -2)), cover
+        value = torch.ones(xy.shape[:-1], dtype=xy.dtype, device=xy.device)
+        cover = torch.zeros_like(value)
+        value[near] = v.mean(dim=(-1, -2))
+        cover[near] = on.to(xy.dtype).mean(dim=(-1, -2))
+        return value, cover

@@ -143,3 +143,26 @@ def test_validation_board_id_accuracy_measures_column_and_row():
     wrong = evaluate(_BoardOracle(val, 1), val, batch_size=4)
     assert right["recall"] == 1.0 and right["board_id_acc"] > 0.8
     assert wrong["board_id_acc"] < 0.2
+
+
+def test_trains_and_exports_on_an_aprilgrid(tmp_path):
+    """The same loop trains the network on Kalibr's AprilGrid: one slot per Kalibr corner id (a
+    6 x 6 grid has 12 x 12 = 144) and the board head's columns and rows over the 12 x 12 corner
+    grid; the checkpoint names the target and rebuilds the network alone."""
+    from cotrain.targets import make_target
+
+    torch.set_num_threads(1)
+    cfg = tiny(tmp_path, "render.target.kind=aprilgrid", "model.identity=classify", "train.steps=2", "train.ckpt_minutes=0")
+    assert (cfg.model.n_corners, cfg.model.grid_nx, cfg.model.grid_ny) == (144, 12, 12)
+    board = make_target(cfg.render.target)
+    cfg.render.distance_range = (0.3, 0.5)
+    batch = render_batch(cfg.render, [0, 1, 2, 3], seed=4, board=board)
+    assert batch["corners"].shape[1] == 144 and batch["visible"].any()
+    out = CornerNet(cfg.model)(batch["image"])
+    assert out["heatmap"].shape[1] == 144 and out["board_col_logits"].shape[1] == 12 + 2
+    assert torch.isfinite(compute_losses(out, batch, cfg.loss)["total"])
+    train(cfg)
+    ck = load_checkpoint(tmp_path / "last.pt")
+    assert ck["config"]["render"]["target"]["kind"] == "aprilgrid"
+    model, cfg2 = build_from_checkpoint(ck)
+    assert model.cfg.n_corners == 144 and cfg2.render.target.kind == "aprilgrid"

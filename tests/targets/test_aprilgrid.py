@@ -139,3 +139,31 @@ def test_cotrain_detect_runs_the_tag_pass_on_an_aprilgrid(tmp_path):
     entries = {Path(e["path"]).name: e for e in data["images"]}
     assert entries["bad.png"]["error"] and not entries["bad.png"]["corners"]
     assert sorted(c["id"] for c in entries["flat.png"]["corners"]) == list(range(g.n_corners))
+
+
+def test_intensity_over_a_footprint_is_the_box_average_of_point_samples():
+    """The footprint-averaged print (what the renderer draws) equals the mean of point samples on
+    the 4 x 4 sub-pixel grid, for points on the sheet, off it, and with footprints across its
+    edge (only points whose footprint reaches the sheet are sampled; the rest are white, uncovered)."""
+    g = make_target(TargetConfig(kind="aprilgrid"))
+    x0, y0, x1, y1 = g.extent()
+    gen = torch.Generator().manual_seed(3)
+    xy = torch.rand(4, 300, 2, generator=gen, dtype=torch.float64)
+    xy = xy * torch.tensor([x1 - x0 + 0.2, y1 - y0 + 0.2], dtype=torch.float64) + torch.tensor([x0 - 0.1, y0 - 0.1], dtype=torch.float64)
+    xy[0, :4] = torch.tensor([[x0 - 0.002, 0.1], [x1 + 0.002, 0.1], [0.1, y0 - 0.0049], [x0 - 0.02, y0 - 0.02]], dtype=torch.float64)
+    fp = 0.001 + 0.01 * torch.rand(4, 300, 2, generator=gen, dtype=torch.float64)
+    fp[0, :4] = 0.006  # sub-samples reach 2.25 mm to each side: the first two straddle the sheet's edge
+    v, cover = g.intensity(xy, fp, samples=4)
+    assert v.shape == cover.shape == (4, 300)
+    off = (torch.arange(4, dtype=torch.float64) + 0.5) / 4 - 0.5
+    v_ref, c_ref = torch.zeros(4, 300, dtype=torch.float64), torch.zeros(4, 300, dtype=torch.float64)
+    for ox in off:
+        for oy in off:
+            p = xy + torch.stack([ox * fp[..., 0], oy * fp[..., 1]], -1)
+            vp, cp = g.intensity(p)  # point samples: white off the sheet
+            v_ref += vp / 16
+            c_ref += cp / 16
+    torch.testing.assert_close(v, v_ref)
+    torch.testing.assert_close(cover, c_ref)
+    assert 0 < float(cover[0, 0]) < 1 and 0 < float(cover[0, 1]) < 1 and float(cover[0, 3]) == 0.0 and float(v[0, 3]) == 1.0
+    assert ((cover > 0) & (cover < 1)).any() and (cover == 0).any() and (cover == 1).any()
