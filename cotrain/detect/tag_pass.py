@@ -21,12 +21,15 @@ checkerboard's: tags and crossing squares are dark, the gap strips between them 
    board: the fisheye bends a tag at the rim), the cells sharpened against blur and the data split
    into black and white by Otsu's threshold; a tag decodes alone within ``max_hamming`` bit errors
    (AprilTag's own default: 2 of tag36h11's 11);
-5. placement (:func:`place_board`): the turn and offset of the lattice on the board that all read
-   tags support together (correlation with the codes it puts under them); tags that decode alone
-   elsewhere are dropped and counted; :func:`verified_corners` keeps the corners of tags that
-   match (small blurred tags: better than a slip by one tag would), and of unread tags beside a
-   tag that matched surely (ids through the lattice); :func:`cells_close`, :func:`steps_alternate`
-   and :func:`rays_agree` drop corners that slid or sit on a junction inside a tag;
+5. placement (:func:`place_board`): each lattice, and each join of lattices grown from several
+   seeds that share corners consistently (:func:`join_lattices`), is placed: the turn and offset
+   on the board that all its read tags support together (correlation with the codes it puts under
+   them); tags that decode alone elsewhere are dropped and counted; :func:`verified_corners`
+   keeps the corners of tags that match (small blurred tags: better than a slip by one tag
+   would), of unread tags beside a tag that matched surely, and of unread tags at the lattice's
+   fringe a step or two from a firm match (ids through the lattice); :func:`cells_close`,
+   :func:`steps_alternate` and :func:`rays_agree` drop corners that slid or sit on a junction
+   inside a tag;
 6. boards: lattices that place no tag of the target (a second board with other tags; free tags
    have no X-junctions at their corners) give no corners; lattices of one board are merged where
    they agree, and of two that claim the same ids elsewhere the surer placement stays;
@@ -99,6 +102,7 @@ class TagConfig:
     min_slip_margin: float = 0.15  # ... by this much
     min_lend_corr: float = 0.7  # a read tag lends its ids to an unread tag beside it when it correlates with its code by this much
     min_lend_slip_margin: float = 0.3  # ... or, under small_tag_px, by min_tag_corr_local and beating a slip by one tag by this much
+    fringe_steps: int = 2  # an unread tag's corner next to a kept one keeps its id up to this many steps from a min_lend_corr match
     max_cell_misfit: float = 0.25  # a corner must close one of its cells as a parallelogram within this fraction of its side
     max_ray_angle: float = 20.0  # deg: a corner's steps to its lattice neighbours leave along its own edge rays within this
     rim_strict_px: float = 8.0  # corners this close to the rim are reported only in a complete lattice cell
@@ -571,6 +575,80 @@ def grow_tag_lattice(
     return Lattice(np.array(pts), np.array(lab, int), np.array(filled))
 
 
+# Lattice-to-lattice turns: two growths of one board share its orientation (a x b > 0 in the
+# image), so their coordinates differ by a rotation and an offset.
+ROTATIONS = (np.array([[1, 0], [0, 1]]), np.array([[0, -1], [1, 0]]), np.array([[-1, 0], [0, -1]]), np.array([[0, 1], [-1, 0]]))
+
+
+def lattice_link(A: Lattice, B: Lattice, radius: float) -> tuple[np.ndarray, np.ndarray, int] | None:
+    """The map ab_A = M ab_B + offset (M one of :data:`ROTATIONS`, offset (2,) int) that most of the
+    corners B shares with A (within ``radius`` px) agree on, with B's tags on A's tag cells, and
+    the number of corners in conflict under it: a shared corner at another coordinate, or a corner
+    of B on a coordinate where A holds another corner (a seed tag's wrong corner, a slip at the
+    end of a growth). None where fewer than 2 shared corners agree, or where conflicts are not
+    outvoted: 3 votes at least and more than twice the conflicts (B is another board, or slipped)."""
+    d, k = cKDTree(A.xy).query(B.xy, distance_upper_bound=radius)
+    shared = np.isfinite(d)
+    if shared.sum() < 2:
+        return None
+    best = None
+    for M in ROTATIONS:
+        offs, votes = np.unique(A.ab[k[shared]] - B.ab[shared] @ M.T, axis=0, return_counts=True)
+        if best is None or votes.max() > best[2]:
+            best = (M, offs[votes.argmax()], int(votes.max()))
+    M, off, votes = best
+    if votes < 2:
+        return None
+    lo = np.minimum(M @ (0, 0), M @ (1, 1)) + off  # B's tag cell (0, 0) in A: its lower corner
+    if (lo % 2).any():
+        return None
+    where = A.where
+    moved = B.ab[~shared] @ M.T + off
+    conflicts = int(shared.sum()) - votes + sum(tuple(t) in where for t in moved.tolist())
+    if conflicts and (votes < 3 or votes <= 2 * conflicts):
+        return None
+    return M, off, conflicts
+
+
+def join_lattices(lats: list[Lattice], radius: float) -> list[Lattice]:
+    """Growths of one board from several seeds (an occluder, a bend or a blur stops each) joined
+    into one lattice where they link (:func:`lattice_link`), in the first one's coordinates:
+    together their tags place the board where each alone reads too few. Corners in conflict are
+    dropped from both (which of the two is right is not known)."""
+    out: list[Lattice] = []
+    for L in lats:
+        joined = True
+        while joined:
+            joined = False
+            for i, C in enumerate(out):
+                link = lattice_link(C, L, radius)
+                if link is None:
+                    continue
+                M, off, _ = link
+                ab = L.ab @ M.T + off
+                d, k = cKDTree(C.xy).query(L.xy, distance_upper_bound=radius)
+                shared = np.isfinite(d)
+                where = C.where
+                drop_c = np.zeros(len(C.ab), bool)
+                add = np.zeros(len(L.ab), bool)
+                for q, t in enumerate(map(tuple, ab.tolist())):
+                    if shared[q] and tuple(C.ab[k[q]]) == t:
+                        continue  # the same corner
+                    if shared[q]:
+                        drop_c[k[q]] = True
+                    if t in where:
+                        drop_c[where[t]] = True
+                    add[q] = not shared[q] and t not in where
+                keep = ~drop_c
+                xy = np.concatenate([C.xy[keep], L.xy[add]])
+                L = Lattice(xy, np.concatenate([C.ab[keep], ab[add]]), np.concatenate([C.filled[keep], L.filled[add]]))
+                out.pop(i)
+                joined = True
+                break
+        out.append(L)
+    return out
+
+
 # --------------------------------------------------------------------------------------------
 # Decoding
 # --------------------------------------------------------------------------------------------
@@ -976,19 +1054,24 @@ def verified_corners(lat: Lattice, cells: list[TagCell], under: np.ndarray, turn
     slipped by a row there). A tag that could not be read (too small, cut by the rim) keeps its
     corners if a tag beside it (sharing a side, not a corner) matched surely
     (``cfg.min_lend_corr``; under ``cfg.small_tag_px`` also by ``cfg.min_tag_corr_local`` where it
-    beats a slip by ``cfg.min_lend_slip_margin``): its ids come through the lattice."""
-    good, sure, read = set(), set(), set()
+    beats a slip by ``cfg.min_lend_slip_margin``): its ids come through the lattice. So does an
+    unread tag's corner next to a corner kept so, within ``cfg.fringe_steps`` lattice steps of a
+    corner of a tag matched by ``cfg.min_lend_corr`` (the fringe of a lattice at the rim, where
+    no tag beside it is complete)."""
+    good, sure, firm, read = set(), set(), set(), set()
     for c, t in zip(cells, under):
-        read.add(c.cell)
         corr = float(tag_corr(c.look.soft, turn, np.array([t]))[0]) if t >= 0 else -1.0
         blurred = c.side < cfg.small_tag_px  # cells of 2 px or less: blur, not a misprint, lowers the correlation
         slip_margin = corr - slipped_corr(c, t, turn, board) if t >= 0 else -2.0
         local = blurred and corr >= cfg.min_tag_corr_local and slip_margin >= cfg.min_slip_margin
         if c.clean and (corr >= cfg.min_tag_corr or local):
             good.add(c.cell)
+        read.add(c.cell)
         lends_small = blurred and corr >= cfg.min_tag_corr_local and slip_margin >= cfg.min_lend_slip_margin
         if c.clean and (corr >= cfg.min_lend_corr or lends_small):
             sure.add(c.cell)
+        if c.clean and corr >= cfg.min_lend_corr:
+            firm.add(c.cell)
     keep = np.zeros(len(lat.ab), bool)
     for k, (a, b) in enumerate(lat.ab.tolist()):
         cell = (a - a % 2, b - b % 2)
@@ -996,6 +1079,21 @@ def verified_corners(lat: Lattice, cells: list[TagCell], under: np.ndarray, turn
             keep[k] = True
         elif cell not in read:
             keep[k] = any((cell[0] + 2 * i, cell[1] + 2 * j) in sure for i, j in STEPS)
+    if cfg.fringe_steps > 0:
+        where = lat.where
+        first = keep.copy()
+        for k, (a, b) in enumerate(lat.ab.tolist()):
+            cell = (a - a % 2, b - b % 2)
+            if first[k] or cell in read:
+                continue
+            if not any(first[where[(a + i, b + j)]] for i, j in STEPS if (a + i, b + j) in where):
+                continue
+            keep[k] = any(
+                ((a + i) - (a + i) % 2, (b + j) - (b + j) % 2) in firm
+                for i in range(-cfg.fringe_steps, cfg.fringe_steps + 1)
+                for j in range(-cfg.fringe_steps, cfg.fringe_steps + 1)
+                if abs(i) + abs(j) <= cfg.fringe_steps and (a + i, b + j) in where
+            )
     return keep
 
 
@@ -1033,22 +1131,24 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
     nbr = axis_neighbours(xy, rays, tree, sm, cfg)
     spacing = board.cfg.tag_spacing
     covered = np.zeros(len(xy), bool)
-    found: list[_Board] = []
-    foreign = 0
-    tried = 0
+    grown: list[Lattice] = []
     for seed in range(len(xy)):
-        if tried >= cfg.max_seeds:
+        if len(grown) >= cfg.max_seeds:
             break
         if covered[seed]:
             continue
         found_seed = seed_tag(xy, nbr, seed, grey, spacing, cfg, tree)
         if found_seed is None:
             continue
-        tried += 1
         frame, tag_corners = found_seed
         lat = grow_tag_lattice(xy, nbr, seed, frame, grey, cfg, smoothed, rim_dist, tree, tag_corners)
         covered |= cKDTree(lat.xy).query(xy)[0] < cfg.grid.merge_radius_px
         covered |= inside_cells(lat, xy, grey.shape)  # a grown tag's own data junctions are no seeds
+        grown.append(lat)
+    found: list[_Board] = []
+    foreign = 0
+    joined = [L for L in join_lattices(grown, cfg.grid.merge_radius_px) if not any(L is G for G in grown)]
+    for lat in grown + joined:
         if len(lat.ab) < cfg.min_corners:
             continue
         cells = read_cells(lat, grey, spacing, cfg)

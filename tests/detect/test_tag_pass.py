@@ -17,6 +17,8 @@ from cotrain.detect.tag_pass import (
     corner_rays,
     decode_bits,
     edges_along,
+    join_lattices,
+    lattice_link,
     look_at_tag,
     otsu_split,
     page_order,
@@ -25,6 +27,8 @@ from cotrain.detect.tag_pass import (
     slipped_corr,
     tag_corr,
     tag_pass,
+    tag_under,
+    verified_corners,
 )
 from cotrain.geometry import cameras, poses
 from cotrain.render.renderer import RenderConfig, Scene, render_scene, sample_generator
@@ -367,3 +371,78 @@ def test_another_renderer_opencv_fisheye_with_glare_and_a_grey_print():
         assert err.max() < 1.0, f"corner {det.ids[err.argmax()]} is {err.max():.2f} px off"
         assert np.median(err) < 0.15
         assert np.isin(np.nonzero(inside)[0], det.ids).mean() > 0.9
+
+
+def _board_lattice(ab: np.ndarray) -> np.ndarray:
+    """Pixels of lattice corners ab (K, 2) on a tilted AprilGrid-like grid: tag sides 30 px, gaps 9 px."""
+    step = lambda m: (m // 2) * 39.0 + (m % 2) * 30.0  # noqa: E731
+    x, y = step(ab[:, 0]), step(ab[:, 1])
+    c, s = np.cos(0.3), np.sin(0.3)
+    return np.stack([100 + c * x - s * y, 200 + s * x + c * y], 1)
+
+
+def test_lattice_link_and_join_recover_one_board_from_two_growths():
+    """Two growths of one 8 x 8 lattice overlapping in two columns, the second in its own
+    coordinates (turned by a quarter, its tag cell (0, 0) on a tag of the first): joined, they are
+    the whole lattice in the first one's coordinates. An offset by one (tags onto gaps) does not
+    link; a corner of the second at another place than the first's on the same coordinate is in
+    conflict: outvoted, it is dropped from the join; where conflicts are not outvoted, no link."""
+    a, b = np.meshgrid(np.arange(8), np.arange(8))
+    ab = np.stack([a.ravel(), b.ravel()], 1)
+    xy = _board_lattice(ab)
+    left, right = ab[:, 0] <= 4, ab[:, 0] >= 3
+    A = Lattice(xy[left], ab[left], np.zeros(left.sum(), bool))
+    R = np.array([[0, -1], [1, 0]])  # ab_A = R ab_B + off
+    off = np.array([5, -2])  # the second's tag cell (0, 0) is the first's tag cell (4, -2)
+    ab_b = (ab[right] - off) @ R  # R^-1 = R^T: A's corner (a, b) is B's (b + 2, 5 - a)
+    B = Lattice(xy[right], ab_b, np.zeros(right.sum(), bool))
+    M, o, conflicts = lattice_link(A, B, 1.0)
+    np.testing.assert_array_equal(M, R)
+    np.testing.assert_array_equal(o, off)
+    assert conflicts == 0
+    (J,) = join_lattices([A, B], 1.0)
+    assert len(J.ab) == 64
+    np.testing.assert_allclose(J.xy[np.lexsort(J.ab.T[::-1])], xy[np.lexsort(ab.T[::-1])])
+    # Shifted by one lattice step (the second's tags on the first's gaps): no link.
+    assert lattice_link(A, Lattice(B.xy, B.ab + [1, 0], B.filled), 1.0) is None
+    # One corner of the second moved onto a neighbour's place: a conflict, outvoted and dropped.
+    moved = B.xy.copy()
+    k = int(np.nonzero((ab[right] == [4, 3]).all(1))[0][0])  # shared with A
+    moved[k] = xy[(ab == [4, 4]).all(1)][0] + 0.2
+    M, o, conflicts = lattice_link(A, Lattice(moved, B.ab, B.filled), 1.0)
+    assert conflicts == 1
+    (J,) = join_lattices([A, Lattice(moved, B.ab, B.filled)], 1.0)
+    assert (4, 3) not in J.where and (4, 4) not in J.where and len(J.ab) == 62
+    # Three shared corners (A's column 4, rows 0..2), one of them on another corner of A: 2 votes
+    # against 1 conflict is not outvoted; with all three in place it links.
+    part = (B.ab[:, 1] < 1) | ((B.ab[:, 1] == 1) & (B.ab[:, 0] <= 4))
+    P = Lattice(B.xy[part], B.ab[part], B.filled[part])
+    assert lattice_link(A, P, 1.0)[2] == 0
+    xy3 = P.xy.copy()
+    xy3[(P.ab == [3, 1]).all(1)] = A.xy[A.where[(4, 6)]]  # A's (4, 1) moved onto A's (4, 6)
+    assert lattice_link(A, Lattice(xy3, P.ab, P.filled), 1.0) is None
+
+
+def test_unread_tags_near_a_firm_tag_keep_their_corners_within_fringe_steps():
+    """Tag cell (0, 0) matches its code surely; the lattice goes on to corners of tags that were
+    not read (not all their corners there). The side neighbours' corners keep their ids as before;
+    a corner of the diagonal tag, two steps from the firm tag and next to a kept corner, only with
+    ``fringe_steps`` >= 2."""
+    g = make_target(TargetConfig(kind="aprilgrid"))
+    img, c = tag_image(14, 40, 0.5)
+    look = look_at_tag(img, c, 0.3, sharpen=TagConfig().sharpen)
+    tag, turn, ham = decode_bits(look.white)
+    cell = TagCell((0, 0), look, tag, turn, ham, True, 40.0)
+    ab = np.array([[0, 0], [1, 0], [1, 1], [0, 1], [2, 0], [2, 1], [2, 2], [1, 2], [0, 2]])
+    lat = Lattice(_board_lattice(ab), ab, np.zeros(len(ab), bool))
+    # The board's offset that puts tag 14 on lattice cell (0, 0) under the read turn.
+    b0 = g.ij_of(g.tag_corners(np.array([14]))[:, 0])[0]
+    offsets = [b0 + (dx, dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1)]
+    offset = next(o for o in offsets if tag_under(np.array([cell.cell]), turn, o, g)[0] == 14)
+    under = tag_under(np.array([cell.cell]), turn, offset, g)
+    keep0 = verified_corners(lat, [cell], under, turn, g, TagConfig(fringe_steps=0))
+    keep2 = verified_corners(lat, [cell], under, turn, g, TagConfig(fringe_steps=2))
+    own = [0, 1, 2, 3]
+    side = [4, 5, 7, 8]  # corners of tags (2, 0) and (0, 2): beside the firm tag
+    assert keep0[own].all() and keep0[side].all() and not keep0[6]
+    assert keep2[own].all() and keep2[side].all() and keep2[6]  # (2, 2): tag (2, 2), two steps from (1, 1)
