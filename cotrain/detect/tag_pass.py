@@ -70,6 +70,7 @@ class TagConfig:
     ray_edge_depth: float = 0.6  # that edge test samples at most this multiple of the nearest-candidate distance aside
     ray_options: int = 3  # candidates reached along an edge kept per ray: a seed's tag sides are tried among them
     ray_radius: float = 0.5  # edge rays are read on a circle of this fraction of the local gap (of a candidate: its nearest candidate)
+    fourth_radius: float = 0.6  # a seed tag's fourth corner lies within this fraction of its shorter side of the parallelogram's
     min_long_short: float = 1.7  # at a seed, tag side / gap (Kalibr: 1 / tagSpacing) must exceed this on both axes
     max_seeds: int = 40  # seeds tried (strongest responses first); covered candidates are not tried again
     match_radius: float = 0.35  # a neighbour must lie within this fraction of its predicted step
@@ -311,12 +312,12 @@ def fourth_corner(
 ) -> int | None:
     """The candidate (index into xy (K, 2)) that closes the quad p0, p0 + A, ?, p0 + B (2,): the
     one the ray neighbours of p0 + A (toward B) and of p0 + B (toward A) lead to (see
-    :func:`ray_step`), where they agree or only one leads anywhere, within ``cfg.match_radius`` of
+    :func:`ray_step`), where they agree or only one leads anywhere, within ``cfg.fourth_radius`` of
     the shorter side from the parallelogram's fourth corner; where neither does, the candidate
     there if it is the only one. Under perspective a crossing square's far corner may lie nearer the
     parallelogram's corner than the tag's own."""
     pred = p0 + A + B
-    r = cfg.match_radius * min(math.hypot(*A), math.hypot(*B))
+    r = cfg.fourth_radius * min(math.hypot(*A), math.hypot(*B))
     ja, jb = int(tree.query(p0 + A)[1]), int(tree.query(p0 + B)[1])
     via = {ray_step(xy[ja], nbr[ja], B, xy, tree, set(), cfg), ray_step(xy[jb], nbr[jb], A, xy, tree, set(), cfg)} - {None}
     if len(via) == 1:
@@ -1109,6 +1110,30 @@ class _Board:
     disagree: int  # cells that decode alone to another board tag
 
 
+def consistent_boards(found: list[_Board], tol_px: float = 2.0) -> tuple[list[_Board], int]:
+    """The placed lattices that agree, surest placement first: the same board seen as several
+    lattices (an occluder splits it) is kept where they agree; a lattice that claims an id another
+    one already holds elsewhere (a second board), or a place another one holds with another id (a
+    slip), is dropped with its tags. Returns the kept boards and the number of tags dropped."""
+    pos: dict[int, np.ndarray] = {}
+    dropped = 0
+    kept: list[_Board] = []
+    for f in sorted(found, key=lambda f: -f.place.margin):
+        on = f.ids >= 0
+        clash = [i for i, p in zip(f.ids[on].tolist(), f.lat.xy[on]) if i in pos and np.linalg.norm(pos[i] - p) > tol_px]
+        if pos and on.any():
+            held = list(pos)
+            d, k = cKDTree(np.array([pos[i] for i in held])).query(f.lat.xy[on], distance_upper_bound=tol_px)
+            clash += [i for i, dd, kk in zip(f.ids[on].tolist(), d, k) if np.isfinite(dd) and held[kk] != i]
+        if clash:
+            dropped += len(f.decoded)
+            continue
+        kept.append(f)
+        for i, p in zip(f.ids[on].tolist(), f.lat.xy[on]):
+            pos.setdefault(i, p)
+    return kept, dropped
+
+
 def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -> TagResult:
     """AprilGrid corners with Kalibr's ids in the (H, W) float32 image ``grey`` in [0, 1]."""
     cfg = cfg or TagConfig()
@@ -1169,22 +1194,7 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
         found.append(_Board(lat, ids, place, decoded, len(alone) - len(decoded)))
     if not found:
         return empty(foreign)
-    # The same board seen as several lattices (an occluder splits it) is merged where they agree;
-    # a lattice that claims ids another one already holds elsewhere is a second board: the one
-    # placed more surely stays.
-    found.sort(key=lambda f: -f.place.margin)
-    pos: dict[int, np.ndarray] = {}
-    dropped = 0
-    kept: list[_Board] = []
-    for f in found:
-        on = f.ids >= 0
-        clash = [i for i, p in zip(f.ids[on].tolist(), f.lat.xy[on]) if i in pos and np.linalg.norm(pos[i] - p) > 2.0]
-        if clash:
-            dropped += len(f.decoded)
-            continue
-        kept.append(f)
-        for i, p in zip(f.ids[on].tolist(), f.lat.xy[on]):
-            pos.setdefault(i, p)
+    kept, dropped = consistent_boards(found)
     ids, xy_out, conf, tags, ham = [], [], [], [], []
     seen: set[int] = set()
     for f in kept:

@@ -11,9 +11,12 @@ from scipy.spatial import cKDTree
 from cotrain.detect.detector import AprilGridDetector
 from cotrain.detect.lattice import Lattice
 from cotrain.detect.tag_pass import (
+    Placement,
     TagCell,
     TagConfig,
+    _Board,
     _turn_index,
+    consistent_boards,
     corner_rays,
     decode_bits,
     edges_along,
@@ -446,3 +449,22 @@ def test_unread_tags_near_a_firm_tag_keep_their_corners_within_fringe_steps():
     side = [4, 5, 7, 8]  # corners of tags (2, 0) and (0, 2): beside the firm tag
     assert keep0[own].all() and keep0[side].all() and not keep0[6]
     assert keep2[own].all() and keep2[side].all() and keep2[6]  # (2, 2): tag (2, 2), two steps from (1, 1)
+
+
+def test_consistent_boards_keep_agreeing_lattices_and_drop_clashing_ones():
+    """Placed lattices, surest first: one that agrees with the surest (same ids at the same places,
+    new ones elsewhere) is kept; one that puts another id on a place already held (a slip) and one
+    that puts a held id elsewhere (a second board) are dropped, with their decoded tags counted."""
+
+    def board(ids, xy, margin, decoded=0):
+        ids, xy = np.array(ids), np.array(xy, float)
+        lat = Lattice(xy, np.stack([np.arange(len(ids)), np.zeros(len(ids), int)], 1), np.zeros(len(ids), bool))
+        return _Board(lat, ids, Placement(0, np.zeros(2, int), margin, margin, 1), [None] * decoded, 0)
+
+    sure = board([0, 1, 2], [[10, 10], [40, 10], [70, 10]], 300.0, decoded=2)
+    agree = board([2, 3], [[70.5, 10], [100, 10]], 80.0, decoded=1)
+    slip = board([4, 5], [[40.3, 10.2], [200, 10]], 60.0, decoded=1)  # id 4 where id 1 is
+    second = board([0, 6], [[500, 300], [530, 300]], 40.0, decoded=3)  # id 0 far from id 0
+    kept, dropped = consistent_boards([second, slip, agree, sure])
+    assert kept == [sure, agree]
+    assert dropped == 1 + 3
