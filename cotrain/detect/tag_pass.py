@@ -60,7 +60,7 @@ from cotrain.targets.aprilgrid import BORDER_BITS, CELLS, DATA_BITS, N_CODES, Ap
 @dataclass
 class TagConfig:
     # --- candidates ---
-    response_sigma: float = 1.0  # px: scale of the saddle response (small: gaps of tiny tags are 2-3 px)
+    response_sigma: float = 0.9  # px: scale of the saddle response (small: gaps of tiny tags are 2-3 px)
     min_response: float = 0.0015  # saddle response a candidate needs (scale-normalised -det Hessian)
     max_candidates: int = 1500  # strongest response maxima kept (all true corners of the evaluation set rank within 1500)
     # --- growth ---
