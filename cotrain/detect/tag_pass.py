@@ -160,6 +160,11 @@ def tag_candidates(
 # --------------------------------------------------------------------------------------------
 # Growth
 # --------------------------------------------------------------------------------------------
+def _norm(v: np.ndarray) -> float:
+    """Length of one 2-vector (plain arithmetic: the growth asks this for every step)."""
+    return math.sqrt(float(v[0]) * float(v[0]) + float(v[1]) * float(v[1]))
+
+
 def _cross(u: np.ndarray, v: np.ndarray) -> float:
     return float(u[0] * v[1] - u[1] * v[0])
 
@@ -273,18 +278,18 @@ def _seed_frames(nbr: np.ndarray, spacing: float, cfg: TagConfig) -> list[np.nda
         for s2 in (0, 1):
             for i, A in enumerate(opts[0][s1]):
                 for j, B in enumerate(opts[1][s2]):
-                    nA, nB = float(np.linalg.norm(A)), float(np.linalg.norm(B))
+                    nA, nB = _norm(A), _norm(B)
                     if abs(_cross(A, B)) < 0.3 * nA * nB:
                         continue
                     shorts, rank = [], 0
                     for side, others in ((A, opts[0][1 - s1]), (B, opts[1][1 - s2])):
                         opp = others[0] if others else None
-                        n_side = np.linalg.norm(side)
-                        if opp is not None and np.linalg.norm(opp) * cfg.min_long_short <= n_side:
+                        n_side = _norm(side)
+                        if opp is not None and _norm(opp) * cfg.min_long_short <= n_side:
                             shorts.append(-opp)  # the gap behind the corner, pointing +a (+b)
                         else:
                             shorts.append(side * spacing)
-                            rank += opp is not None and np.linalg.norm(opp) > n_side  # the other way is longer: less likely the tag
+                            rank += opp is not None and _norm(opp) > n_side  # the other way is longer: less likely the tag
                     fa, fb = np.stack([A, shorts[0]]), np.stack([B, shorts[1]])
                     if _cross(A, B) < 0:
                         fa, fb = fb, fa
@@ -400,7 +405,7 @@ def _junction_on_step(p: np.ndarray, q: np.ndarray, xy: np.ndarray, tree: cKDTre
     ``tol`` of its length and of ``across`` (px, the lattice's long step across the segment): a step
     that jumped over a corner. (A tag's own data junctions lie at least two cells, a fifth of the
     tag, off its sides: a fifth of ``across`` where perspective narrows the tag.)"""
-    n = float(np.linalg.norm(q - p))
+    n = _norm(q - p)
     near = tree.query_ball_point((p + q) / 2, 0.5 * n)
     if not near:
         return False
@@ -520,20 +525,20 @@ def grow_tag_lattice(
                 if m0 is not None and m1 is not None:
                     preds.append(pts[k] + pts[m1] - pts[m0])
             pred = np.mean(preds, 0)
-            step = float(np.linalg.norm(v))
-            if max(np.linalg.norm(p_ - pred) for p_ in preds) > cfg.agree_radius * step:
+            step = _norm(v)
+            if max(_norm(p_ - pred) for p_ in preds) > cfg.agree_radius * step:
                 continue
-            gap = float(min(np.linalg.norm(fr[0, 1]), np.linalg.norm(fr[1, 1])))  # the local gap (short step)
+            gap = min(_norm(fr[0, 1]), _norm(fr[1, 1]))  # the local gap (short step)
             if not (0 <= pred[0] < W and 0 <= pred[1] < H) or gap < cfg.min_gap_px:
                 continue
             r = min(cfg.match_radius * step, cfg.match_gap * gap)  # never as far as the next row across (a gap away)
             # The step is an edge: the dark cell on the side the lattice's parity says.
             other = fr[1 - axis, 0]
-            normal = other / max(np.linalg.norm(other), 1e-9)  # toward +b (or +a)
+            normal = other / max(_norm(other), 1e-9)  # toward +b (or +a)
             lo = min(m, m + sgn)
             cells = ((lo, b), (lo, b - 1)) if axis == 0 else ((a, lo), (a - 1, lo))  # the +normal side first
             sign = -1.0 if cell_dark(*cells[0]) else 1.0  # expected sign of (+normal side - -normal side)
-            want = _Step(pts[k], step, gap, float(np.linalg.norm(other)), normal, sign)
+            want = _Step(pts[k], step, gap, _norm(other), normal, sign)
             # The nearest candidates within reach that are not lattice corners yet (a data junction
             # of a tag may lie nearer than the corner), then a saddle fitted at the prediction.
             near = sorted((math.hypot(*(xy[j] - pred)), j) for j in tree.query_ball_point(pred, r) if j not in used)
@@ -560,13 +565,13 @@ def grow_tag_lattice(
                 used.add(j_found)  # only lattice corners: a candidate refused from one corner may be taken from another
             index.append(j_found)
             new_v = found - pts[k]
-            n_new = float(np.linalg.norm(new_v))
+            n_new = _norm(new_v)
             # Carry the frame: this axis's steps turn with the new step and scale with it.
             nf = fr.copy()
             unit = sgn * new_v / n_new
             scale = n_new / step
             nf[axis, kind] = sgn * new_v
-            nf[axis, 1 - kind] = unit * np.linalg.norm(fr[axis, 1 - kind]) * scale
+            nf[axis, 1 - kind] = unit * _norm(fr[axis, 1 - kind]) * scale
             frames[t] = nf
             where[t] = len(pts)
             pts.append(np.asarray(found, np.float64))
