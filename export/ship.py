@@ -6,6 +6,7 @@ check); NAME is ``default`` (the checkerboard model the detector loads) unless g
 from __future__ import annotations
 
 import argparse
+import re
 from pathlib import Path
 
 import torch
@@ -17,7 +18,12 @@ HERE = Path(__file__).resolve().parent
 
 
 def ship(checkpoint: str | Path, name: str = "default") -> dict:
+    if not re.fullmatch(r"[A-Za-z0-9_-]+", name):
+        raise ValueError(f"--name {name!r}: a plain file stem (letters, digits, _ and -)")
     ck = load_checkpoint(checkpoint)
+    kind = ck["config"]["render"]["target"]["kind"]
+    if name == "default" and kind != "checkerboard":
+        raise ValueError(f"{checkpoint}: trained on a {kind}; export/default is the checkerboard model the detector loads (give --name)")
     # Half-precision storage keeps the repository light; loading casts back to float32.
     weights = {k: v.half() if v.is_floating_point() else v for k, v in ck["model"].items()}
     slim = {"model": weights, "config": ck["config"], "step": ck["step"], "best_score": ck["best_score"], "wall_time": ck["wall_time"]}

@@ -38,7 +38,15 @@ def read_curve(path: str | Path) -> dict[str, np.ndarray]:
         rows = list(csv.DictReader(f))
     if not rows:
         raise ValueError(f"{path}: no rows")
-    return {k: np.array([float(r[k]) if r[k] not in ("", "nan") else np.nan for r in rows]) for k in rows[0]}
+    missing = [k for k in ("step", "wall_s", "recall", "id_acc") if k not in rows[0]]
+    if missing:
+        raise ValueError(f"{path}: not a training curve (no {', '.join(missing)} column)")
+
+    def value(r: dict, k: str) -> float:
+        v = r.get(k)
+        return float(v) if v not in (None, "", "nan") else np.nan
+
+    return {k: np.array([value(r, k) for r in rows]) for k in rows[0]}
 
 
 def at_budget(curve: dict[str, np.ndarray], key: str, budget: float, value: str) -> float:
@@ -105,7 +113,7 @@ def evaluate_slots(model_path: str | Path, set_dir: Path, threshold: float = 0.5
         raise ValueError(f"{model_path}: trained on a {model.target.kind}, not an aprilgrid")
     labels = json.loads((set_dir / "labels.json").read_text())["labels"]
     per_fov: dict[str, list[int]] = {}
-    wrong = empty_reports = 0
+    wrong = empty_reports = reported = 0
     for lab in labels:
         grey = cv2.imread(str(set_dir / "images" / lab["image"]), cv2.IMREAD_GRAYSCALE)
         if grey is None:
@@ -116,6 +124,7 @@ def evaluate_slots(model_path: str | Path, set_dir: Path, threshold: float = 0.5
             empty_reports += len(ids) > 0
             continue
         s = score_frame(ids.tolist(), list(xy), lab, min_tag_px)
+        reported += len(ids)
         tot = per_fov.setdefault(str(lab["fov"]), [0, 0])
         tot[0] += int(s["det"].sum())
         tot[1] += int(s["hit"].sum())
@@ -126,7 +135,7 @@ def evaluate_slots(model_path: str | Path, set_dir: Path, threshold: float = 0.5
         "recall": hit / max(det, 1),
         "per_fov": {k: v[1] / max(v[0], 1) for k, v in sorted(per_fov.items())},
         "wrong": wrong,
-        "reported": hit + wrong,
+        "reported": reported,
         "frames_without_target_with_reports": empty_reports,
     }
 

@@ -31,8 +31,9 @@ checkerboard's: tags and crossing squares are dark, the gap strips between them 
    :func:`steps_alternate` and :func:`rays_agree` drop corners that slid or sit on a junction
    inside a tag;
 6. boards: lattices that place no tag of the target (a second board with other tags; free tags
-   have no X-junctions at their corners) give no corners; lattices of one board are merged where
-   they agree, and of two that claim the same ids elsewhere the surer placement stays;
+   have no X-junctions at their corners) give no corners; lattices of one board (a join and its
+   parts too) are merged where they agree, and of two that claim the same ids elsewhere, or the
+   same place with other ids, the surer placement stays (:func:`consistent_boards`);
 7. positions: every corner fitted once more in a small window
    (:func:`cotrain.detect.lattice.final_fits`); one whose fit fails is dropped.
 
@@ -587,7 +588,7 @@ ROTATIONS = (np.array([[1, 0], [0, 1]]), np.array([[0, -1], [1, 0]]), np.array([
 
 
 def lattice_link(A: Lattice, B: Lattice, radius: float) -> tuple[np.ndarray, np.ndarray, int] | None:
-    """The map ab_A = M ab_B + offset (M one of :data:`ROTATIONS`, offset (2,) int) that most of the
+    """The map ab_A = M ab_B + offset (M (2, 2), one of :data:`ROTATIONS`; offset (2,) int) that most of the
     corners B shares with A (within ``radius`` px) agree on, with B's tags on A's tag cells, and
     the number of corners in conflict under it: a shared corner at another coordinate, or a corner
     of B on a coordinate where A holds another corner (a seed tag's wrong corner, a slip at the
@@ -620,7 +621,9 @@ def join_lattices(lats: list[Lattice], radius: float) -> list[Lattice]:
     """Growths of one board from several seeds (an occluder, a bend or a blur stops each) joined
     into one lattice where they link (:func:`lattice_link`), in the first one's coordinates:
     together their tags place the board where each alone reads too few. Corners in conflict are
-    dropped from both (which of the two is right is not known)."""
+    dropped from the join (which of the two is right is not known); the parts are placed alone as
+    well, and where a part and its join disagree the surer placement wins
+    (:func:`consistent_boards`)."""
     out: list[Lattice] = []
     for L in lats:
         joined = True
@@ -880,6 +883,12 @@ class TagCell:
     hamming: int  # bits that differ from it
     clean: bool  # a black border inside white gaps: only such cells place and verify the board
     side: float  # px, the tag's shortest side
+    centre: tuple[float, float] = (0.0, 0.0)  # px, the mean of its four corners (one tag read in several lattices is one tag)
+
+    @property
+    def key(self) -> tuple[int, int, int]:
+        """The tag as read and where (its id, its centre to the pixel): counted once however many lattices read it."""
+        return (self.tag, round(self.centre[0]), round(self.centre[1]))
 
 
 def read_cells(lat: Lattice, img: np.ndarray, spacing: float, cfg: TagConfig) -> list[TagCell]:
@@ -907,7 +916,7 @@ def read_cells(lat: Lattice, img: np.ndarray, spacing: float, cfg: TagConfig) ->
         if look is None:
             continue
         ok = look.contrast >= cfg.min_bit_contrast and look.clean >= cfg.min_clean
-        out.append(TagCell((a, b), look, *decode_bits(look.white), ok, side))
+        out.append(TagCell((a, b), look, *decode_bits(look.white), ok, side, tuple(c.mean(0).tolist())))
     return out
 
 
@@ -1112,16 +1121,16 @@ class _Board:
     ids: np.ndarray  # (K,) corner ids, -1 off the board
     place: Placement
     decoded: list[TagCell]  # cells that decode alone to the tag the placement puts there
-    disagree: int  # cells that decode alone to another board tag
+    disagree: list[TagCell]  # cells that decode alone to another board tag
 
 
-def consistent_boards(found: list[_Board], tol_px: float = 2.0) -> tuple[list[_Board], int]:
+def consistent_boards(found: list[_Board], tol_px: float = 2.0) -> tuple[list[_Board], list[_Board]]:
     """The placed lattices that agree, surest placement first: the same board seen as several
-    lattices (an occluder splits it) is kept where they agree; a lattice that claims an id another
-    one already holds elsewhere (a second board), or a place another one holds with another id (a
-    slip), is dropped with its tags. Returns the kept boards and the number of tags dropped."""
+    lattices (an occluder splits it, or a join and its parts) is kept where they agree; a lattice
+    that claims an id another one already holds elsewhere (a second board), or a place another
+    one holds with another id (a slip), is dropped. Returns the kept and the dropped boards."""
     pos: dict[int, np.ndarray] = {}
-    dropped = 0
+    dropped: list[_Board] = []
     kept: list[_Board] = []
     for f in sorted(found, key=lambda f: -f.place.margin):
         on = f.ids >= 0
@@ -1131,7 +1140,7 @@ def consistent_boards(found: list[_Board], tol_px: float = 2.0) -> tuple[list[_B
             d, k = cKDTree(np.array([pos[i] for i in held])).query(f.lat.xy[on], distance_upper_bound=tol_px)
             clash += [i for i, dd, kk in zip(f.ids[on].tolist(), d, k) if np.isfinite(dd) and held[kk] != i]
         if clash:
-            dropped += len(f.decoded)
+            dropped.append(f)
             continue
         kept.append(f)
         for i, p in zip(f.ids[on].tolist(), f.lat.xy[on]):
@@ -1176,13 +1185,13 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
         covered |= inside_cells(lat, xy, grey.shape)  # a grown tag's own data junctions are no seeds
         grown.append(lat)
     found: list[_Board] = []
-    foreign = 0
+    foreign: set[tuple[int, int, int]] = set()
     joined = [L for L in join_lattices(grown, cfg.grid.merge_radius_px) if not any(L is G for G in grown)]
     for lat in grown + joined:
         if len(lat.ab) < cfg.min_corners:
             continue
         cells = read_cells(lat, grey, spacing, cfg)
-        foreign += sum(c.clean and c.tag >= board.n_tags and c.hamming <= cfg.max_hamming for c in cells)
+        foreign |= {c.key for c in cells if c.clean and c.tag >= board.n_tags and c.hamming <= cfg.max_hamming}
         place = place_board(cells, board)
         if place is None or place.margin < cfg.min_margin or place.score < cfg.min_mean_corr * 36 * place.cells:
             continue
@@ -1196,10 +1205,13 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
             | ~cells_close(lat, cfg.max_cell_misfit, near_rim(lat, rim_dist, cfg.rim_strict_px))
             | ~rays_agree(lat, sm, spacing, cfg)
         ] = -1
-        found.append(_Board(lat, ids, place, decoded, len(alone) - len(decoded)))
+        found.append(_Board(lat, ids, place, decoded, [c for c, t in alone if not (c.tag == t and c.turn == place.turn)]))
     if not found:
-        return empty(foreign)
-    kept, dropped = consistent_boards(found)
+        return empty(len(foreign))
+    kept, lost = consistent_boards(found)
+    reported = {c.key for f in kept for c in f.decoded}
+    dropped = {c.key for f in lost for c in f.decoded} | {c.key for f in kept for c in f.disagree}
+    dropped -= reported
     ids, xy_out, conf, tags, ham = [], [], [], [], []
     seen: set[int] = set()
     for f in kept:
@@ -1223,9 +1235,8 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
             if c.tag not in tags:
                 tags.append(c.tag)
                 ham.append(c.hamming)
-        dropped += f.disagree
     ids_a = np.array(ids, int)
     order = np.argsort(ids_a)
     return TagResult(
-        ids_a[order], np.array(xy_out)[order], np.array(conf)[order], np.array(tags, int), np.array(ham, int), dropped, foreign
+        ids_a[order], np.array(xy_out)[order], np.array(conf)[order], np.array(tags, int), np.array(ham, int), len(dropped), len(foreign)
     )

@@ -204,7 +204,8 @@ class AprilGrid:
             v = self._value(x, y, bits)
             cover = ((x >= x0) & (x <= x1) & (y >= y0) & (y <= y1)).to(x.dtype)
             return torch.where(cover > 0, v, torch.ones_like(v)), cover
-        footprint = footprint.expand_as(xy)
+        xy, footprint = torch.broadcast_tensors(xy, footprint)
+        x, y = xy[..., 0], xy[..., 1]
         # Only points whose footprint reaches the sheet are sampled (the rest are white, uncovered).
         fx, fy = footprint[..., 0].abs() / 2, footprint[..., 1].abs() / 2
         near = (x >= x0 - fx) & (x <= x1 + fx) & (y >= y0 - fy) & (y <= y1 + fy)

@@ -151,6 +151,9 @@ def test_wild_tags_and_a_second_board_give_no_corners():
     assert len(det.ids) > 0.8 * vis.sum()
     check_ids(det, q, vis)
     assert (det.xy[:, 0] < 640).all()
+    # The second board's tags are read and counted as foreign, each once (36 on that board).
+    res = tag_pass(img.astype(np.float32) / 255, g)
+    assert 10 <= res.foreign_tags <= 36
 
 
 def tag_image(t: int, px: float, blur: float, spacing: float = 0.3, sub: int = 8):
@@ -436,7 +439,7 @@ def test_unread_tags_near_a_firm_tag_keep_their_corners_within_fringe_steps():
     look = look_at_tag(img, c, 0.3, sharpen=TagConfig().sharpen)
     tag, turn, ham = decode_bits(look.white)
     cell = TagCell((0, 0), look, tag, turn, ham, True, 40.0)
-    ab = np.array([[0, 0], [1, 0], [1, 1], [0, 1], [2, 0], [2, 1], [2, 2], [1, 2], [0, 2]])
+    ab = np.array([[0, 0], [1, 0], [1, 1], [0, 1], [2, 0], [2, 1], [2, 2], [1, 2], [0, 2], [3, 0], [3, 1], [3, 2]])
     lat = Lattice(_board_lattice(ab), ab, np.zeros(len(ab), bool))
     # The board's offset that puts tag 14 on lattice cell (0, 0) under the read turn.
     b0 = g.ij_of(g.tag_corners(np.array([14]))[:, 0])[0]
@@ -445,26 +448,33 @@ def test_unread_tags_near_a_firm_tag_keep_their_corners_within_fringe_steps():
     under = tag_under(np.array([cell.cell]), turn, offset, g)
     keep0 = verified_corners(lat, [cell], under, turn, g, TagConfig(fringe_steps=0))
     keep2 = verified_corners(lat, [cell], under, turn, g, TagConfig(fringe_steps=2))
+    keep3 = verified_corners(lat, [cell], under, turn, g, TagConfig(fringe_steps=3))
     own = [0, 1, 2, 3]
-    side = [4, 5, 7, 8]  # corners of tags (2, 0) and (0, 2): beside the firm tag
-    assert keep0[own].all() and keep0[side].all() and not keep0[6]
+    side = [4, 5, 7, 8, 9, 10]  # corners of tags (2, 0) and (0, 2): beside the firm tag
+    assert keep0[own].all() and keep0[side].all() and not keep0[6] and not keep0[11]
     assert keep2[own].all() and keep2[side].all() and keep2[6]  # (2, 2): tag (2, 2), two steps from (1, 1)
+    assert not keep2[11] and keep3[11]  # (3, 2): three steps from the firm tag's nearest corner
+    # Without a kept neighbour ((2, 1) and (1, 2) gone), (2, 2) stays unidentified.
+    part = ~np.isin(np.arange(len(ab)), [5, 7])
+    sub = Lattice(lat.xy[part], ab[part], lat.filled[part])
+    keep = verified_corners(sub, [cell], under, turn, g, TagConfig(fringe_steps=2))
+    assert not keep[sub.where[(2, 2)]] and keep[sub.where[(1, 1)]]
 
 
 def test_consistent_boards_keep_agreeing_lattices_and_drop_clashing_ones():
     """Placed lattices, surest first: one that agrees with the surest (same ids at the same places,
     new ones elsewhere) is kept; one that puts another id on a place already held (a slip) and one
-    that puts a held id elsewhere (a second board) are dropped, with their decoded tags counted."""
+    that puts a held id elsewhere (a second board) are dropped."""
 
     def board(ids, xy, margin, decoded=0):
         ids, xy = np.array(ids), np.array(xy, float)
         lat = Lattice(xy, np.stack([np.arange(len(ids)), np.zeros(len(ids), int)], 1), np.zeros(len(ids), bool))
-        return _Board(lat, ids, Placement(0, np.zeros(2, int), margin, margin, 1), [None] * decoded, 0)
+        return _Board(lat, ids, Placement(0, np.zeros(2, int), margin, margin, 1), [None] * decoded, [])
 
     sure = board([0, 1, 2], [[10, 10], [40, 10], [70, 10]], 300.0, decoded=2)
     agree = board([2, 3], [[70.5, 10], [100, 10]], 80.0, decoded=1)
     slip = board([4, 5], [[40.3, 10.2], [200, 10]], 60.0, decoded=1)  # id 4 where id 1 is
     second = board([0, 6], [[500, 300], [530, 300]], 40.0, decoded=3)  # id 0 far from id 0
-    kept, dropped = consistent_boards([second, slip, agree, sure])
+    kept, lost = consistent_boards([second, slip, agree, sure])
     assert kept == [sure, agree]
-    assert dropped == 1 + 3
+    assert lost == [slip, second]

@@ -5,6 +5,7 @@ import socket
 import subprocess
 import sys
 
+import pytest
 import torch
 
 from cotrain.config import load_config
@@ -145,7 +146,7 @@ def test_validation_board_id_accuracy_measures_column_and_row():
     assert wrong["board_id_acc"] < 0.2
 
 
-def test_trains_and_exports_on_an_aprilgrid(tmp_path):
+def test_trains_on_an_aprilgrid(tmp_path):
     """The same loop trains the network on Kalibr's AprilGrid: one slot per Kalibr corner id (a
     6 x 6 grid has 12 x 12 = 144) and the board head's columns and rows over the 12 x 12 corner
     grid; the checkpoint names the target and rebuilds the network alone."""
@@ -166,3 +167,10 @@ def test_trains_and_exports_on_an_aprilgrid(tmp_path):
     assert ck["config"]["render"]["target"]["kind"] == "aprilgrid"
     model, cfg2 = build_from_checkpoint(ck)
     assert model.cfg.n_corners == 144 and cfg2.render.target.kind == "aprilgrid"
+    # Shipping it under the checkerboard model's name, or outside export/, is refused before writing.
+    from export.ship import ship
+
+    with pytest.raises(ValueError, match="give --name"):
+        ship(tmp_path / "last.pt")
+    with pytest.raises(ValueError, match="plain file stem"):
+        ship(tmp_path / "last.pt", "../elsewhere")
