@@ -104,6 +104,7 @@ class TagConfig:
     min_slip_margin: float = 0.15  # ... by this much
     min_lend_corr: float = 0.7  # a read tag lends its ids to an unread tag beside it when it correlates with its code by this much
     min_lend_slip_margin: float = 0.3  # ... or, under small_tag_px, by min_tag_corr_local and beating a slip by one tag by this much
+    lend_depth: int = 3  # ... and on through unread tags beside it, up to this many tags away (tags too small to read)
     fringe_steps: int = 2  # an unread tag's corner next to a kept one keeps its id up to this many steps from a min_lend_corr match
     max_cell_misfit: float = 0.25  # a corner must close one of its cells as a parallelogram within this fraction of its side
     max_ray_angle: float = 20.0  # deg: a corner's steps to its lattice neighbours leave along its own edge rays within this
@@ -1069,7 +1070,9 @@ def verified_corners(lat: Lattice, cells: list[TagCell], under: np.ndarray, turn
     slipped by a row there). A tag that could not be read (too small, cut by the rim) keeps its
     corners if a tag beside it (sharing a side, not a corner) matched surely
     (``cfg.min_lend_corr``; under ``cfg.small_tag_px`` also by ``cfg.min_tag_corr_local`` where it
-    beats a slip by ``cfg.min_lend_slip_margin``): its ids come through the lattice. So does an
+    beats a slip by ``cfg.min_lend_slip_margin``), or an unread tag beside one that has, up to
+    ``cfg.lend_depth`` tags from the one read (a region of tags too small to read, never across a
+    tag that was read and did not match): its ids come through the lattice. So does an
     unread tag's corner next to a corner kept so, within ``cfg.fringe_steps`` lattice steps of a
     corner of a tag matched by ``cfg.min_lend_corr`` (the fringe of a lattice at the rim, where
     no tag beside it is complete)."""
@@ -1094,6 +1097,16 @@ def verified_corners(lat: Lattice, cells: list[TagCell], under: np.ndarray, turn
             keep[k] = True
         elif cell not in read:
             keep[k] = any((cell[0] + 2 * i, cell[1] + 2 * j) in sure for i, j in STEPS)
+    if cfg.lend_depth > 1:  # unread tags lend on to unread tags beside them
+        cells_all = {(a - a % 2, b - b % 2) for a, b in lat.ab.tolist()}
+        lent = {c for c in cells_all - read if any((c[0] + 2 * i, c[1] + 2 * j) in sure for i, j in STEPS)}
+        front = set(lent)
+        for _ in range(cfg.lend_depth - 1):
+            front = {c for c in cells_all - read - lent if any((c[0] + 2 * i, c[1] + 2 * j) in front for i, j in STEPS)}
+            lent |= front
+        for k, (a, b) in enumerate(lat.ab.tolist()):
+            if (a - a % 2, b - b % 2) in lent:
+                keep[k] = True
     if cfg.fringe_steps > 0:
         where = lat.where
         first = keep.copy()

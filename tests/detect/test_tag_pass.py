@@ -446,9 +446,9 @@ def test_unread_tags_near_a_firm_tag_keep_their_corners_within_fringe_steps():
     offsets = [b0 + (dx, dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1)]
     offset = next(o for o in offsets if tag_under(np.array([cell.cell]), turn, o, g)[0] == 14)
     under = tag_under(np.array([cell.cell]), turn, offset, g)
-    keep0 = verified_corners(lat, [cell], under, turn, g, TagConfig(fringe_steps=0))
-    keep2 = verified_corners(lat, [cell], under, turn, g, TagConfig(fringe_steps=2))
-    keep3 = verified_corners(lat, [cell], under, turn, g, TagConfig(fringe_steps=3))
+    keep0 = verified_corners(lat, [cell], under, turn, g, TagConfig(fringe_steps=0, lend_depth=1))
+    keep2 = verified_corners(lat, [cell], under, turn, g, TagConfig(fringe_steps=2, lend_depth=1))
+    keep3 = verified_corners(lat, [cell], under, turn, g, TagConfig(fringe_steps=3, lend_depth=1))
     own = [0, 1, 2, 3]
     side = [4, 5, 7, 8, 9, 10]  # corners of tags (2, 0) and (0, 2): beside the firm tag
     assert keep0[own].all() and keep0[side].all() and not keep0[6] and not keep0[11]
@@ -457,8 +457,37 @@ def test_unread_tags_near_a_firm_tag_keep_their_corners_within_fringe_steps():
     # Without a kept neighbour ((2, 1) and (1, 2) gone), (2, 2) stays unidentified.
     part = ~np.isin(np.arange(len(ab)), [5, 7])
     sub = Lattice(lat.xy[part], ab[part], lat.filled[part])
-    keep = verified_corners(sub, [cell], under, turn, g, TagConfig(fringe_steps=2))
+    keep = verified_corners(sub, [cell], under, turn, g, TagConfig(fringe_steps=2, lend_depth=1))
     assert not keep[sub.where[(2, 2)]] and keep[sub.where[(1, 1)]]
+
+
+def test_unread_tags_lend_ids_along_a_row_up_to_lend_depth():
+    """A row of tags: the first read and matched surely, the next four too small to read. Their
+    ids come through the lattice up to ``lend_depth`` tags from the read one; a tag that was read
+    and did not match (a slip, a misprint) passes nothing on."""
+    g = make_target(TargetConfig(kind="aprilgrid"))
+    img, c = tag_image(14, 40, 0.5)
+    look = look_at_tag(img, c, 0.3, sharpen=TagConfig().sharpen)
+    tag, turn, ham = decode_bits(look.white)
+    a, b = np.meshgrid(np.arange(10), np.arange(2))
+    ab = np.stack([a.ravel(), b.ravel()], 1)
+    lat = Lattice(_board_lattice(ab), ab, np.zeros(len(ab), bool))
+    first = TagCell((0, 0), look, tag, turn, ham, True, 40.0)
+    b0 = g.ij_of(g.tag_corners(np.array([14]))[:, 0])[0]
+    offsets = [b0 + (dx, dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1)]
+    offset = next(o for o in offsets if tag_under(np.array([(0, 0)]), turn, o, g)[0] == 14)
+    tag_of = ab[:, 0] // 2  # 0 .. 4 along the row
+    under = tag_under(np.array([(0, 0)]), turn, offset, g)
+    for depth, reach in ((1, 1), (3, 3), (4, 4)):
+        keep = verified_corners(lat, [first], under, turn, g, TagConfig(lend_depth=depth, fringe_steps=0))
+        np.testing.assert_array_equal(keep, tag_of <= reach)
+    # Tag 2 of the row read, and its code is not the one the placement puts there: nothing beyond it.
+    wrong = TagCell((4, 0), look, tag, turn, ham, True, 40.0)  # tag 14's read where another tag is
+    cells = [first, wrong]
+    under = tag_under(np.array([(0, 0), (4, 0)]), turn, offset, g)
+    assert under[1] != 14
+    keep = verified_corners(lat, cells, under, turn, g, TagConfig(lend_depth=4, fringe_steps=0))
+    np.testing.assert_array_equal(keep, tag_of <= 1)
 
 
 def test_consistent_boards_keep_agreeing_lattices_and_drop_clashing_ones():
