@@ -27,3 +27,29 @@ def test_shipped_detector_finds_corners_without_wrong_ids():
     assert n_hit / n_det > 0.5
     empty = render_batch(_render_cfg(200, cfg, ["kb4"], no_target=True), [0, 1], seed=4242)
     assert all(len(det.detect(empty["image"][k, 0].numpy()).ids) == 0 for k in range(2))
+
+
+def test_shipped_aprilgrid_network_matches_its_checkpoint():
+    """export/aprilgrid.onnx (the AprilGrid network, issue 17) is Kalibr's 6 x 6 AprilGrid model with
+    its 144 slots and dense maps, and onnxruntime gives what its checkpoint export/aprilgrid.pt
+    gives in PyTorch on a rendered AprilGrid view."""
+    import torch
+
+    from cotrain.detect.onnx_model import OnnxModel
+    from cotrain.model.outputs import OUTPUTS
+    from cotrain.model.train import build_from_checkpoint, load_checkpoint
+    from cotrain.targets import AprilGrid, make_target
+    from export.onnx_export import ExportWrapper
+    from tests.paths import ROOT
+
+    net = OnnxModel(ROOT / "export" / "aprilgrid.onnx")
+    assert isinstance(net.target, AprilGrid) and net.target.n_corners == 144 and net.has_slots and net.has_dense
+    model, cfg = build_from_checkpoint(load_checkpoint(ROOT / "export" / "aprilgrid.pt"))
+    model = model.float()
+    batch = render_batch(cfg.render, [0, 1], seed=99, board=make_target(cfg.render.target))
+    got = net.run(batch["image"].numpy().astype(np.float32))
+    with torch.no_grad():
+        ref = ExportWrapper(model).named(batch["image"])
+    assert got["corners"].shape == (2, 144, 2)
+    for name in OUTPUTS:
+        np.testing.assert_allclose(got[name], ref[name].numpy(), atol=0.02 if name == "corners" else 2e-3)
