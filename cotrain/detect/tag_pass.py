@@ -26,7 +26,8 @@ checkerboard's: tags and crossing squares are dark, the gap strips between them 
    on the board that all its read tags support together (correlation with the codes it puts under
    them); tags that decode alone elsewhere are dropped and counted; :func:`verified_corners`
    keeps the corners of tags that match (small blurred tags: better than a slip by one tag
-   would), of unread tags beside a tag that matched surely, and of unread tags at the lattice's
+   would), of unread tags beside a tag that matched surely (and on through unread tags, up to
+   ``lend_depth`` tags away), and of unread tags at the lattice's
    fringe a step or two from a firm match (ids through the lattice); :func:`cells_close`,
    :func:`steps_alternate` and :func:`rays_agree` drop corners that slid or sit on a junction
    inside a tag;
