@@ -132,7 +132,7 @@ class TagResult:
 # --------------------------------------------------------------------------------------------
 def tag_candidates(
     grey: np.ndarray, allowed: np.ndarray, cfg: TagConfig, smoothed: dict[int, np.ndarray], rim_dist: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray]:
     """Fitted saddle points inside ``allowed`` (H, W), strongest first.
 
     Returns xy (K, 2) and the response (K,)."""
@@ -144,7 +144,7 @@ def tag_candidates(
     xy0 = np.stack([xs[order], ys[order]], 1).astype(np.float64)
     r = r[order].astype(np.float64)
     if len(xy0) < 2:
-        return np.zeros((0, 2)), np.zeros((0, 2, 2)), np.zeros(0)
+        return np.zeros((0, 2)), np.zeros(0)
     d, _ = cKDTree(xy0).query(xy0, k=2)
     halves = window_half(np.maximum(d[:, 1], 2.0))
     xy, ok = np.zeros_like(xy0), np.zeros(len(xy0), bool)

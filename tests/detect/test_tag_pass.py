@@ -507,3 +507,15 @@ def test_consistent_boards_keep_agreeing_lattices_and_drop_clashing_ones():
     kept, lost = consistent_boards([second, slip, agree, sure])
     assert kept == [sure, agree]
     assert lost == [slip, second]
+
+
+def test_frames_without_junctions_give_nothing():
+    """A uniform frame and one with a single blob have fewer than two saddle candidates: no
+    corners, no error."""
+    g = make_target(TargetConfig(kind="aprilgrid"))
+    flat = np.full((200, 300), 0.5, np.float32)
+    blob = flat.copy()
+    cv2.circle(blob, (150, 100), 20, 0.1, -1)
+    for img in (flat, blob):
+        res = tag_pass(img, g)
+        assert len(res.ids) == 0 and res.xy.shape == (0, 2)
