@@ -105,7 +105,7 @@ class TagConfig:
     min_slip_margin: float = 0.15  # ... by this much
     min_lend_corr: float = 0.7  # a read tag lends its ids to an unread tag beside it when it correlates with its code by this much
     min_lend_slip_margin: float = 0.3  # ... or, under small_tag_px, by min_tag_corr_local and beating a slip by one tag by this much
-    lend_depth: int = 3  # ... and on through unread tags beside it, up to this many tags away (tags too small to read)
+    lend_depth: int = 3  # ... and on through unread tags beside it, up to this many tags away (1: beside it only)
     fringe_steps: int = 2  # an unread tag's corner next to a kept one keeps its id up to this many steps from a min_lend_corr match
     max_cell_misfit: float = 0.25  # a corner must close one of its cells as a parallelogram within this fraction of its side
     max_ray_angle: float = 20.0  # deg: a corner's steps to its lattice neighbours leave along its own edge rays within this
@@ -1091,29 +1091,24 @@ def verified_corners(lat: Lattice, cells: list[TagCell], under: np.ndarray, turn
             sure.add(c.cell)
         if c.clean and corr >= cfg.min_lend_corr:
             firm.add(c.cell)
-    keep = np.zeros(len(lat.ab), bool)
-    for k, (a, b) in enumerate(lat.ab.tolist()):
-        cell = (a - a % 2, b - b % 2)
-        if cell in good:
-            keep[k] = True
-        elif cell not in read:
-            keep[k] = any((cell[0] + 2 * i, cell[1] + 2 * j) in sure for i, j in STEPS)
-    if cfg.lend_depth > 1:  # unread tags lend on to unread tags beside them
-        cells_all = {(a - a % 2, b - b % 2) for a, b in lat.ab.tolist()}
-        lent = {c for c in cells_all - read if any((c[0] + 2 * i, c[1] + 2 * j) in sure for i, j in STEPS)}
-        front = set(lent)
-        for _ in range(cfg.lend_depth - 1):
-            front = {c for c in cells_all - read - lent if any((c[0] + 2 * i, c[1] + 2 * j) in front for i, j in STEPS)}
-            lent |= front
-        for k, (a, b) in enumerate(lat.ab.tolist()):
-            if (a - a % 2, b - b % 2) in lent:
-                keep[k] = True
+    cell_of = [(a - a % 2, b - b % 2) for a, b in lat.ab.tolist()]
+    unread = set(cell_of) - read
+
+    def beside(c: tuple[int, int], cells: set) -> bool:
+        return any((c[0] + 2 * i, c[1] + 2 * j) in cells for i, j in STEPS)
+
+    # Unread tags beside a sure one, and on through unread tags beside those (lend_depth tags in all).
+    lent = {c for c in unread if beside(c, sure)}
+    front = lent
+    for _ in range(cfg.lend_depth - 1):
+        front = {c for c in unread - lent if beside(c, front)}
+        lent |= front
+    keep = np.array([c in good or c in lent for c in cell_of], bool)
     if cfg.fringe_steps > 0:
         where = lat.where
         first = keep.copy()
         for k, (a, b) in enumerate(lat.ab.tolist()):
-            cell = (a - a % 2, b - b % 2)
-            if first[k] or cell in read:
+            if first[k] or cell_of[k] in read:
                 continue
             if not any(first[where[(a + i, b + j)]] for i, j in STEPS if (a + i, b + j) in where):
                 continue
