@@ -21,7 +21,7 @@ def ship(checkpoint: str | Path, name: str = "default") -> dict:
     if not re.fullmatch(r"[A-Za-z0-9_-]+", name):
         raise ValueError(f"--name {name!r}: a plain file stem (letters, digits, _ and -)")
     ck = load_checkpoint(checkpoint)
-    kind = ck["config"]["render"]["target"]["kind"]
+    kind = ck["config"].get("render", {}).get("target", {}).get("kind", "checkerboard")  # older configs: checkerboard
     if name == "default" and kind != "checkerboard":
         raise ValueError(f"{checkpoint}: trained on a {kind}; export/default is the checkerboard model the detector loads (give --name)")
     # Half-precision storage keeps the repository light; loading casts back to float32.
