@@ -27,6 +27,7 @@ import cv2
 import numpy as np
 
 from calib_eval.detection.tags import score_frame
+from cotrain.detect.detector import slot_readout
 from cotrain.detect.onnx_model import OnnxModel
 from cotrain.geometry.letterbox import Letterbox
 from cotrain.model.outputs import SLOT_OUTPUTS
@@ -94,14 +95,12 @@ def curve_table(curves: dict[str, dict[str, np.ndarray]]) -> str:
     return "\n".join(lines) + "\n\nCells: best validation recall / share of slots on their corner so far.\n"
 
 
-def slot_readout(model: OnnxModel, grey: np.ndarray, threshold: float) -> tuple[np.ndarray, np.ndarray]:
-    """Ids (K,) and input pixels (K, 2) of the slots whose visibility reaches ``threshold``."""
+def slots_in_image(model: OnnxModel, grey: np.ndarray, threshold: float) -> tuple[np.ndarray, np.ndarray]:
+    """Ids (K,) and input pixels (K, 2) of the slots the model reports in ``grey`` (H, W) (see
+    :func:`cotrain.detect.detector.slot_readout`)."""
     h, w = grey.shape
     box = Letterbox(w, h, model.input_size)
-    out = model.run(box.apply(grey)[None, None], SLOT_OUTPUTS)
-    xy = box.to_input(out["corners"][0].astype(np.float64))
-    inside = (xy[:, 0] > -0.5) & (xy[:, 0] < w - 0.5) & (xy[:, 1] > -0.5) & (xy[:, 1] < h - 0.5)
-    keep = (out["visibility"][0] >= threshold) & inside & np.isfinite(xy).all(1)
+    keep, xy = slot_readout(model.run(box.apply(grey)[None, None], SLOT_OUTPUTS), box, threshold)
     ids = np.nonzero(keep)[0]
     return ids, xy[ids]
 
@@ -119,7 +118,7 @@ def evaluate_slots(model_path: str | Path, set_dir: Path, threshold: float = 0.5
         if grey is None:
             print(f"{lab['image']}: unreadable, skipped", file=sys.stderr)
             continue
-        ids, xy = slot_readout(model, grey.astype(np.float32) / 255, threshold)
+        ids, xy = slots_in_image(model, grey.astype(np.float32) / 255, threshold)
         if lab["fov"] is None:
             empty_reports += len(ids) > 0
             continue

@@ -169,15 +169,23 @@ class Detector:
 
     def _postprocess(self, out: dict[str, np.ndarray], box: Letterbox, consistency: bool = True) -> Detection:
         """The per-slot read-out of image 0 of ``out``, in input pixels."""
-        corners, vis, conf = out["corners"][0], out["visibility"][0], out["confidence"][0]
+        vis, conf = out["visibility"][0], out["confidence"][0]
         w, h = box.width, box.height
-        xy = box.to_input(corners.astype(np.float64))
-        inside = (xy[:, 0] > -0.5) & (xy[:, 0] < w - 0.5) & (xy[:, 1] > -0.5) & (xy[:, 1] < h - 0.5)
-        keep = (vis >= self.threshold) & inside & np.isfinite(xy).all(1)
+        keep, xy = slot_readout(out, box, self.threshold)
         ids = np.nonzero(keep)[0]
         if consistency and len(ids):
             ids = ids[grid_consistent(ids, xy[ids], self.nx)]
         return Detection(ids, xy[ids], conf[ids].astype(np.float64), vis[ids].astype(np.float64), w, h, xy, vis)
+
+
+def slot_readout(out: dict[str, np.ndarray], box: Letterbox, threshold: float) -> tuple[np.ndarray, np.ndarray]:
+    """The network's per-slot corners of image 0 of ``out`` (its named outputs) in input pixels:
+    keep (N,) bool, the slots whose visibility reaches ``threshold`` and whose corner lies in the
+    input image, and xy (N, 2) of every slot."""
+    xy = box.to_input(out["corners"][0].astype(np.float64))
+    w, h = box.width, box.height
+    inside = (xy[:, 0] > -0.5) & (xy[:, 0] < w - 0.5) & (xy[:, 1] > -0.5) & (xy[:, 1] < h - 0.5)
+    return (out["visibility"][0] >= threshold) & inside & np.isfinite(xy).all(1), xy
 
 
 class AprilGridDetector:
