@@ -387,6 +387,13 @@ def _board_lattice(ab: np.ndarray) -> np.ndarray:
     return np.stack([100 + c * x - s * y, 200 + s * x + c * y], 1)
 
 
+def _offset_putting(g, tag: int, turn: int) -> np.ndarray:
+    """The board offset under which turn ``turn`` puts tag ``tag`` on lattice tag cell (0, 0)."""
+    b0 = g.ij_of(g.tag_corners(np.array([tag]))[:, 0])[0]
+    offsets = [b0 + (dx, dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1)]
+    return next(o for o in offsets if tag_under(np.array([(0, 0)]), turn, o, g)[0] == tag)
+
+
 def test_lattice_link_and_join_recover_one_board_from_two_growths():
     """Two growths of one 8 x 8 lattice overlapping in two columns, the second in its own
     coordinates (turned by a quarter, its tag cell (0, 0) on a tag of the first): joined, they are
@@ -441,10 +448,7 @@ def test_unread_tags_near_a_firm_tag_keep_their_corners_within_fringe_steps():
     cell = TagCell((0, 0), look, tag, turn, ham, True, 40.0)
     ab = np.array([[0, 0], [1, 0], [1, 1], [0, 1], [2, 0], [2, 1], [2, 2], [1, 2], [0, 2], [3, 0], [3, 1], [3, 2]])
     lat = Lattice(_board_lattice(ab), ab, np.zeros(len(ab), bool))
-    # The board's offset that puts tag 14 on lattice cell (0, 0) under the read turn.
-    b0 = g.ij_of(g.tag_corners(np.array([14]))[:, 0])[0]
-    offsets = [b0 + (dx, dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1)]
-    offset = next(o for o in offsets if tag_under(np.array([cell.cell]), turn, o, g)[0] == 14)
+    offset = _offset_putting(g, 14, turn)
     under = tag_under(np.array([cell.cell]), turn, offset, g)
     keep0 = verified_corners(lat, [cell], under, turn, g, TagConfig(fringe_steps=0, lend_depth=1))
     keep2 = verified_corners(lat, [cell], under, turn, g, TagConfig(fringe_steps=2, lend_depth=1))
@@ -473,9 +477,7 @@ def test_unread_tags_lend_ids_along_a_row_up_to_lend_depth():
     ab = np.stack([a.ravel(), b.ravel()], 1)
     lat = Lattice(_board_lattice(ab), ab, np.zeros(len(ab), bool))
     first = TagCell((0, 0), look, tag, turn, ham, True, 40.0)
-    b0 = g.ij_of(g.tag_corners(np.array([14]))[:, 0])[0]
-    offsets = [b0 + (dx, dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1)]
-    offset = next(o for o in offsets if tag_under(np.array([(0, 0)]), turn, o, g)[0] == 14)
+    offset = _offset_putting(g, 14, turn)
     tag_of = ab[:, 0] // 2  # 0 .. 4 along the row
     under = tag_under(np.array([(0, 0)]), turn, offset, g)
     for depth, reach in ((1, 1), (3, 3), (4, 4)):
