@@ -33,6 +33,12 @@ class GridConfig:
     diag_offset: float = 0.3  # colour test samples the four quadrants this fraction of (step a +- step b) from the corner
     min_seed_contrast: float = 0.05  # |quadrant contrast| (intensity) the seed needs (see lattice._diag_contrast)
     min_alternation: float = 0.25  # a new corner's quadrant contrast must flip sign with at least this share of its parent's
+    step_edge_depth: float = 0.15  # a step's edge test samples this fraction of the step (or of the step across, if shorter) to either side
+    min_step_edge_contrast: float = 0.15  # ... and needs this share of the parent's quadrant contrast at 1/4, 1/2 and 3/4 of the step
+    walk_min_square_px: float = 15.0  # where a prediction finds nothing in squares this large, the edge leaving the corner is followed ...
+    walk_steps: tuple[float, float] = (0.4, 1.6)  # ... to the nearest candidate at this many predicted steps ...
+    walk_angle: float = 30.0  # ... within this (deg) of the predicted direction ...
+    walk_axis_angle: float = 20.0  # ... with one of its own edge directions within this (deg) of the step
     fill_min_alternation: float = 0.15  # a saddle search where no candidate was predicted needs colours alternating this much there
     match_radius: float = 0.45  # a neighbour must lie within this fraction of the grid step of its prediction
     agree_radius: float = 0.3  # predictions of one corner from different neighbours must agree within this fraction of a step
@@ -62,6 +68,7 @@ class GridConfig:
     min_margin_backed: float = 20.0  # ... or by this, where the geometry alone (no network votes) puts it ahead ...
     min_geometry_margin: float = 15.0  # ... by this much (colours, margin evidence, extent; see identity.Placement)
     min_margin_votes_alone: float = 30.0  # where the geometry cannot tell the placement from another, the votes must win by this
+    min_votes_per_corner: float = 1.2  # ... and by this much per lattice corner (a network biased on a whole view adds up with its size)
     logp_floor: float = -3.0  # network log-probabilities are clamped here (one corner cannot veto a board)
     offboard_penalty: float = 10.0  # per lattice corner a placement puts off the board (they are verified X-junctions)
     edge_weight: float = 8.0  # per lattice corner whose outward neighbour is the board's white margin

@@ -108,15 +108,19 @@ def find_candidates(
     return xy[keep], axes[keep]
 
 
-def placement_is_sure(margin: float, geometry_margin: float, cfg: GridConfig) -> bool:
+def placement_is_sure(margin: float, geometry_margin: float, n_corners: int, cfg: GridConfig) -> bool:
     """Whether a placement that beats the runner-up by ``margin`` nats, ``geometry_margin`` of them
     from the geometry alone (:class:`cotrain.detect.identity.Placement`), is reported: by
     ``cfg.min_margin``, or ``cfg.min_margin_backed`` where the geometry puts it
     ``cfg.min_geometry_margin`` ahead; where the geometry cannot tell it from another placement at
-    all, only the network's votes decide, and they must win by ``cfg.min_margin_votes_alone``."""
+    all, only the network's votes decide, and they must win by ``cfg.min_margin_votes_alone`` and
+    by ``cfg.min_votes_per_corner`` for each of the lattice's ``n_corners`` (a network wrong about a
+    whole view is wrong at every corner, so its margin grows with the lattice)."""
     if margin >= cfg.min_margin_backed and geometry_margin >= cfg.min_geometry_margin:
         return True
-    return margin >= (cfg.min_margin if geometry_margin > 0 else cfg.min_margin_votes_alone)
+    if geometry_margin > 0:
+        return margin >= cfg.min_margin
+    return margin >= max(cfg.min_margin_votes_alone, cfg.min_votes_per_corner * n_corners)
 
 
 def grid_pass(
@@ -194,7 +198,7 @@ def grid_pass(
     if best is None:
         return empty
     margin, lat, ids, geometry_margin = best
-    if not placement_is_sure(margin, geometry_margin, cfg):
+    if not placement_is_sure(margin, geometry_margin, len(lat.ab), cfg):
         return GridResult(np.zeros(0, int), np.zeros((0, 2)), np.zeros(0), float(margin))
     lat = refine_positions(lat, grey, cfg, smoothed, rim_dist)
     ids = canonical_ids(ids, lat.xy, board)

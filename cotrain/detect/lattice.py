@@ -143,6 +143,71 @@ def match_corner(
     return None, False
 
 
+def edge_contrasts(img: np.ndarray, p: np.ndarray, q: np.ndarray, o: np.ndarray, depth: float) -> np.ndarray:
+    """Brightness ``depth`` px to the ``+o`` side of segment p -> q (2,) minus the ``-o`` side, at a
+    quarter, half and three quarters of the way: (3,) (``o`` (2,) a unit vector; NaN outside the image)."""
+    mid = p + np.array([[0.25], [0.5], [0.75]]) * (q - p)
+    vals = values_at(img, np.concatenate([mid + depth * o, mid - depth * o]))
+    return vals[:3] - vals[3:]
+
+
+def step_has_edge(img: np.ndarray, p: np.ndarray, q: np.ndarray, o: np.ndarray, depth: float, parent: float, cfg: GridConfig) -> bool:
+    """Whether the step p -> q (2,) runs along a checker edge: at a quarter, half and three quarters
+    of the way the side ``o`` (2,) (a unit vector), ``depth`` px out, is brighter than the other side
+    where the parent corner's quadrant contrast ``parent`` is positive (darker where negative), by
+    ``cfg.min_step_edge_contrast`` of that contrast. Between two lattice neighbours lies the edge of
+    a black and a white square; a step across the board's white margin to another pattern, or a
+    knight's move, has no such edge all along."""
+    c = edge_contrasts(img, p, q, o, depth) * math.copysign(1.0, parent)
+    return bool(np.all(c >= cfg.min_step_edge_contrast * abs(parent)))
+
+
+def _bright_side(da: int, db: int, sa: np.ndarray, sb: np.ndarray) -> np.ndarray:
+    """Unit vector across a step (da, db) from a corner with steps sa, sb (2,): the side that is
+    bright where the corner's quadrant contrast (:func:`_diag_contrast`) is positive."""
+    o = -(da * sb + db * sa)
+    return o / max(math.hypot(o[0], o[1]), 1e-9)
+
+
+def edge_neighbour(
+    img: np.ndarray,
+    p: np.ndarray,
+    v: np.ndarray,
+    o: np.ndarray,
+    parent: float,
+    xy: np.ndarray,
+    axes: np.ndarray,
+    tree: cKDTree,
+    used: set[int],
+    cfg: GridConfig,
+) -> np.ndarray | None:
+    """The lattice neighbour of corner p (2,) about one step ``v`` (2,) away, found by following
+    the checker edge that leaves p along v where the step's prediction found nothing: the nearest
+    candidate of xy (K, 2) not yet offered (``used`` gains it) at ``cfg.walk_steps`` of v's length,
+    within ``cfg.walk_angle`` of its direction, with one of its own edge directions (axes (K, 2, 2))
+    along the step, and the checker edge along the step (:func:`step_has_edge`; ``o``, ``parent``:
+    the bright side and the parent's quadrant contrast). Where squares grow or shrink fast (a board
+    close to a fisheye's rim) the predicted step is stale; the edge between two neighbours is not.
+    The growth's own colour, edge and crowding tests still apply to what this returns."""
+    len_v = math.hypot(v[0], v[1])
+    lo, hi = cfg.walk_steps
+    cos_step, cos_axis = math.cos(math.radians(cfg.walk_angle)), math.cos(math.radians(cfg.walk_axis_angle))
+    best = None
+    for j in tree.query_ball_point(p, hi * len_v):
+        w = xy[j] - p
+        n = math.hypot(w[0], w[1])
+        if j in used or n < lo * len_v or (best is not None and n >= best[0]):
+            continue
+        if w[0] * v[0] + w[1] * v[1] < cos_step * n * len_v or np.abs(axes[j] @ w).max() < cos_axis * n:
+            continue
+        if step_has_edge(img, p, xy[j], o, cfg.step_edge_depth * min(n, len_v), parent, cfg):
+            best = (n, j)
+    if best is None:
+        return None
+    used.add(best[1])
+    return xy[best[1]]
+
+
 def grow_lattice(
     xy: np.ndarray,
     axes: np.ndarray,
@@ -227,6 +292,12 @@ def grow_lattice(
             pa, pb = (v * da if da else sa), (v * db if db else sb)
             worth_fitting = functools.partial(_fill_alternates, sm1, pred, pa, pb, par[(a, b)], cfg)
             found, was_filled = match_corner(pred, r, xy, tree, used, grey, smoothed, window_half(short), cfg, rim_dist, worth_fitting)
+            bright = _bright_side(da, db, sa, sb)
+            if found is None and short >= cfg.walk_min_square_px:
+                found = edge_neighbour(sm1, pts[k], v, bright, par[(a, b)], xy, axes, tree, used, cfg)
+                if found is not None:
+                    was_filled = False
+                    len_v = hypot(found[0] - pts[k][0], found[1] - pts[k][1])  # the walk measured the step
             if found is None:
                 continue
             new_v = found - pts[k]
@@ -240,8 +311,20 @@ def grow_lattice(
                 # side (on a board seen obliquely the next corner across is much nearer than the
                 # step), except in small squares, where a diagonal slip is then let through.
                 continue
-            na = new_v * da if da else sa
-            nbv = new_v * db if db else sb
+            # The step across is the parent's, scaled as the step along changed (where squares grow or
+            # shrink fast, near a fisheye's rim, an inherited step goes stale), or measured where t
+            # already has a neighbour across.
+            along, across = (sa, sb) if da else (sb, sa)
+            across = across * min(max(len_new / max(hypot(along[0], along[1]), 1e-9), cfg.min_step_ratio), cfg.max_step_ratio)
+            for sgn in (1, -1):
+                m = where.get((t[0] + sgn * abs(db), t[1] + sgn * abs(da)))
+                if m is not None:
+                    across = sgn * (pts[m] - found)
+                    break
+            na, nbv = (new_v * da, across) if da else (across, new_v * db)
+            depth = cfg.step_edge_depth * min(len_new, hypot(across[0], across[1]))
+            if not step_has_edge(sm1, pts[k], found, bright, depth, par[(a, b)], cfg):
+                continue  # no checker edge along the step: off the board, or a knight's move
             pc = _diag_contrast(sm1, found, na, nbv, cfg.diag_offset)
             if pc * par[(a, b)] >= 0 or abs(pc) < cfg.min_alternation * abs(par[(a, b)]):
                 continue  # checker colours do not alternate: a slipped row or column, or not this board

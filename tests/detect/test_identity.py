@@ -139,12 +139,20 @@ def test_geometry_margin_leaves_out_the_network_votes():
 def test_votes_alone_must_be_surer_than_votes_with_geometry():
     """The grid pass's acceptance: where the geometry cannot tell the best placement from another
     (a patch that fits the board turned as well), the network's votes must win by
-    ``min_margin_votes_alone``; where the geometry backs it, ``min_margin_backed`` is enough."""
+    ``min_margin_votes_alone``, and by ``min_votes_per_corner`` per lattice corner (a network
+    biased on a whole view, a dark frame, adds its bias up over every corner); where the geometry
+    backs it, ``min_margin_backed`` is enough."""
     from cotrain.detect.grid_pass import placement_is_sure
 
     cfg = GridConfig()
-    assert placement_is_sure(cfg.min_margin + 1, 5.0, cfg)
-    assert not placement_is_sure(cfg.min_margin + 1, 0.0, cfg)  # votes alone, under their own threshold
-    assert placement_is_sure(cfg.min_margin_votes_alone + 1, 0.0, cfg)
-    assert placement_is_sure(cfg.min_margin_backed + 1, cfg.min_geometry_margin, cfg)
-    assert not placement_is_sure(cfg.min_margin_backed - 1, 100.0, cfg)
+    assert placement_is_sure(cfg.min_margin + 1, 5.0, 12, cfg)
+    assert not placement_is_sure(cfg.min_margin + 1, 0.0, 12, cfg)  # votes alone, under their own threshold
+    assert placement_is_sure(cfg.min_margin_votes_alone + 1, 0.0, 12, cfg)
+    assert placement_is_sure(cfg.min_margin_backed + 1, cfg.min_geometry_margin, 12, cfg)
+    assert not placement_is_sure(cfg.min_margin_backed - 1, 100.0, 12, cfg)
+    # 36 corners: the votes alone need 1.2 nats each, over the flat threshold
+    n = 36
+    assert cfg.min_votes_per_corner * n > cfg.min_margin_votes_alone + 5
+    assert not placement_is_sure(cfg.min_margin_votes_alone + 5, 0.0, n, cfg)
+    assert placement_is_sure(cfg.min_votes_per_corner * n + 1, 0.0, n, cfg)
+    assert placement_is_sure(cfg.min_margin + 1, 5.0, n, cfg)  # the geometry backs it: no per-corner rule

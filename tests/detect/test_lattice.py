@@ -5,7 +5,7 @@ import pytest
 
 from cotrain.detect.lattice import Lattice, next_step, skipped_corners, values_at
 from cotrain.detect.saddle import saddle_response
-from tests.detect.boards import NX, NY, board_image
+from tests.detect.boards import NX, NY, board_image, warped_board_image
 
 
 def test_lattices_with_skipped_corners_are_recognised():
@@ -107,3 +107,65 @@ def test_values_at_is_bilinear_for_any_number_of_points():
     assert values_at(img, np.zeros((0, 2))).shape == (0,)
     assert values_at(img, np.zeros((3, 4, 2))).shape == (3, 4)
     assert np.isnan(values_at(img, np.array([[-5.0, 3.0], [10.0, H + 5.0]]))).all()
+
+
+def test_step_has_edge_along_lattice_steps_only():
+    """Between two lattice neighbours runs the edge of a black and a white square, with its bright
+    side where the parent corner's quadrant contrast says; a knight's move (two along, one across)
+    and a step out over the board's white margin have no such edge all along."""
+    from cotrain.detect.grid_config import GridConfig
+    from cotrain.detect.lattice import _bright_side, _diag_contrast, edge_contrasts, step_has_edge
+
+    sq = 24
+    img, q = board_image(sq=sq, org=(30, 30), size=(330, 250))
+    cfg = GridConfig()
+    sa, sb = np.array([sq, 0.0]), np.array([0.0, sq])
+    k = 2 * NX + 3  # corner (3, 2)
+    par = _diag_contrast(img, q[k], sa, sb, cfg.diag_offset)
+    depth = cfg.step_edge_depth * sq
+    for da, db in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+        nb = q[k] + da * sa + db * sb
+        assert step_has_edge(img, q[k], nb, _bright_side(da, db, sa, sb), depth, par, cfg)
+        assert not step_has_edge(img, q[k], nb, -_bright_side(da, db, sa, sb), depth, par, cfg)  # the wrong side bright
+    knight = q[k] + 2 * sa + sb
+    assert not step_has_edge(img, q[k], knight, _bright_side(1, 0, sa, sb), depth, par, cfg)
+    last = NX - 1 + 2 * NX  # corner (8, 2): the next one along a would lie on the white margin
+    par_last = _diag_contrast(img, q[last], sa, sb, cfg.diag_offset)
+    assert not step_has_edge(img, q[last], q[last] + 1.6 * sa, _bright_side(1, 0, sa, sb), depth, par_last, cfg)
+    # Known values: 0.84 (white minus black) on the three samples of a true step.
+    np.testing.assert_allclose(np.abs(edge_contrasts(img, q[k], q[k] + sa, np.array([0.0, 1.0]), depth)), 0.84, atol=0.02)
+
+
+def test_growth_follows_squares_that_grow_fast():
+    """A board whose squares grow by 1.25x per column, in both directions (as toward the middle of
+    a fisheye image from its rim; steps 7 to 52 px): the growth takes every corner, each at its own
+    lattice place. Along a row, the step across that a corner inherits from its parent is stale
+    by 1.25x per column; scaled as the step along changed, it is right again."""
+    from cotrain.detect.grid_config import GridConfig
+    from cotrain.detect.lattice import grow_lattice
+    from cotrain.detect.saddle import fit_saddles
+
+    x0, first, ratio, cy = 20.0, 7.0, 1.25, 150.0  # column u starts at x0 + first (ratio^u - 1) / (ratio - 1)
+
+    def to_pixels(u, v):
+        return x0 + first * (ratio**u - 1) / (ratio - 1), cy + (v - 3.5) * first * ratio**u
+
+    def to_board(x, y):
+        u = np.log1p((x - x0) * (ratio - 1) / first) / np.log(ratio)
+        return u, 3.5 + (y - cy) / (first * ratio**u)
+
+    img, q = warped_board_image(to_board, to_pixels, (300, 300))
+    cfg = GridConfig()
+    smoothed: dict[int, np.ndarray] = {}
+    xy, ok, axes = fit_saddles(img, smoothed, q + 0.3, 3, cfg)
+    assert ok.all() and np.abs(xy - q).max() < 0.5
+    ij = np.stack([np.arange(NX * NY) % NX, np.arange(NX * NY) // NX], 1)
+    for seed in (4 * NX + 1, 4 * NX + 4, 2 * NX + 7):  # from small squares, the middle, large ones
+        lat = grow_lattice(xy, axes, seed, img, cfg, smoothed)
+        assert len(lat.ab) == NX * NY
+        at = np.array([np.argmin(np.linalg.norm(xy - p, axis=1)) for p in lat.xy])
+        assert len(set(at.tolist())) == NX * NY
+        # one in-plane turn (the board seen from its printed side) maps every (a, b) to its (i, j)
+        d, ab = ij[at] - ij[at[0]], lat.ab - lat.ab[0]
+        turns = ([[1, 0], [0, 1]], [[0, 1], [-1, 0]], [[-1, 0], [0, -1]], [[0, -1], [1, 0]])
+        assert any(np.array_equal(ab @ np.array(R), d) for R in turns)
