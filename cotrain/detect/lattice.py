@@ -183,14 +183,15 @@ def edge_neighbour(
 ) -> np.ndarray | None:
     """The lattice neighbour of corner p (2,) about one step ``v`` (2,) away, found by following
     the checker edge that leaves p along v where the step's prediction found nothing: the nearest
-    candidate of xy (K, 2) not yet offered (``used`` gains it) at ``cfg.walk_steps`` of v's length,
+    candidate of xy (K, 2) not yet offered (``used`` gains it) at ``cfg.walk_min_steps`` to
+    ``cfg.walk_max_steps`` of v's length,
     within ``cfg.walk_angle`` of its direction, with one of its own edge directions (axes (K, 2, 2))
     along the step, and the checker edge along the step (:func:`step_has_edge`; ``o``, ``parent``:
     the bright side and the parent's quadrant contrast). Where squares grow or shrink fast (a board
     close to a fisheye's rim) the predicted step is stale; the edge between two neighbours is not.
     The growth's own colour, edge and crowding tests still apply to what this returns."""
     len_v = math.hypot(v[0], v[1])
-    lo, hi = cfg.walk_steps
+    lo, hi = cfg.walk_min_steps, cfg.walk_max_steps
     cos_step, cos_axis = math.cos(math.radians(cfg.walk_angle)), math.cos(math.radians(cfg.walk_axis_angle))
     best = None
     for j in tree.query_ball_point(p, hi * len_v):
