@@ -2,11 +2,13 @@
 
 Rendering, a training step, the detector against findChessboardCornersSB on the same frames, and
 the calibration of a 480-frame stereo sequence; each figure is a median of several runs.
-``python -m calib_eval.benchmark.timing detect`` runs the detector figures alone.
+``python -m calib_eval.benchmark.timing detect [--model M.onnx]`` runs the detector figures alone
+(``--model``: another graph, like the int8 one of ``cotrain export --int8``, on the same frames).
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import statistics
@@ -214,10 +216,16 @@ def bench_calibration(config: str = "FoV220_90", frames: int = 480, repeats: int
 
 
 def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
-    if argv == ["detect"]:
-        results = {"detect": bench_detect()}
-        out = Path("report") / "bench_detect.json"
+    ap = argparse.ArgumentParser(prog="python -m calib_eval.benchmark.timing", description=__doc__.splitlines()[0])
+    ap.add_argument("what", nargs="?", choices=("all", "detect"), default="all", help="all figures (make bench) or the detector's alone")
+    ap.add_argument("--model", help="ONNX model for the detector figures (default: the shipped model)")
+    ap.add_argument("--runs", type=int, default=5, help="runs per detector figure (the median is quoted)")
+    args = ap.parse_args(sys.argv[1:] if argv is None else argv)
+    if args.model and not Path(args.model).is_file():
+        ap.error(f"no model file {args.model}")
+    if args.what == "detect":
+        results = {"detect": bench_detect(args.model, runs=args.runs), "model": args.model or "shipped"}
+        out = Path("report") / ("bench_detect.json" if not args.model else f"bench_detect_{Path(args.model).stem}.json")
         out.parent.mkdir(exist_ok=True)
         out.write_text(json.dumps(results, indent=1, default=str))
         print(f"wrote {out}")
@@ -226,7 +234,7 @@ def main(argv: list[str] | None = None) -> int:
         "render_384x216": bench_render(RenderConfig(), batch=8, repeats=5),
         "render_1280x720": bench_render(RenderConfig(height=720, width=1280), batch=4, repeats=3),
         "render_vs_train_step": bench_render_vs_step(),
-        "detect": bench_detect(),
+        "detect": bench_detect(args.model, runs=args.runs),
         "calibration": bench_calibration(),
     }
     out = Path("report") / "bench.json"

@@ -12,9 +12,10 @@ This pass turns them into identities the way a person would (docs/detector.md ha
 2. growth (:mod:`cotrain.detect.lattice`): from a seed, neighbours are predicted one square step
    along each grid axis (from the last two steps: perspective's cross-ratio and the fisheye's
    bend) and matched to a candidate, or, when the network missed it, to a saddle found at the
-   predicted spot; checker colours must alternate; a verification pass drops corners off their
-   lattice lines, and lattices grown with skipped corners; the result is a lattice coordinate
-   (a, b) per corner;
+   predicted spot (in large squares, to the one the checker edge leaving the corner leads to);
+   checker colours must alternate and a checker edge must run along every step; a verification
+   pass drops corners off their lattice lines, and lattices grown with skipped corners; the
+   result is a lattice coordinate (a, b) per corner;
 3. identity (:mod:`cotrain.detect.identity`): the lattice is placed on the board by one of the
    four in-plane rotations and an integer offset; every placement is scored by the network's
    column / row log-probabilities at the corners, the checker colour of every lattice cell

@@ -3,7 +3,10 @@
 - :func:`grow_lattice`: breadth first from a seed candidate; each missing neighbour is predicted
   one square step along a grid axis (from the last two steps: perspective's cross-ratio and the
   fisheye's bend, see :func:`next_step`) and matched to a candidate or, where the network missed
-  it, to a saddle found at the predicted spot; checker colours must alternate;
+  it, to a saddle found at the predicted spot, or, in large squares where neither finds one, to
+  the candidate the checker edge leaving the corner leads to (:func:`edge_neighbour`); checker
+  colours must alternate, and the edge of a black and a white square must run along the step
+  (:func:`step_has_edge`);
 - :func:`verify_lattice`: a second look at every corner with its final neighbours (refit, straight
   lattice lines, edges along the lines next to the rim); the largest connected part stays;
 - :func:`skipped_corners`: whether the lattice was grown with double steps or knight's moves;
@@ -184,12 +187,12 @@ def edge_neighbour(
     """The lattice neighbour of corner p (2,) about one step ``v`` (2,) away, found by following
     the checker edge that leaves p along v where the step's prediction found nothing: the nearest
     candidate of xy (K, 2) not yet offered (``used`` gains it) at ``cfg.walk_min_steps`` to
-    ``cfg.walk_max_steps`` of v's length,
-    within ``cfg.walk_angle`` of its direction, with one of its own edge directions (axes (K, 2, 2))
-    along the step, and the checker edge along the step (:func:`step_has_edge`; ``o``, ``parent``:
-    the bright side and the parent's quadrant contrast). Where squares grow or shrink fast (a board
-    close to a fisheye's rim) the predicted step is stale; the edge between two neighbours is not.
-    The growth's own colour, edge and crowding tests still apply to what this returns."""
+    ``cfg.walk_max_steps`` of v's length, within ``cfg.walk_angle`` of its direction, with one of
+    its own edge directions (axes (K, 2, 2)) along the step, and the checker edge along the step
+    (:func:`step_has_edge`; ``o``, ``parent``: the bright side and the parent's quadrant contrast).
+    Where squares grow or shrink fast (a board close to a fisheye's rim) the predicted step is
+    stale; the edge between two neighbours is not. The growth's own colour, edge and crowding tests
+    still apply to what this returns."""
     len_v = math.hypot(v[0], v[1])
     lo, hi = cfg.walk_min_steps, cfg.walk_max_steps
     cos_step, cos_axis = math.cos(math.radians(cfg.walk_angle)), math.cos(math.radians(cfg.walk_axis_angle))

@@ -72,3 +72,16 @@ def test_distribution_metrics_known_values():
     assert m["D_qty"] == pytest.approx(0.0) and m["D_sp"] == pytest.approx(1.0)
     m2 = distribution_metrics([a], [2 * a], permutations=10)
     assert m2["D_qty"] == pytest.approx(1 / 3) and m2["D_sp"] == pytest.approx(0.0)
+
+
+def test_timing_command_line_refuses_bad_input_before_running_anything(tmp_path, capsys):
+    """``python -m calib_eval.benchmark.timing``: an unknown figure or a missing model is a one-line
+    usage error (exit 2) before any benchmark runs (an unknown argument once ran them all)."""
+    from calib_eval.benchmark.timing import main
+
+    for argv in (["bogus"], ["--help-me"], ["detect", "--model", str(tmp_path / "missing.onnx")]):
+        with pytest.raises(SystemExit) as e:
+            main(argv)
+        assert e.value.code == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err[-1].startswith("python -m calib_eval.benchmark.timing: error:")
