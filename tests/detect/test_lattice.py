@@ -169,3 +169,35 @@ def test_growth_follows_squares_that_grow_fast():
         d, ab = ij[at] - ij[at[0]], lat.ab - lat.ab[0]
         turns = ([[1, 0], [0, 1]], [[0, 1], [-1, 0]], [[-1, 0], [0, -1]], [[0, -1], [1, 0]])
         assert any(np.array_equal(ab @ np.array(R), d) for R in turns)
+
+
+def test_edge_neighbour_follows_the_edge_where_the_prediction_missed():
+    """With a predicted step 1.5x too long (stale, as where squares shrink fast), the walk along
+    the checker edge finds the true neighbour, the nearest candidate with the edge all along
+    (not the one two squares on); a direction 45 deg off the lattice, a candidate already offered,
+    or a step out from the board's last column find nothing."""
+    from scipy.spatial import cKDTree
+
+    from cotrain.detect.grid_config import GridConfig
+    from cotrain.detect.lattice import _bright_side, _diag_contrast, edge_neighbour
+    from cotrain.detect.saddle import fit_saddles
+
+    sq = 24
+    img, q = board_image(sq=sq, org=(30, 30), size=(330, 250))
+    cfg = GridConfig()
+    xy, ok, axes = fit_saddles(img, {}, q + 0.3, 4, cfg)
+    assert ok.all()
+    tree = cKDTree(xy)
+    sa, sb = np.array([sq, 0.0]), np.array([0.0, sq])
+    k = 2 * NX + 3  # corner (3, 2)
+    par = _diag_contrast(img, xy[k], sa, sb, cfg.diag_offset)
+    bright = _bright_side(1, 0, sa, sb)
+    used = {k}
+    found = edge_neighbour(img, xy[k], 1.5 * sa, bright, par, xy, axes, tree, used, cfg)
+    assert found is not None and np.linalg.norm(found - q[k + 1]) < 0.3
+    assert k + 1 in used  # offered once, as match_corner does
+    assert edge_neighbour(img, xy[k], 1.5 * sa, bright, par, xy, axes, tree, used, cfg) is None  # the next one is two squares on
+    assert edge_neighbour(img, xy[k], sa + sb, bright, par, xy, axes, tree, {k}, cfg) is None
+    last = 2 * NX + NX - 1  # corner (8, 2)
+    par_last = _diag_contrast(img, xy[last], sa, sb, cfg.diag_offset)
+    assert edge_neighbour(img, xy[last], sa, bright, par_last, xy, axes, tree, {last}, cfg) is None
