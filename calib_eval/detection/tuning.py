@@ -46,11 +46,15 @@ def degrade(grey: np.ndarray, how: str, seed: int = 0) -> np.ndarray:
     raise ValueError(f"degradation must be one of {DEGRADATIONS}, not {how!r}")
 
 
+# The acceptance thresholds the table sweeps (min_margin) or turns off (every placement is scored).
+SWEPT = {"min_margin": -np.inf, "min_margin_votes_alone": -np.inf, "min_votes_per_corner": 0.0}
+
+
 def grid_overrides(pairs: list[str]) -> dict[str, float | int]:
     """``["key=value", ...]`` -> GridConfig field overrides, each of its field's type. Unknown keys,
-    ``min_margin`` (the table sweeps it) and values of the wrong type are errors."""
+    the thresholds the table sweeps or turns off (``SWEPT``) and values of the wrong type are errors."""
 
-    fields = {f.name: type(f.default) for f in dataclasses.fields(GridConfig) if f.name != "min_margin"}
+    fields = {f.name: type(f.default) for f in dataclasses.fields(GridConfig) if f.name not in SWEPT}
     out = {}
     for pair in pairs:
         key, sep, value = pair.partition("=")
@@ -76,7 +80,7 @@ def margin_table(
 
     meta = load_or_render(EvalConfig(seed=seed, width=size[0], height=size[1], conditions=[]), set_dir, progress)
     det = Detector(model)
-    gcfg = dataclasses.replace(det.grid, **(grid or {}), min_margin=-np.inf, min_margin_votes_alone=-np.inf)  # every placement
+    gcfg = dataclasses.replace(det.grid, **{**(grid or {}), **SWEPT})  # every placement is scored
     rows, total = [], 0
     for n, lab in enumerate(tqdm(meta["labels"], desc="grid pass", disable=not progress)):
         grey = degrade(load_image(set_dir / "images" / lab["image"]), how, seed=n)
