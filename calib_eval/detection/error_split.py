@@ -3,11 +3,11 @@ one common shift, and the rest.
 
     python -m calib_eval.detection.error_split [--set report/detection] [--target TARGET.yaml]
 
-The renderer's motion blur (``RenderConfig.p_motion``, ``motion_direction``) weights the exposure
-unevenly along the blur (kornia's ``direction``), so in such a frame the whole board's image moves
-to the exposure-weighted position while the labels stay at the blur's middle: every corner of the
-frame is off by the same vector (up to a third of the blur's half-length, 0.7 px for a 5 px blur).
-No detector can see where the label is; the shift is in the labels, not in the corners. This runs
+A frame whose corners are all off their labels by one vector most likely has its labels off, not its
+corners: the renderer's motion blur (``RenderConfig.p_motion``, ``motion_direction``) weights the
+exposure unevenly along the blur (kornia's ``direction``) and moves the whole image, by up to a
+third of the blur's length; labels rendered before ``LABEL_VERSION`` 2 stayed at the blur's middle
+(0.7 px off on average in those frames), and this split is how that was found. This runs
 the detector for the set's target on every frame, matches its corners to the labels by id (within
 3 px) and splits the error: frames with a common shift (the mean offset of at least
 ``MIN_CORNERS`` corners over ``SHIFT_PX``) and the others, and every corner's error once its

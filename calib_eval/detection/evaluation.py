@@ -38,7 +38,7 @@ from calib_eval.detection.opencv_baseline import find_chessboard
 from cotrain.detect.detector import Detector
 from cotrain.detect.images import ImageError, load_image
 from cotrain.geometry import cameras
-from cotrain.render.renderer import RenderConfig, render_batch
+from cotrain.render.renderer import LABEL_VERSION, RenderConfig, render_batch
 from cotrain.targets import Target, TargetConfig, make_target
 
 BENCH_VERSION = 1  # bump when the benchmark set changes: results are only comparable within a version
@@ -148,6 +148,7 @@ def render_benchmark(cfg: EvalConfig, out: Path, progress: bool = True) -> dict:
         )
     meta = {
         "version": BENCH_VERSION,
+        "label_version": LABEL_VERSION,
         "config": dataclasses.asdict(cfg),
         "conditions": _condition_settings(cfg),
         "target": make_target(cfg.target).to_json(),
@@ -390,6 +391,7 @@ def load_or_render(cfg: EvalConfig, out: Path, progress: bool = True) -> dict:
     if labels_path.is_file():
         meta = json.loads(labels_path.read_text())
         same = meta.get("version") == BENCH_VERSION and meta.get("config") == dataclasses.asdict(cfg)
+        same &= meta.get("label_version", 1) == LABEL_VERSION
         if same and meta.get("conditions", {}) == _condition_settings(cfg):
             return meta
     for stale in out.glob("predictions_*.json"):

@@ -32,7 +32,7 @@ import torch
 from calib_eval.detection.evaluation import _render_cfg
 from cotrain.detect.detector import AprilGridDetector
 from cotrain.geometry import cameras
-from cotrain.render.renderer import render_batch
+from cotrain.render.renderer import LABEL_VERSION, render_batch
 from cotrain.targets import AprilGrid, TargetConfig, make_target
 
 TOL_PX = 3.0
@@ -103,7 +103,7 @@ def render_set(cfg: TagEvalConfig, board: AprilGrid, out: Path) -> list[dict]:
     from tqdm import tqdm
 
     lab_path = out / "labels.json"
-    key = {"config": cfg.__dict__, "target": board.to_json()}
+    key = {"config": cfg.__dict__, "target": board.to_json(), "label_version": LABEL_VERSION}
     if lab_path.is_file():
         old = json.loads(lab_path.read_text())
         if old.get("key") == key:

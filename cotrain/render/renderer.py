@@ -308,13 +308,30 @@ def _background(cfg: RenderConfig, gens: list[torch.Generator], h: int, w: int) 
     return torch.stack(out)[:, None].clamp(0, 1).float()
 
 
+# Version of the labels' conventions (rendered sets cached with another one are rendered again,
+# the same images): 2 = a corner's label moves with its image where motion blur moves it.
+LABEL_VERSION = 2
+
+
+def motion_blur_shift(kernel_size: int, angle: float, direction: float) -> torch.Tensor:
+    """(2,) px: how far kornia's ``motion_blur(img, kernel_size, angle, direction)`` moves an image's
+    content, the exposure-weighted mean position along the blur. A ``direction`` other than 0
+    weights one end of the blur more (kornia filters by correlation, so the content moves against
+    the kernel's centroid): up to a third of the blur's length (1 px for a 5 px blur)."""
+    k = kornia.filters.get_motion_kernel2d(kernel_size, torch.tensor([float(angle)]), torch.tensor([float(direction)]))[0]
+    k = k / k.sum()
+    c = torch.arange(k.shape[-1], dtype=k.dtype) - (k.shape[-1] - 1) / 2
+    return -torch.stack([(k.sum(0) * c).sum(), (k.sum(1) * c).sum()]).float()
+
+
 def render_batch(cfg: RenderConfig, indices: list[int], seed: int = 0, board: Target | None = None) -> dict[str, Tensor]:
     """Render samples ``indices`` of the stream ``seed``.
 
     Returns a dict:
         image: (B, 1, H, W) float32 in [0, 1], grey
         corners: (B, N, 2) pixel positions (0 where not visible)
-        corners_raw: (B, N, 2) projected positions whatever their visibility (may be meaningless)
+        corners_raw: (B, N, 2) projected positions whatever their visibility (may be meaningless),
+            moved with the image where motion blur moved it (:func:`motion_blur_shift`)
         visible: (B, N) bool, in front / in the domain / in image and circle / facing / unoccluded
         learnability: (B, N) float in [0, 1] (0 where not visible)
         square_px: (B, N) local pixels per square (smallest singular value of the local map)
@@ -416,11 +433,14 @@ def render_scene(cfg: RenderConfig, board: Target, scene: Scene, gens: list[torc
     if bool((sig > 0).any()):
         blurred = kornia.filters.gaussian_blur2d(img, (7, 7), torch.stack([sig.clamp_min(0.05)] * 2, -1))
         img = torch.where(sig[:, None, None, None] > 0, blurred, img)
+    motion_shift = torch.zeros(B, 2)  # where motion blur moved the image: the labels follow
     for b, g in enumerate(gens):
         if rr(g) < cfg.p_motion:
             lo, hi = cfg.motion_kernel
             k = lo if lo == hi else lo + 2 * int(rr(g) * ((hi - lo) // 2 + 1))  # odd lengths lo .. hi
-            img[b : b + 1] = kornia.filters.motion_blur(img[b : b + 1], min(k, hi), rr(g, 0, 180), rr(g, *cfg.motion_direction))
+            angle, direction = rr(g, 0, 180), rr(g, *cfg.motion_direction)
+            img[b : b + 1] = kornia.filters.motion_blur(img[b : b + 1], min(k, hi), angle, direction)
+            motion_shift[b] = motion_blur_shift(min(k, hi), angle, direction)
     noise = torch.tensor([rr(g, *cfg.noise_range) for g in gens])[:, None, None, None]
     noise_fields = torch.stack([torch.randn(1, H, W, generator=g) for g in gens])
     img = (img + noise * noise_fields * (0.5 + img)).clamp(0, 1)
@@ -431,8 +451,8 @@ def render_scene(cfg: RenderConfig, board: Target, scene: Scene, gens: list[torc
             if ok_enc:
                 img[b, 0] = torch.from_numpy(cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE).astype(np.float32) / 255.0)
 
-    # Occlusion and blur enter the labels.
-    q = labels["corners_raw"]
+    # Occlusion and blur enter the labels; a corner's label is where the exposure puts its image.
+    q = labels["corners_raw"] + motion_shift[:, None, :].to(labels["corners_raw"].dtype)
     occ_d = F.max_pool2d(occ[:, None], 5, 1, 2)[:, 0]
     qi = q.round().long()
     qi[..., 0] = qi[..., 0].clamp(0, W - 1)

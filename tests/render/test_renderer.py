@@ -200,3 +200,44 @@ def test_boards_drawn_off_axis_at_least_offaxis_min():
     near, rim = offaxis_deg(base), offaxis_deg(dataclasses.replace(base, offaxis_min_deg=80.0))
     # The board's centre is jittered off the drawn ray by up to 0.3 board sizes.
     assert float(rim.median()) > float(near.median()) + 15 and float(rim.min()) > 50
+
+
+def test_labels_follow_one_sided_motion_blur():
+    """Motion blur that weights one end of the exposure more (kornia's ``direction``) moves the
+    whole image toward that end, by up to a third of the blur's length; the labels move with it
+    (:func:`motion_blur_shift`), so cornerSubPix lands on them as in frames blurred evenly. Known
+    values: the shift of a 5 px blur with direction 1 along x is +1 px (kornia filters by correlation;
+    the saddles of a blurred board move 1.017 px there, so labels stay within a few hundredths)."""
+    from cotrain.render.renderer import motion_blur_shift
+
+    np.testing.assert_allclose(motion_blur_shift(5, 0.0, 1.0).numpy(), [1.0, 0.0], atol=1e-5)
+    np.testing.assert_allclose(motion_blur_shift(5, 90.0, -1.0).numpy(), [0.0, 1.0], atol=1e-5)
+    np.testing.assert_allclose(motion_blur_shift(9, 37.0, 0.0).numpy(), [0.0, 0.0], atol=1e-5)
+
+    def offsets(direction: float) -> tuple[np.ndarray, np.ndarray]:
+        blur = {"p_motion": 1.0, "motion_kernel": (5, 5), "motion_direction": (direction, direction)}
+        cfg = RenderConfig(height=432, width=768, **{**CLEAN, **blur})
+        out = render_batch(cfg, list(range(6)), seed=5)
+        means = []
+        for b in range(6):
+            img = out["image"][b, 0].numpy().astype(np.float32)
+            q = out["corners_raw"][b].numpy()
+            sel = out["visible"][b].numpy() & (out["square_px"][b].numpy() > 14)
+            sel &= (q[:, 0] > 12) & (q[:, 0] < cfg.width - 13) & (q[:, 1] > 12) & (q[:, 1] < cfg.height - 13)
+            full = torch.nn.functional.max_pool2d(1 - out["board_mask"][b : b + 1], 11, 1, 5)[0, 0] < 0.02
+            qi = np.clip(np.round(q).astype(int), 0, [cfg.width - 1, cfg.height - 1])
+            sel &= full.numpy()[qi[:, 1], qi[:, 0]]
+            if sel.sum() < 4:
+                continue
+            start = q[sel].astype(np.float32).reshape(-1, 1, 2)
+            ref = cv2.cornerSubPix(img, start, (5, 5), (-1, -1), (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-5))
+            means.append((ref.reshape(-1, 2) - q[sel]).mean(0))
+        return np.array(means), out["image"]
+
+    one_sided, img1 = offsets(1.0)
+    even, img0 = offsets(0.0)
+    assert len(one_sided) >= 3 and len(even) >= 3
+    # The corners' images sit on their labels (no common shift left), one-sided or not ...
+    assert np.abs(one_sided).max() < 0.25 and np.abs(even).max() < 0.25
+    # ... although the one-sided blur moved the images by a px (the same scenes, blurred otherwise).
+    assert float((img1 - img0).abs().max()) > 0.2
