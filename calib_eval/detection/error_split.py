@@ -5,8 +5,8 @@ one common shift, and the rest.
 
 A frame whose corners are all off their labels by one vector most likely has its labels off, not its
 corners: the renderer's motion blur (``RenderConfig.p_motion``, ``motion_direction``) weights the
-exposure unevenly along the blur (kornia's ``direction``) and moves the whole image, by up to a
-third of the blur's length; labels rendered before ``LABEL_VERSION`` 2 stayed at the blur's middle
+exposure unevenly along the blur (kornia's ``direction``) and moves the whole image, by up to
+(length + 1) / 6 px (1 px for a 5 px blur); labels rendered before ``LABEL_VERSION`` 2 stayed at the blur's middle
 (0.7 px off on average in those frames), and this split is how that was found. This runs
 the detector for the set's target on every frame, matches its corners to the labels by id (within
 3 px) and splits the error: frames with a common shift (the mean offset of at least

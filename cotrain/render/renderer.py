@@ -317,7 +317,7 @@ def motion_blur_shift(kernel_size: int, angle: float, direction: float) -> torch
     """(2,) px: how far kornia's ``motion_blur(img, kernel_size, angle, direction)`` moves an image's
     content, the exposure-weighted mean position along the blur. A ``direction`` other than 0
     weights one end of the blur more (kornia filters by correlation, so the content moves against
-    the kernel's centroid): up to a third of the blur's length (1 px for a 5 px blur)."""
+    the kernel's centroid): up to (length + 1) / 6 px (1 px for a 5 px blur)."""
     k = kornia.filters.get_motion_kernel2d(kernel_size, torch.tensor([float(angle)]), torch.tensor([float(direction)]))[0]
     k = k / k.sum()
     c = torch.arange(k.shape[-1], dtype=k.dtype) - (k.shape[-1] - 1) / 2

@@ -204,7 +204,7 @@ def test_boards_drawn_off_axis_at_least_offaxis_min():
 
 def test_labels_follow_one_sided_motion_blur():
     """Motion blur that weights one end of the exposure more (kornia's ``direction``) moves the
-    whole image toward that end, by up to a third of the blur's length; the labels move with it
+    whole image toward that end, by up to (length + 1) / 6 px; the labels move with it
     (:func:`motion_blur_shift`), so cornerSubPix lands on them as in frames blurred evenly. Known
     values: the shift of a 5 px blur with direction 1 along x is +1 px (kornia filters by correlation;
     the saddles of a blurred board move 1.017 px there, so labels stay within a few hundredths)."""
