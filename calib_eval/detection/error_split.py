@@ -17,7 +17,6 @@ frame's common shift is taken out.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -74,27 +73,19 @@ def countable(lab: dict) -> np.ndarray:
 def main(argv: list[str] | None = None) -> int:
     from tqdm import tqdm
 
+    from calib_eval.detection.evaluation import read_set
     from cotrain.detect.detector import make_detector
     from cotrain.detect.images import ImageError, load_image
-    from cotrain.targets import TargetError, load_target, target_from_json
+    from cotrain.targets import TargetError
 
     ap = argparse.ArgumentParser(prog="python -m calib_eval.detection.error_split", description=__doc__.splitlines()[0])
     ap.add_argument("--set", default="report/detection", help="rendered detection set (its labels.json and images/)")
     ap.add_argument("--target", help="the set's target, if its labels.json names none (our target config or a Kalibr yaml)")
     args = ap.parse_args(argv)
-    path = Path(args.set) / "labels.json"
-    if not path.is_file():
-        print(f"error: no labels.json in {args.set}", file=sys.stderr)
-        return 2
-    meta = json.loads(path.read_text())
-    stored = meta.get("target") or meta.get("key", {}).get("target")
     try:
-        target = load_target(args.target) if args.target else target_from_json(stored) if stored else None
+        meta, target = read_set(args.set, args.target)
     except TargetError as e:
         print(f"error: {e}", file=sys.stderr)
-        return 2
-    if target is None:
-        print(f"error: {path} names no target; give --target", file=sys.stderr)
         return 2
     det = make_detector(target)
     offsets, failed = {}, []

@@ -39,7 +39,7 @@ from cotrain.detect.detector import Detector
 from cotrain.detect.images import ImageError, load_image
 from cotrain.geometry import cameras
 from cotrain.render.renderer import LABEL_VERSION, RenderConfig, render_batch
-from cotrain.targets import Target, TargetConfig, make_target
+from cotrain.targets import Target, TargetConfig, TargetError, load_target, make_target, target_from_json
 
 BENCH_VERSION = 1  # bump when the benchmark set changes: results are only comparable within a version
 PAPER = {  # Table: detection recall / mean error (px) of the paper
@@ -381,6 +381,21 @@ def _condition_settings(cfg: EvalConfig) -> dict:
     """The render settings of the set's conditions as labels.json stores them (a set rendered with
     other settings for a condition of the same name is rendered again)."""
     return json.loads(json.dumps({c: CONDITIONS[c] for c in cfg.conditions}))
+
+
+def read_set(set_dir: str | Path, target: str | None = None, default: Target | None = None) -> tuple[dict, Target]:
+    """A rendered set's ``labels.json`` (checkerboard or AprilGrid set) and its target: ``target``
+    (a target file) where given, else the one the set names, else ``default``. Raises TargetError
+    with a one-line message where there is no labels.json or no target."""
+    path = Path(set_dir) / "labels.json"
+    if not path.is_file():
+        raise TargetError(f"no labels.json in {set_dir} (render a set first)")
+    meta = json.loads(path.read_text())
+    stored = meta.get("target") or meta.get("key", {}).get("target")
+    board = load_target(target) if target else target_from_json(stored) if stored else default
+    if board is None:
+        raise TargetError(f"{path} names no target; give --target")
+    return meta, board
 
 
 def load_or_render(cfg: EvalConfig, out: Path, progress: bool = True) -> dict:

@@ -26,7 +26,6 @@ can identify corners, and a guess can be wrong.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -36,8 +35,6 @@ from cotrain.targets import (  # the board's in-plane turns, as the detector's p
     ROTATIONS,
     Checkerboard,
     TargetError,
-    load_target,
-    target_from_json,
 )
 
 STEPS = ((1, 0), (-1, 0), (0, 1), (0, -1))
@@ -102,13 +99,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--set", default="report/detection", help="rendered detection set (its labels.json)")
     ap.add_argument("--target", help="the set's board, if its labels.json names none (our target config or a Kalibr yaml)")
     args = ap.parse_args(argv)
-    path = Path(args.set) / "labels.json"
-    if not path.is_file():
-        print(f"error: no labels.json in {args.set} (render a set with calib-eval detection first)", file=sys.stderr)
-        return 2
-    meta = json.loads(path.read_text())
+    from calib_eval.detection.evaluation import read_set
+
     try:
-        board = load_target(args.target) if args.target else target_from_json(meta.get("target", Checkerboard().to_json()))
+        meta, board = read_set(args.set, args.target, default=Checkerboard())
     except TargetError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
@@ -116,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: identifiability is worked out for checkerboards, not {board.kind}", file=sys.stderr)
         return 2
     res = ceiling(meta["labels"], board.nx, board.ny)
-    print(f"identifiable from geometry alone ({path}): share of detectable corners")
+    print(f"identifiable from geometry alone ({Path(args.set) / 'labels.json'}): share of detectable corners")
     print("| FoV | detectable corners | seen = detectable | seen = visible |\n|---|---|---|---|")
     for k, v in sorted(res.items(), key=lambda kv: (kv[0] == "all", kv[0])):
         print(f"| {k} | {v['detectable']} | {v['from_detectable']:.3f} | {v['from_visible']:.3f} |")
