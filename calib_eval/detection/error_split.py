@@ -102,7 +102,7 @@ def main(argv: list[str] | None = None) -> int:
         offsets[lab["image"]] = off[keep]
     res = split_errors(offsets)
     print(f"corner error on {args.set} (FoV frames, corners matched within {TOL_PX:g} px of their label):")
-    print("| frames | count | corners | mean px | median px |\n|---|---|---|---|---|")
+    print("| group | frames | corners | mean px | median px |\n|---|---|---|---|---|")
     names = {"all": "all", "shifted": f"with a common shift > {SHIFT_PX} px", "other": "the others"}
     for k in ("all", "shifted", "other"):
         r = res[k]
