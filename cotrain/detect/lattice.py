@@ -146,11 +146,18 @@ def match_corner(
     return None, False
 
 
+def beside_points(p: np.ndarray, step: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    """(K, 3, 2): the points a quarter, half and three quarters of the way along segments
+    p -> p + step (K, 2), moved by offset (K, 2) to one side (the samples of the edge tests)."""
+    t = np.array([0.25, 0.5, 0.75])[None, :, None]
+    return p[:, None] + t * step[:, None] + offset[:, None]
+
+
 def edge_contrasts(img: np.ndarray, p: np.ndarray, q: np.ndarray, o: np.ndarray, depth: float) -> np.ndarray:
     """Brightness ``depth`` px to the ``+o`` side of segment p -> q (2,) minus the ``-o`` side, at a
     quarter, half and three quarters of the way: (3,) (``o`` (2,) a unit vector; NaN outside the image)."""
-    mid = p + np.array([[0.25], [0.5], [0.75]]) * (q - p)
-    vals = values_at(img, np.concatenate([mid + depth * o, mid - depth * o]))
+    side = (depth * o)[None]
+    vals = values_at(img, np.concatenate([beside_points(p[None], (q - p)[None], s)[0] for s in (side, -side)]))
     return vals[:3] - vals[3:]
 
 

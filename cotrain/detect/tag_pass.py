@@ -54,7 +54,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from cotrain.detect.grid_config import GridConfig
-from cotrain.detect.lattice import STEPS, Lattice, final_fits, values_at
+from cotrain.detect.lattice import STEPS, Lattice, beside_points, final_fits, values_at
 from cotrain.detect.saddle import fit_saddles, outside_circle, saddle_response, smooth_cached, window_half
 from cotrain.targets.aprilgrid import BORDER_BITS, CELLS, DATA_BITS, N_CODES, AprilGrid, printed_bits
 
@@ -246,13 +246,6 @@ def axis_neighbours(xy: np.ndarray, rays: np.ndarray, tree: cKDTree, img: np.nda
     return out
 
 
-def _beside(p: np.ndarray, step: np.ndarray, offset: np.ndarray) -> np.ndarray:
-    """(K, 3, 2): the points a quarter, half and three quarters of the way along segments
-    p -> p + step (K, 2), moved by offset (K, 2) to one side (the samples of the edge tests)."""
-    t = np.array([0.25, 0.5, 0.75])[None, :, None]
-    return p[:, None] + t * step[:, None] + offset[:, None]
-
-
 def edges_along(
     img: np.ndarray, p: np.ndarray, step: np.ndarray, min_contrast: float, max_depth: np.ndarray | float = np.inf
 ) -> np.ndarray:
@@ -263,7 +256,7 @@ def edges_along(
     n = np.linalg.norm(step, axis=1, keepdims=True)
     normal = np.stack([-step[:, 1], step[:, 0]], 1) / np.maximum(n, 1e-9)
     side = np.maximum(np.minimum(0.15 * n, np.reshape(max_depth, (-1, 1))), 0.8) * normal
-    diff = values_at(img, _beside(p, step, side)) - values_at(img, _beside(p, step, -side))
+    diff = values_at(img, beside_points(p, step, side)) - values_at(img, beside_points(p, step, -side))
     same = (diff > 0).all(1) | (diff < 0).all(1)
     return same & (np.abs(diff.mean(1)) >= min_contrast)
 
@@ -305,7 +298,7 @@ def edge_contrast(img: np.ndarray, p: np.ndarray, q: np.ndarray, normal: np.ndar
     at a quarter, half and three quarters of the way, ``depth`` px to each side; NaN where no
     sample pair lies inside the image circle (``rim_dist`` (H, W) > 1)."""
     side = (depth * normal)[None]
-    pts = np.concatenate([_beside(p[None], (q - p)[None], side)[0], _beside(p[None], (q - p)[None], -side)[0]])
+    pts = np.concatenate([beside_points(p[None], (q - p)[None], side)[0], beside_points(p[None], (q - p)[None], -side)[0]])
     vals = values_at(img, pts)
     rd = values_at(rim_dist, pts)
     ok = (rd[:3] > 1) & (rd[3:] > 1) & np.isfinite(vals[:3]) & np.isfinite(vals[3:])
