@@ -22,9 +22,11 @@ from pathlib import Path
 
 import numpy as np
 
+from calib_eval.detection.evaluation import TOL_PX  # a reported corner further than this from its label is not matched (it is wrong)
+from calib_eval.detection.tags import TagEvalConfig
+
 MIN_CORNERS = 8  # corners a frame needs for its common shift to be measured
 SHIFT_PX = 0.25  # a frame whose corners are off by a common shift longer than this is "shifted"
-TOL_PX = 3.0  # a reported corner further than this from its label is not matched (it is wrong)
 
 
 def split_errors(offsets: dict[str, np.ndarray], min_corners: int = MIN_CORNERS, shift_px: float = SHIFT_PX) -> dict:
@@ -64,10 +66,10 @@ def split_errors(offsets: dict[str, np.ndarray], min_corners: int = MIN_CORNERS,
 
 def countable(lab: dict) -> np.ndarray:
     """(N,) bool: the corners a frame's recall counts (``detectable`` of a checkerboard set; visible
-    with their tag at least 8 px across in an AprilGrid set)."""
+    with their tag at least ``TagEvalConfig.min_tag_px`` across in an AprilGrid set)."""
     if "detectable" in lab:
         return np.asarray(lab["detectable"], bool)
-    return np.asarray(lab["visible"], bool) & (np.asarray(lab["tag_px"], float) >= 8)
+    return np.asarray(lab["visible"], bool) & (np.asarray(lab["tag_px"], float) >= TagEvalConfig.min_tag_px)
 
 
 def main(argv: list[str] | None = None) -> int:

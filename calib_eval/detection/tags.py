@@ -29,13 +29,12 @@ import cv2
 import numpy as np
 import torch
 
-from calib_eval.detection.evaluation import _render_cfg
+from calib_eval.detection.evaluation import TOL_PX, _render_cfg
 from cotrain.detect.detector import AprilGridDetector
 from cotrain.geometry import cameras
 from cotrain.render.renderer import LABEL_VERSION, render_batch
 from cotrain.targets import AprilGrid, TargetConfig, make_target
 
-TOL_PX = 3.0
 BINS = list(range(0, 120, 10))  # off-axis bins, deg: [0, 10) ... [110, 120)
 SIZES = [8, 10, 12, 16, 20, 30]  # tag-size bins, px across: [8, 10) ... [30, inf)
 
