@@ -17,8 +17,10 @@ checkerboard's: tags and crossing squares are dark, the gap strips between them 
    step must be an edge with the dark cell on the side the lattice's parity says, and must not
    pass over another candidate (:func:`step_taken`);
 4. reading (:func:`read_cells`, :func:`look_at_tag`): each tag cell with its four corners is read
-   through its own homography, bent by the lattice corners around it (never one homography per
-   board: the fisheye bends a tag at the rim), the cells sharpened against blur and the data split
+   through its own homography, bent by the lattice corners around it and by its sides as the
+   image shows them (:func:`side_points`; never one homography per board: the fisheye bends a
+   tag at the rim, a tag side bowed by a data cell already moves every cell a row), unless the
+   sides disagree with the corners (a slid corner); the cells sharpened against blur and the data split
    into black and white by Otsu's threshold; a tag decodes alone within ``max_hamming`` bit errors
    (AprilTag's own default: 2 of tag36h11's 11);
 5. placement (:func:`place_board`): each lattice, and each join of lattices grown from several
@@ -94,6 +96,7 @@ class TagConfig:
     min_data_share: float = 0.15  # a seed's tag has at least this share of white and of black data cells (tag36h11: 0.2 .. 0.8)
     min_data_contrast: float = 0.2  # a seed's white data cells must be lighter than its black ones by this share of the tag's contrast
     min_clean: float = 0.9  # share of its border's inner-ring samples darker, and gap samples lighter, than their midpoint
+    max_side_misfit: float = 0.04  # tags are read through a map bent to their sides, where the sides fit it within this (tag widths)
     sharpen: float = 1.5  # weight of the 4-neighbour Laplacian that undoes blur over a tag's cells (rendered tags of 10-30 px)
     min_cell_px: float = 1.0  # tags whose data cells are smaller than this (px) are not read
     # --- placement ---
@@ -351,7 +354,7 @@ def seed_tag(
             continue
         if not ring_in_gaps(img, c, spacing):
             continue  # a quick look first: most quads of candidates are no tag
-        look = look_at_tag(img, c, spacing, sharpen=cfg.sharpen)
+        look = look_at_tag(img, c, spacing, sharpen=cfg.sharpen, max_side_misfit=cfg.max_side_misfit)
         if look is None or look.contrast < cfg.min_bit_contrast or look.clean < cfg.min_clean:
             continue
         if min(look.white.mean(), 1 - look.white.mean()) < cfg.min_data_share or look.data_contrast < cfg.min_data_contrast:
@@ -740,28 +743,104 @@ def _quadratic(u: np.ndarray) -> np.ndarray:
     return np.stack([np.ones(len(u)), u[:, 0], u[:, 1], u[:, 0] * u[:, 1], u[:, 0] ** 2, u[:, 1] ** 2], 1)
 
 
-def tag_map(corners: np.ndarray, unit_more: np.ndarray | None = None, more: np.ndarray | None = None):
+def tag_map(
+    corners: np.ndarray,
+    unit_more: np.ndarray | None = None,
+    more: np.ndarray | None = None,
+    side_px: np.ndarray | None = None,
+    side_of: np.ndarray | None = None,
+):
     """The map from a tag's unit square (u along a, v along b) to the image: the homography of its
-    four corners (4, 2), bent by a quadratic where lattice corners around the tag (``more`` (n, 2)
-    pixels at unit coordinates ``unit_more`` (n, 2), n >= 6) show how the fisheye bends it. Returns
-    a function (m, 2) unit -> (m, 2) pixels."""
+    four corners (4, 2), bent by a quadratic where more is known of how the fisheye bends the tag:
+    lattice corners around it (``more`` (n, 2) pixels at unit coordinates ``unit_more`` (n, 2)),
+    and points found on its sides (``side_px`` (m, 2) pixels on the sides ``side_of`` (m,) of
+    :data:`SIDES`; such a point fixes only the coordinate across its side). The quadratic is fitted
+    where there are at least 6 constraints per coordinate. Returns a function (k, 2) unit -> (k, 2)
+    pixels."""
     unit = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float32)
-    Hm = cv2.getPerspectiveTransform(unit, corners.astype(np.float32))
-    coef = None
-    if more is not None and len(more) >= 6:
+    Hm = cv2.getPerspectiveTransform(unit, corners.astype(np.float64).astype(np.float32))
+    det = np.linalg.det(Hm)
+    if not np.isfinite(det) or abs(det) < 1e-12:
+        more = side_px = None  # a degenerate quad: nothing to bend
+    else:
         Hi = np.linalg.inv(Hm)
-        seen = cv2.perspectiveTransform(more[None].astype(np.float64), Hi)[0]  # where the homography puts them
-        A = _quadratic(np.concatenate([unit, unit_more]))
-        rhs = np.concatenate([np.zeros((4, 2)), seen - unit_more])  # 0 at the tag's own corners
-        w = np.concatenate([np.full(4, 10.0), np.ones(len(more))])[:, None]
-        coef = np.linalg.lstsq(A * w, rhs * w, rcond=None)[0]
+    seen_of = lambda px: cv2.perspectiveTransform(px[None].astype(np.float64), Hi)[0]  # noqa: E731  where the homography puts them
+    # Rows of each coordinate's fit: (unit points, that coordinate's offset, weight). The tag's own
+    # corners stay where they are (weight 10).
+    rows = [[(unit, np.zeros(4), np.full(4, 10.0))], [(unit, np.zeros(4), np.full(4, 10.0))]]
+    if more is not None and len(more):
+        seen = seen_of(more)
+        for k in range(2):
+            rows[k].append((unit_more, seen[:, k] - unit_more[:, k], np.ones(len(more))))
+    if side_px is not None and len(side_px):
+        seen = seen_of(side_px)
+        for k in range(2):
+            on = SIDES[side_of, 0] == k  # sides where coordinate k is fixed
+            u = seen[on].copy()
+            u[:, k] = SIDES[side_of[on], 1]
+            rows[k].append((u, seen[on, k] - u[:, k], np.ones(int(on.sum()))))
+    coef = np.zeros((6, 2))
+    fitted = False
+    misfit = 0.0
+    for k in range(2):
+        u, rhs, w = (np.concatenate(x) for x in zip(*rows[k]))
+        if len(u) - 4 < 6:
+            continue
+        A = _quadratic(u)
+        # A little ridge: on two opposite sides alone, u and u^2 (or v and v^2) are one column.
+        Aw = np.concatenate([A * w[:, None], 1e-3 * np.eye(6)])
+        coef[:, k] = np.linalg.lstsq(Aw, np.concatenate([rhs * w, np.zeros(6)]), rcond=None)[0]
+        if side_px is not None and len(rows[k]) > 1:
+            n_side = len(rows[k][-1][0])
+            if n_side:
+                misfit = max(misfit, float(np.abs(A[-n_side:] @ coef[:, k] - rhs[-n_side:]).max()))
+        fitted = True
 
     def to_image(u: np.ndarray) -> np.ndarray:
-        if coef is not None:
+        if fitted:
             u = u + _quadratic(u) @ coef
         return cv2.perspectiveTransform(u[None].astype(np.float64), Hm)[0]
 
+    to_image.misfit = misfit  # the largest distance (unit square) of a side point from the fitted sides
     return to_image
+
+
+# A tag's sides in its unit square: (the coordinate fixed on it, its value), in the order
+# v = 0 (a), u = 1, v = 1, u = 0; the unit normal into the tag follows.
+SIDES = np.array([[1, 0.0], [0, 1.0], [1, 1.0], [0, 0.0]])
+_SIDE_INWARD = np.array([[0.0, 1.0], [-1.0, 0.0], [0.0, -1.0], [1.0, 0.0]])
+
+
+def side_points(img: np.ndarray, to_image, spacing: float, dark: float, light: float, n: int = 5) -> tuple[np.ndarray, np.ndarray]:
+    """Where the tag's sides are: on each side, at ``n`` points between its corners, the crossing of
+    ``(dark + light) / 2`` from the white gap into the black border, searched along the side's
+    normal from the gap's middle to 1.8 border cells in (``to_image``: the tag's current map,
+    :func:`tag_map`). Returns pixels (m, 2) and their sides (m,) (of :data:`SIDES`); sides cut by
+    an occluder or blur give fewer points."""
+    t = (np.arange(n) + 1) / (n + 1)
+    s = np.linspace(-spacing / 2, 1.8 / CELLS, 15)
+    base = np.empty((4, n, 2))
+    for k, (fixed, value) in enumerate(SIDES):
+        base[k, :, int(fixed)] = value
+        base[k, :, 1 - int(fixed)] = t
+    unit = base[:, :, None, :] + s[None, None, :, None] * _SIDE_INWARD[:, None, None, :]  # (4, n, S, 2)
+    px = to_image(unit.reshape(-1, 2)).reshape(4, n, len(s), 2)
+    vals = values_at(img, px)
+    mid = (dark + light) / 2
+    below = vals < mid
+    out, side = [], []
+    for k in range(4):
+        for i in range(n):
+            v, b = vals[k, i], below[k, i]
+            if not np.isfinite(v).all() or b[0] or not b[-3:].all():
+                continue  # no white gap outside, or no black border inside
+            j = int(np.argmax(b))  # the first sample below the midpoint
+            if b[j:].sum() < len(b) - j - 1:
+                continue  # more than one crossing: not a clean side
+            f = (v[j - 1] - mid) / max(v[j - 1] - v[j], 1e-9)
+            out.append(px[k, i, j - 1] + f * (px[k, i, j] - px[k, i, j - 1]))
+            side.append(k)
+    return np.array(out).reshape(-1, 2), np.array(side, int)
 
 
 def look_at_tag(
@@ -772,20 +851,35 @@ def look_at_tag(
     more: np.ndarray | None = None,
     *,
     sharpen: float,
+    max_side_misfit: float | None = None,
 ) -> TagLook | None:
     """Read the tag whose corners, lattice (0, 0), (1, 0), (1, 1), (0, 1), are ``corners`` (4, 2)
     from ``img`` (H, W; unblurred: cells of small tags are 1-2 px) through the tag's own geometry
     (:func:`tag_map`, with the lattice corners around it where given; never one homography per
-    board: the fisheye bends the board); None where samples fall outside the image. The 10 x 10
+    board: the fisheye bends the board); with ``max_side_misfit``, the map is bent further to the
+    tag's sides found in the image (:func:`side_points`) where they fit it within that many tag
+    widths (else a corner slid and the sides would hide it); None where samples fall outside the
+    image. The 10 x 10
     cells are sharpened (a 4-neighbour Laplacian of weight ``sharpen``: blur darkens a white cell
     among black ones), the data cells standardised and split by Otsu's threshold, so a grey print,
     a dim corner or a blurred small tag reads as well as a clean one."""
     data, bord, gaps = _unit_points(float(spacing))
-    pts = tag_map(corners, unit_more, more)(np.concatenate([data, bord, gaps]))
+    to_image = tag_map(corners, unit_more, more)
+    pts = to_image(np.concatenate([data, bord, gaps]))
     vals = values_at(img, pts.astype(np.float64))
     if not np.isfinite(vals).all():
         return None
     n = len(data)
+    bl, wh = float(np.median(vals[n : n + 64])), float(np.median(vals[n + 64 :]))
+    if max_side_misfit is not None and wh - bl > 0:
+        # The sides as the image shows them bend the map further (a fisheye bends a tag's sides).
+        side_px, side_of = side_points(img, to_image, spacing, bl, wh)
+        bent = tag_map(corners, unit_more, more, side_px, side_of)
+        if bent.misfit <= max_side_misfit:  # else the corners and the sides disagree: a corner slid
+            pts = bent(np.concatenate([data, bord, gaps]))
+            vals = values_at(img, pts.astype(np.float64))
+            if not np.isfinite(vals).all():
+                return None
     d, bv, gv = vals[:n].reshape(36, -1).mean(1), vals[n : n + 64], vals[n + 64 :]
     bl, wh = float(np.median(bv)), float(np.median(gv))
     mid = (bl + wh) / 2
@@ -907,7 +1001,7 @@ def read_cells(lat: Lattice, img: np.ndarray, spacing: float, cfg: TagConfig) ->
         pos = {-1: -spacing, 0: 0.0, 1: 1.0, 2: 1.0 + spacing}
         unit_more = np.array([(pos[i], pos[j]) for i, j in ring]).reshape(-1, 2)
         more = lat.xy[[where[(a + i, b + j)] for i, j in ring]].reshape(-1, 2)
-        look = look_at_tag(img, c, spacing, unit_more, more, sharpen=cfg.sharpen)
+        look = look_at_tag(img, c, spacing, unit_more, more, sharpen=cfg.sharpen, max_side_misfit=cfg.max_side_misfit)
         if look is None:
             continue
         ok = look.contrast >= cfg.min_bit_contrast and look.clean >= cfg.min_clean

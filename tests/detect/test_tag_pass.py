@@ -27,8 +27,10 @@ from cotrain.detect.tag_pass import (
     page_order,
     ray_step,
     rays_agree,
+    side_points,
     slipped_corr,
     tag_corr,
+    tag_map,
     tag_pass,
     tag_under,
     verified_corners,
@@ -521,3 +523,54 @@ def test_frames_without_junctions_give_nothing():
     for img in (flat, blob):
         res = tag_pass(img, g)
         assert len(res.ids) == 0 and res.xy.shape == (0, 2)
+
+
+def test_side_points_lie_on_a_flat_tags_sides():
+    """On a flat tag 40 px across, the points found on its sides lie on the straight lines between
+    its corners within 0.1 px, five on every side."""
+    img, c = tag_image(5, 40, 0.7)
+    look = tag_map(c)
+    q, side = side_points(img, look, 0.3, 0.15, 0.85)
+    assert np.bincount(side, minlength=4).tolist() == [5, 5, 5, 5]
+    for k in range(4):
+        a, b = c[k], c[(k + 1) % 4]  # side k of SIDES runs from corner k to corner k + 1
+        d = b - a
+        off = ((q[side == k] - a) @ np.array([-d[1], d[0]])) / np.linalg.norm(d)
+        assert np.abs(off).max() < 0.1
+
+
+def bowed(img: np.ndarray, corners: np.ndarray, bow: float) -> np.ndarray:
+    """``img`` with every column moved down by ``bow`` * 4 s (1 - s) px, s the column's position
+    between the tag's left and right sides (0 .. 1): a tag whose top and bottom sides the lens bends."""
+    h, w = img.shape
+    x, y = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    s = (x - corners[0, 0]) / (corners[1, 0] - corners[0, 0])
+    return cv2.remap(img, x, (y - bow * 4 * s * (1 - s)).astype(np.float32), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+
+def test_a_bent_tag_reads_through_its_sides():
+    """A tag 40 px across whose sides bow by 6 px (1.5 data cells) at their middle: through its
+    corners' homography alone the data cells are read a cell and a half off and the tag does not
+    decode; bent to its sides as the image shows them, it reads as itself without a bit error."""
+    cfg = TagConfig()
+    for t in (3, 17, 30):
+        img, c = tag_image(t, 40, 0.5)
+        img = np.pad(img, 10, mode="edge")
+        c = c + 10
+        img = bowed(img, c, 6.0)
+        tid, _, ham = decode_bits(look_at_tag(img, c, 0.3, sharpen=cfg.sharpen).white)
+        assert not (tid == t and ham <= cfg.max_hamming)
+        tid, _, ham = decode_bits(look_at_tag(img, c, 0.3, sharpen=cfg.sharpen, max_side_misfit=cfg.max_side_misfit).white)
+        assert (tid, ham) == (t, 0)
+
+
+def test_sides_disagreeing_with_a_slid_corner_are_not_used():
+    """A corner slid 0.3 of a tag along the diagonal (onto a data junction) leaves the sides found
+    in the image far from the map its corners give: the misfit exceeds the detector's bound, where
+    the true corners fit their sides within a hundredth of the tag."""
+    img, c = tag_image(9, 40, 0.5)
+    for corners, low in ((c, True), (c + np.array([[12.0, 12.0], [0, 0], [0, 0], [0, 0]]), False)):
+        look = tag_map(corners)
+        q, side = side_points(img, look, 0.3, 0.15, 0.85)
+        misfit = tag_map(corners, side_px=q, side_of=side).misfit
+        assert (misfit < 0.01) if low else (misfit > TagConfig().max_side_misfit)
