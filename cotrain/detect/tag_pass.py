@@ -825,22 +825,17 @@ def side_points(img: np.ndarray, to_image, spacing: float, dark: float, light: f
         base[k, :, 1 - int(fixed)] = t
     unit = base[:, :, None, :] + s[None, None, :, None] * _SIDE_INWARD[:, None, None, :]  # (4, n, S, 2)
     px = to_image(unit.reshape(-1, 2)).reshape(4, n, len(s), 2)
-    vals = values_at(img, px)
+    vals = values_at(img, px).reshape(4 * n, len(s))
+    px = px.reshape(4 * n, len(s), 2)
     mid = (dark + light) / 2
     below = vals < mid
-    out, side = [], []
-    for k in range(4):
-        for i in range(n):
-            v, b = vals[k, i], below[k, i]
-            if not np.isfinite(v).all() or b[0] or not b[-3:].all():
-                continue  # no white gap outside, or no black border inside
-            j = int(np.argmax(b))  # the first sample below the midpoint
-            if b[j:].sum() < len(b) - j - 1:
-                continue  # more than one crossing: not a clean side
-            f = (v[j - 1] - mid) / max(v[j - 1] - v[j], 1e-9)
-            out.append(px[k, i, j - 1] + f * (px[k, i, j] - px[k, i, j - 1]))
-            side.append(k)
-    return np.array(out).reshape(-1, 2), np.array(side, int)
+    # One crossing only, white gap outside, black border inside (sides cut by an occluder or blur fail).
+    ok = np.isfinite(vals).all(1) & ~below[:, 0] & below[:, -3:].all(1) & ((below[:, 1:] != below[:, :-1]).sum(1) == 1)
+    r = np.nonzero(ok)[0]
+    j = below[r].argmax(1)  # the first sample below the midpoint
+    v0, v1 = vals[r, j - 1], vals[r, j]
+    f = ((v0 - mid) / np.maximum(v0 - v1, 1e-9))[:, None]
+    return px[r, j - 1] + f * (px[r, j] - px[r, j - 1]), r // n
 
 
 def look_at_tag(
