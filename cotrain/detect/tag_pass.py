@@ -83,7 +83,7 @@ class TagConfig:
     agree_radius: float = 0.3  # predictions from different neighbours must agree within this fraction of the step
     min_step_ratio: float = 0.7  # a new step may be this much shorter than predicted ...
     max_step_ratio: float = 1.4  # ... or this much longer
-    ray_step_angle: float = 25.0  # deg: where nothing lies at a prediction, a candidate an edge ray leads to within this of the step
+    ray_step_angle: float = 40.0  # deg: where nothing lies at a prediction, a candidate an edge ray leads to within this of the step
     ray_step_reach: float = 2.0  # ... and within this multiple of the reach of the prediction
     max_step_junction: float = 0.1  # a candidate this close to a step's middle part (fraction of the step) refuses it
     crowd_radius: float = 0.5  # a new corner this close (fraction of the local gap) to a placed one is refused

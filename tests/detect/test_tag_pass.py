@@ -285,7 +285,7 @@ def test_edges_along_finds_segments_on_an_edge_only():
 
 
 def test_ray_step_takes_the_candidate_along_a_ray_in_the_steps_direction():
-    """Of a corner's nearest ray neighbours, the one within 25 deg of the predicted step and of a
+    """Of a corner's nearest ray neighbours, the one within 40 deg of the predicted step and of a
     length the growth allows is taken; none when it is already a lattice corner, when the step
     points elsewhere, or when it is twice as long as predicted."""
     cfg = TagConfig()
@@ -299,7 +299,9 @@ def test_ray_step_takes_the_candidate_along_a_ray_in_the_steps_direction():
     p = xy[0]
     assert ray_step(p, options, np.array([28.0, -4.0]), xy, tree, set(), cfg) == 1  # 16 deg off: taken
     assert ray_step(p, options, np.array([28.0, -4.0]), xy, tree, {1}, cfg) is None
-    assert ray_step(p, options, np.array([20.0, 20.0]), xy, tree, set(), cfg) is None  # 37 deg off ray 0, 45 off ray 1
+    assert cfg.ray_step_angle == 40.0
+    assert ray_step(p, options, np.array([20.0, 20.0]), xy, tree, set(), cfg) == 1  # 37 deg off ray 0: taken
+    assert ray_step(p, options, np.array([15.0, -26.0]), xy, tree, set(), cfg) is None  # 68 deg off ray 0, 150 off ray 1
     assert ray_step(p, options, np.array([15.0, 2.0]), xy, tree, set(), cfg) is None  # twice the predicted length
     assert ray_step(p, options, np.array([0.0, 30.0]), xy, tree, set(), cfg) == 2
 
