@@ -1112,7 +1112,7 @@ def rays_agree(lat: Lattice, img: np.ndarray, spacing: float, cfg: TagConfig) ->
     the corner's own edge rays (:func:`corner_rays` on ``img`` (H, W)), within
     ``cfg.max_ray_angle``. The rays are read at ``cfg.ray_radius`` of the local gap: the shortest of
     the corner's gap steps and of its tag sides times ``spacing`` (a corner on the board's outer
-    edge has no gap step). A junction between a tag's data cells and its border, taken for a
+    edge has no gap step), and of its lattice neighbours' local gaps. A junction between a tag's data cells and its border, taken for a
     corner, sees its neighbours off its rays; a corner without rays fails."""
     where = lat.where
     K = len(lat.ab)
@@ -1126,6 +1126,15 @@ def rays_agree(lat: Lattice, img: np.ndarray, spacing: float, cfg: TagConfig) ->
                 length = math.hypot(*steps[k, n])
                 gap[k] = min(gap[k], length * spacing if is_long(a if da else b, da or db) else length)
     dist = np.linalg.norm(steps, axis=2)
+    # A corner with neighbours along one axis only (a lattice's fringe) takes the gap along the
+    # other axis from its neighbours: under foreshortening the two differ several times, and a
+    # circle of the larger reaches into the tag's data cells.
+    own = gap.copy()
+    for (a, b), k in where.items():
+        for da, db in STEPS:
+            m = where.get((a + da, b + db))
+            if m is not None:
+                gap[k] = min(gap[k], own[m])
     rays = corner_rays(img, lat.xy, cfg.ray_radius * np.where(np.isfinite(gap), gap, 0.0))
     cos = np.einsum("knd,krd->knr", steps / np.where(np.isnan(dist), 1.0, dist)[..., None], rays)
     best = np.where(np.isnan(cos), -2.0, cos).max(axis=2)  # (K, 4): the nearest ray of each step

@@ -576,3 +576,23 @@ def test_sides_disagreeing_with_a_slid_corner_are_not_used():
         q, side = side_points(img, look, 0.3, 0.15, 0.85)
         misfit = tag_map(corners, side_px=q, side_of=side).misfit
         assert (misfit < 0.01) if low else (misfit > TagConfig().max_side_misfit)
+
+
+def test_a_fringe_corner_reads_its_rays_at_its_neighbours_gap():
+    """A board seen at a grazing angle (tag rows squashed): a lattice corner at the end of a row,
+    with one tag side to its only neighbour, would read its rays on a circle sized by that side
+    (its own gap estimate); the circle reaches into the tag and finds no four rays. Taking the
+    gap of its lattice neighbours, whose steps across the rows show the squash, it passes."""
+    g = make_target(TargetConfig(kind="aprilgrid", margin=0.3))
+    c = centre(g)
+    img, q, vis, _ = render(g, "kb4", 150, [c[0] + 0.02, c[1] - 0.6, 0.2], c)
+    grey = cv2.GaussianBlur(img.astype(np.float32) / 255, (0, 0), 0.7)
+    cfg, C = TagConfig(), 2 * g.tc
+    for row in (2, 4, 6, 8):
+        ab = [(a, b) for b in (row, row + 1) for a in range(7)] + [(7, row)]  # two rows, and one corner beyond
+        idx = np.array([b * C + a for a, b in ab])
+        assert vis[idx].all()
+        own_gap = np.linalg.norm(q[idx[-1]] - q[idx[6]]) * g.cfg.tag_spacing  # its only step is a tag side
+        assert np.isnan(corner_rays(grey, q[idx[-1:]].astype(np.float64), np.array([cfg.ray_radius * own_gap]))).all()
+        ok = rays_agree(Lattice(q[idx].astype(np.float64), np.array(ab), np.zeros(len(idx), bool)), grey, g.cfg.tag_spacing, cfg)
+        assert ok[-1]
