@@ -48,7 +48,7 @@ from __future__ import annotations
 import collections
 import functools
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import NamedTuple
 
 import cv2
@@ -66,6 +66,7 @@ class TagConfig:
     # --- candidates ---
     response_sigma: float = 0.9  # px: scale of the saddle response (small: gaps of tiny tags are 2-3 px)
     min_response: float = 0.0015  # saddle response a candidate needs (scale-normalised -det Hessian)
+    candidate_min_symmetry: float = 0.5  # a candidate's fit needs this point symmetry (the grid pass's min_symmetry for the rest)
     max_candidates: int = 1500  # strongest response maxima kept (all true corners of the evaluation set rank within 1500)
     # --- growth ---
     seed_axis_angle: float = 12.0  # deg: a seed's neighbours lie within this of its edge rays
@@ -151,9 +152,12 @@ def tag_candidates(
     d, _ = cKDTree(xy0).query(xy0, k=2)
     halves = window_half(np.maximum(d[:, 1], 2.0))
     xy, ok = np.zeros_like(xy0), np.zeros(len(xy0), bool)
+    # The point-symmetry test looser than the grid pass's: in a tag of 8-12 px the crossing square
+    # (2-4 px) ends inside the smallest window, and its far corner breaks the symmetry.
+    gcfg = replace(cfg.grid, min_symmetry=cfg.candidate_min_symmetry)
     for h in np.unique(halves):
         m = halves == h
-        xy[m], ok[m], _ = fit_saddles(grey, smoothed, xy0[m], int(h), cfg.grid, rim_dist)
+        xy[m], ok[m], _ = fit_saddles(grey, smoothed, xy0[m], int(h), gcfg, rim_dist)
     keep = np.nonzero(ok)[0]
     drop = np.zeros(len(keep), bool)
     for i, j in sorted(cKDTree(xy[keep]).query_pairs(cfg.grid.merge_radius_px)):

@@ -596,3 +596,29 @@ def test_a_fringe_corner_reads_its_rays_at_its_neighbours_gap():
         assert np.isnan(corner_rays(grey, q[idx[-1:]].astype(np.float64), np.array([cfg.ray_radius * own_gap]))).all()
         ok = rays_agree(Lattice(q[idx].astype(np.float64), np.array(ab), np.zeros(len(idx), bool)), grey, g.cfg.tag_spacing, cfg)
         assert ok[-1]
+
+
+def test_candidates_of_small_tags_pass_the_looser_symmetry_test():
+    """Tags about 9 px across (crossing squares under 3 px, inside the smallest fit window): with
+    the tag pass's candidate symmetry test over 90 % of the corners are candidates, with the grid
+    pass's stricter one (checkerboard X-junctions are symmetric over the whole window) under 75 %."""
+    from cotrain.detect.saddle import outside_circle
+    from cotrain.detect.tag_pass import tag_candidates
+
+    g = make_target(TargetConfig(kind="aprilgrid", margin=0.3))
+    c = centre(g)
+    img, q, vis, _ = render(g, "kb4", 180, [c[0] + 0.05, c[1] - 0.04, 1.5], c)
+    assert 8 < np.linalg.norm(q[1] - q[0]) < 10 and vis.all()
+    grey = img.astype(np.float32) / 255
+    allowed = ~outside_circle(grey)
+    allowed[[0, -1], :] = False
+    allowed[:, [0, -1]] = False
+    rim = cv2.distanceTransform(allowed.astype(np.uint8), cv2.DIST_L2, 3)
+
+    def found(cfg: TagConfig) -> float:
+        xy, _ = tag_candidates(grey, allowed, cfg, {}, rim)
+        return float((cKDTree(xy).query(q)[0] < 1.0).mean())
+
+    assert TagConfig().candidate_min_symmetry < TagConfig().grid.min_symmetry
+    assert found(TagConfig()) > 0.9
+    assert found(TagConfig(candidate_min_symmetry=TagConfig().grid.min_symmetry)) < 0.75
