@@ -747,66 +747,75 @@ def _quadratic(u: np.ndarray) -> np.ndarray:
     return np.stack([np.ones(len(u)), u[:, 0], u[:, 1], u[:, 0] * u[:, 1], u[:, 0] ** 2, u[:, 1] ** 2], 1)
 
 
+@dataclass
+class TagMap:
+    """A tag's unit square (u along a, v along b; corners at 0 and 1) -> image pixels (:func:`tag_map`)."""
+
+    H: np.ndarray  # (3, 3) the homography of the tag's four corners
+    coef: np.ndarray | None  # (6, 2) the quadratic that bends the unit square first (:func:`_quadratic`); None: not bent
+    misfit: float  # the largest distance (tag widths) of a point found on a side from the fitted side; 0 without side points
+
+    def __call__(self, u: np.ndarray) -> np.ndarray:
+        """(k, 2) unit coordinates -> (k, 2) pixels."""
+        if self.coef is not None:
+            u = u + _quadratic(u) @ self.coef
+        return cv2.perspectiveTransform(u[None].astype(np.float64), self.H)[0]
+
+
 def tag_map(
     corners: np.ndarray,
     unit_more: np.ndarray | None = None,
     more: np.ndarray | None = None,
     side_px: np.ndarray | None = None,
     side_of: np.ndarray | None = None,
-):
-    """The map from a tag's unit square (u along a, v along b) to the image: the homography of its
-    four corners (4, 2), bent by a quadratic where more is known of how the fisheye bends the tag:
-    lattice corners around it (``more`` (n, 2) pixels at unit coordinates ``unit_more`` (n, 2)),
-    and points found on its sides (``side_px`` (m, 2) pixels on the sides ``side_of`` (m,) of
-    :data:`SIDES`; such a point fixes only the coordinate across its side). The quadratic is fitted
-    where there are at least 6 constraints per coordinate. Returns a function (k, 2) unit -> (k, 2)
-    pixels."""
+) -> TagMap:
+    """The map from a tag's unit square to the image: the homography of its four corners (4, 2),
+    bent by a quadratic where more is known of how the fisheye bends the tag: lattice corners
+    around it (``more`` (n, 2) pixels at unit coordinates ``unit_more`` (n, 2)), and points found on
+    its sides (``side_px`` (m, 2) pixels on the sides ``side_of`` (m,) of :data:`SIDES`, see
+    :func:`side_points`; such a point fixes only the coordinate across its side). Each coordinate's
+    quadratic is fitted where it has at least 6 constraints besides the corners."""
     unit = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float32)
-    Hm = cv2.getPerspectiveTransform(unit, corners.astype(np.float64).astype(np.float32))
-    det = np.linalg.det(Hm)
+    H = cv2.getPerspectiveTransform(unit, corners.astype(np.float32))
+    det = np.linalg.det(H)
     if not np.isfinite(det) or abs(det) < 1e-12:
-        more = side_px = None  # a degenerate quad: nothing to bend
-    else:
-        Hi = np.linalg.inv(Hm)
-    seen_of = lambda px: cv2.perspectiveTransform(px[None].astype(np.float64), Hi)[0]  # noqa: E731  where the homography puts them
-    # Rows of each coordinate's fit: (unit points, that coordinate's offset, weight). The tag's own
-    # corners stay where they are (weight 10).
-    rows = [[(unit, np.zeros(4), np.full(4, 10.0))], [(unit, np.zeros(4), np.full(4, 10.0))]]
+        return TagMap(H, None, 0.0)  # a degenerate quad: nothing to bend
+    Hi = np.linalg.inv(H)
+
+    def seen_of(px: np.ndarray) -> np.ndarray:  # where the homography puts pixels (n, 2) in the unit square
+        return cv2.perspectiveTransform(px[None].astype(np.float64), Hi)[0]
+
+    # Each coordinate's fit: blocks of (unit points, that coordinate's offset there, weight). The
+    # tag's own corners stay where they are (weight 10).
+    blocks: list[list] = [[(unit, np.zeros(4), np.full(4, 10.0))] for _ in range(2)]
     if more is not None and len(more):
         seen = seen_of(more)
         for k in range(2):
-            rows[k].append((unit_more, seen[:, k] - unit_more[:, k], np.ones(len(more))))
+            blocks[k].append((unit_more, seen[:, k] - unit_more[:, k], np.ones(len(more))))
+    n_side = [0, 0]  # side points in each coordinate's fit (its last block)
     if side_px is not None and len(side_px):
         seen = seen_of(side_px)
         for k in range(2):
-            on = SIDES[side_of, 0] == k  # sides where coordinate k is fixed
+            on = SIDES[side_of, 0] == k  # the sides on which coordinate k is fixed
             u = seen[on].copy()
             u[:, k] = SIDES[side_of[on], 1]
-            rows[k].append((u, seen[on, k] - u[:, k], np.ones(int(on.sum()))))
+            blocks[k].append((u, seen[on, k] - u[:, k], np.ones(int(on.sum()))))
+            n_side[k] = int(on.sum())
     coef = np.zeros((6, 2))
     fitted = False
     misfit = 0.0
     for k in range(2):
-        u, rhs, w = (np.concatenate(x) for x in zip(*rows[k]))
+        u, rhs, w = (np.concatenate(x) for x in zip(*blocks[k]))
         if len(u) - 4 < 6:
             continue
         A = _quadratic(u)
         # A little ridge: on two opposite sides alone, u and u^2 (or v and v^2) are one column.
         Aw = np.concatenate([A * w[:, None], 1e-3 * np.eye(6)])
         coef[:, k] = np.linalg.lstsq(Aw, np.concatenate([rhs * w, np.zeros(6)]), rcond=None)[0]
-        if side_px is not None and len(rows[k]) > 1:
-            n_side = len(rows[k][-1][0])
-            if n_side:
-                misfit = max(misfit, float(np.abs(A[-n_side:] @ coef[:, k] - rhs[-n_side:]).max()))
         fitted = True
-
-    def to_image(u: np.ndarray) -> np.ndarray:
-        if fitted:
-            u = u + _quadratic(u) @ coef
-        return cv2.perspectiveTransform(u[None].astype(np.float64), Hm)[0]
-
-    to_image.misfit = misfit  # the largest distance (unit square) of a side point from the fitted sides
-    return to_image
+        if n_side[k]:
+            misfit = max(misfit, float(np.abs(A[-n_side[k] :] @ coef[:, k] - rhs[-n_side[k] :]).max()))
+    return TagMap(H, coef if fitted else None, misfit)
 
 
 # A tag's sides in its unit square: (the coordinate fixed on it, its value), in the order
@@ -815,7 +824,7 @@ SIDES = np.array([[1, 0.0], [0, 1.0], [1, 1.0], [0, 0.0]])
 _SIDE_INWARD = np.array([[0.0, 1.0], [-1.0, 0.0], [0.0, -1.0], [1.0, 0.0]])
 
 
-def side_points(img: np.ndarray, to_image, spacing: float, dark: float, light: float, n: int = 5) -> tuple[np.ndarray, np.ndarray]:
+def side_points(img: np.ndarray, to_image: TagMap, spacing: float, dark: float, light: float, n: int = 5) -> tuple[np.ndarray, np.ndarray]:
     """Where the tag's sides are: on each side, at ``n`` points between its corners, the crossing of
     ``(dark + light) / 2`` from the white gap into the black border, searched along the side's
     normal from the gap's middle to 1.8 border cells in (``to_image``: the tag's current map,
@@ -1116,8 +1125,9 @@ def rays_agree(lat: Lattice, img: np.ndarray, spacing: float, cfg: TagConfig) ->
     the corner's own edge rays (:func:`corner_rays` on ``img`` (H, W)), within
     ``cfg.max_ray_angle``. The rays are read at ``cfg.ray_radius`` of the local gap: the shortest of
     the corner's gap steps and of its tag sides times ``spacing`` (a corner on the board's outer
-    edge has no gap step), and of its lattice neighbours' local gaps. A junction between a tag's data cells and its border, taken for a
-    corner, sees its neighbours off its rays; a corner without rays fails."""
+    edge has no gap step), and of its lattice neighbours' local gaps. A junction between a tag's
+    data cells and its border, taken for a corner, sees its neighbours off its rays; a corner
+    without rays fails."""
     where = lat.where
     K = len(lat.ab)
     steps = np.full((K, 4, 2), np.nan)
