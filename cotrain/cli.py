@@ -105,7 +105,9 @@ def cmd_detect(args: argparse.Namespace) -> int:
         cached = " (cached)" if read["cached"] else ""
         print(f"{args.bag}: {counts}, {sum(read['skipped'])} undecodable skipped -> sequence folder {folder}{cached}")
         return 0
-    data = detect_files(paths, det, Path(args.draw) if args.draw else None)
+    if args.workers < 0:
+        raise ValueError("--workers must be 0 (one per core) or a positive number")
+    data = detect_files(paths, det, Path(args.draw) if args.draw else None, workers=args.workers)
     out = Path(args.out or "detections.json")
     write_json_atomic(data, out)
     n_err = sum(1 for e in data["images"] if e["error"])
@@ -173,6 +175,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", help="detection JSON (default detections.json); with --bag the sequence folder (default BAG.sequence)")
     s.add_argument("--threshold", type=float, default=0.5, help="with --slots: visibility probability to report a corner")
     s.add_argument("--draw", help="folder for overlays of the detections")
+    s.add_argument(
+        "--workers", type=int, default=0, help="AprilGrid (the tag pass): processes over the files (default 0: one per core, up to 8)"
+    )
     s.add_argument(
         "--slots",
         action="store_true",

@@ -8,55 +8,83 @@ from __future__ import annotations
 
 import json
 import math
+import multiprocessing
 import os
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from cotrain.detect.detector import Detector, draw_detection
+from cotrain.detect.detector import AprilGridDetector, Detector, draw_detection
 from cotrain.detect.images import ImageError, load_image
 
 LOOKAHEAD = 2  # images read and through the network ahead of the one the grid pass works on
+MAX_WORKERS = 8  # processes for the tag pass at most (workers=0: one per core up to this)
+MIN_FILES_PER_WORKER = 4  # a spawned process costs about 2 s (imports): fewer files per process run in this one
 
 
-def detect_files(paths: list[Path], detector: Detector, draw_dir: Path | None = None, progress: bool = True) -> dict:
+def detect_files(
+    paths: list[Path], detector: Detector | AprilGridDetector, draw_dir: Path | None = None, progress: bool = True, workers: int = 0
+) -> dict:
     """Run the detector over files; returns the detection JSON of docs/conventions.md (as a dict).
 
-    Two images are in flight: while the grid pass works on one image, a second thread reads the
-    next one and runs it through the network (decoding and onnxruntime release the GIL), so on
-    two cores the work per image is about the longer of the two halves, not their sum."""
+    The network detector: two images are in flight; while the grid pass works on one image, a
+    second thread reads the next one and runs it through the network (decoding and onnxruntime
+    release the GIL), so on two cores the work per image is about the longer of the two halves,
+    not their sum. The tag pass (an AprilGrid) is Python from end to end: ``workers`` processes
+    run it on files side by side (0: one per core, at most :data:`MAX_WORKERS`; 1: in this
+    process). The output is the same either way."""
     from tqdm import tqdm
 
-    entries = []
     if draw_dir is not None:
         draw_dir.mkdir(parents=True, exist_ok=True)
+    n_proc = min(os.cpu_count() or 1, MAX_WORKERS) if workers == 0 else workers
+    bar = dict(desc="detect", unit="img", disable=not progress or len(paths) < 2)
+    entries = []
+    if isinstance(detector, AprilGridDetector) and n_proc > 1 and len(paths) >= MIN_FILES_PER_WORKER * 2:
+        # Spawned, not forked: the caller may hold torch or onnxruntime threads.
+        ctx = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(min(n_proc, len(paths) // MIN_FILES_PER_WORKER), mp_context=ctx) as pool:
+            jobs = [pool.submit(_detect_one, detector, p, draw_dir) for p in paths]
+            entries = [job.result() for job in tqdm(jobs, **bar)]
+        return {"model": str(detector.path), "target": detector.target.to_json(), "images": entries}
 
     def front(p: Path):
         return detector.network(load_image(p))
 
     with ThreadPoolExecutor(max_workers=1) as pool:
         ahead = [pool.submit(front, p) for p in paths[:LOOKAHEAD]]
-        for k, p in enumerate(tqdm(paths, desc="detect", unit="img", disable=not progress or len(paths) < 2)):
+        for k, p in enumerate(tqdm(paths, **bar)):
             if k + LOOKAHEAD < len(paths):
                 ahead.append(pool.submit(front, paths[k + LOOKAHEAD]))
-            entry = {"path": str(p), "width": 0, "height": 0, "corners": [], "error": None}
-            try:
-                pending = ahead[k].result()
-                ahead[k] = None  # the image is not kept once it is done
-                entry["height"], entry["width"] = pending.grey.shape
-                det = detector.finish(pending)
-                entry["corners"] = [
-                    {"id": int(i), "x": round(float(x), 3), "y": round(float(y), 3), "confidence": round(float(c), 4)}
-                    for i, (x, y), c in zip(det.ids, det.xy, det.confidence)
-                ]
-                if draw_dir is not None:
-                    cv2.imwrite(str(draw_dir / (p.stem + "_det.png")), draw_detection(pending.grey, det))
-            except ImageError as e:
-                entry["error"] = str(e)
-            entries.append(entry)
+            entries.append(_entry(detector, p, ahead[k].result, draw_dir))
+            ahead[k] = None  # the image is not kept once it is done
     return {"model": str(detector.path), "target": detector.target.to_json(), "images": entries}
+
+
+def _entry(detector: Detector | AprilGridDetector, p: Path, pending, draw_dir: Path | None) -> dict:
+    """One file's entry of the detection JSON; ``pending()`` gives the image through the first
+    half of the detector (:meth:`Detector.network`), or raises :class:`ImageError`."""
+    entry = {"path": str(p), "width": 0, "height": 0, "corners": [], "error": None}
+    try:
+        got = pending()
+        entry["height"], entry["width"] = got.grey.shape
+        det = detector.finish(got)
+        entry["corners"] = [
+            {"id": int(i), "x": round(float(x), 3), "y": round(float(y), 3), "confidence": round(float(c), 4)}
+            for i, (x, y), c in zip(det.ids, det.xy, det.confidence)
+        ]
+        if draw_dir is not None:
+            cv2.imwrite(str(draw_dir / (p.stem + "_det.png")), draw_detection(got.grey, det))
+    except ImageError as e:
+        entry["error"] = str(e)
+    return entry
+
+
+def _detect_one(detector: AprilGridDetector, p: Path, draw_dir: Path | None) -> dict:
+    """A worker process's job in :func:`detect_files`: one file, read and detected."""
+    return _entry(detector, p, lambda: detector.network(load_image(p)), draw_dir)
 
 
 def json_safe(obj):

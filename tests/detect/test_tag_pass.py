@@ -622,3 +622,30 @@ def test_candidates_of_small_tags_pass_the_looser_symmetry_test():
     assert TagConfig().candidate_min_symmetry < TagConfig().grid.min_symmetry
     assert found(TagConfig()) > 0.9
     assert found(TagConfig(candidate_min_symmetry=TagConfig().grid.min_symmetry)) < 0.75
+
+
+def test_detect_files_runs_the_tag_pass_in_processes_with_the_same_output(tmp_path):
+    """``detect_files`` over AprilGrid renders and one file that is no image: in two worker
+    processes the detection JSON is the same as in this process, entry for entry and in the
+    files' order; the bad file is an entry with its error, and the corners are found."""
+    from cotrain.io.detections import MIN_FILES_PER_WORKER, detect_files
+
+    g = make_target(TargetConfig(kind="aprilgrid"))
+    c = centre(g)
+    files = []
+    for k, (model, fov, dx) in enumerate([("kb4", 200, 0.0), ("ds", 220, 0.1), ("ucm", 190, -0.1), ("eucm", 210, 0.05)]):
+        img, _, vis, _ = render(g, model, fov, [c[0] + dx, c[1] - 0.05, 0.35], c, seed=k)
+        assert vis.sum() > 50
+        for copy in range(2):
+            files.append(tmp_path / f"view{k}_{copy}.png")
+            cv2.imwrite(str(files[-1]), img)
+    (tmp_path / "broken.png").write_bytes(b"not an image")
+    files.insert(3, tmp_path / "broken.png")
+    assert len(files) >= 2 * MIN_FILES_PER_WORKER  # enough for the process pool
+    det = AprilGridDetector(g)
+    serial = detect_files(files, det, progress=False, workers=1)
+    parallel = detect_files(files, det, progress=False, workers=2)
+    assert parallel == serial
+    assert [e["path"] for e in parallel["images"]] == [str(f) for f in files]
+    assert parallel["images"][3]["error"] and not parallel["images"][3]["corners"]
+    assert all(len(e["corners"]) > 50 for i, e in enumerate(parallel["images"]) if i != 3)
