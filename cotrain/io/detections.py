@@ -39,7 +39,8 @@ def detect_files(
 
     if draw_dir is not None:
         draw_dir.mkdir(parents=True, exist_ok=True)
-    n_proc = min(os.cpu_count() or 1, MAX_WORKERS) if workers == 0 else workers
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)  # a container's share
+    n_proc = min(cores, MAX_WORKERS) if workers == 0 else workers
     bar = dict(desc="detect", unit="img", disable=not progress or len(paths) < 2)
     entries = []
     if isinstance(detector, AprilGridDetector) and n_proc > 1 and len(paths) >= MIN_FILES_PER_WORKER * 2:
