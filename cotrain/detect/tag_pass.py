@@ -824,22 +824,29 @@ SIDES = np.array([[1, 0.0], [0, 1.0], [1, 1.0], [0, 0.0]])
 _SIDE_INWARD = np.array([[0.0, 1.0], [-1.0, 0.0], [0.0, -1.0], [1.0, 0.0]])
 
 
-def side_points(img: np.ndarray, to_image: TagMap, spacing: float, dark: float, light: float, n: int = 5) -> tuple[np.ndarray, np.ndarray]:
-    """Where the tag's sides are: on each side, at ``n`` points between its corners, the crossing of
-    ``(dark + light) / 2`` from the white gap into the black border, searched along the side's
-    normal from the gap's middle to 1.8 border cells in (``to_image``: the tag's current map,
-    :func:`tag_map`). Returns pixels (m, 2) and their sides (m,) (of :data:`SIDES`); sides cut by
-    an occluder or blur give fewer points."""
+@functools.lru_cache(maxsize=4)
+def _side_samples(spacing: float, n: int) -> np.ndarray:
+    """(4, n, 15, 2) unit-square samples of :func:`side_points`: on each side of :data:`SIDES`, at
+    ``n`` points between its corners, from the gap's middle outside to 1.8 border cells in."""
     t = (np.arange(n) + 1) / (n + 1)
     s = np.linspace(-spacing / 2, 1.8 / CELLS, 15)
     base = np.empty((4, n, 2))
     for k, (fixed, value) in enumerate(SIDES):
         base[k, :, int(fixed)] = value
         base[k, :, 1 - int(fixed)] = t
-    unit = base[:, :, None, :] + s[None, None, :, None] * _SIDE_INWARD[:, None, None, :]  # (4, n, S, 2)
-    px = to_image(unit.reshape(-1, 2)).reshape(4, n, len(s), 2)
-    vals = values_at(img, px).reshape(4 * n, len(s))
-    px = px.reshape(4 * n, len(s), 2)
+    return base[:, :, None, :] + s[None, None, :, None] * _SIDE_INWARD[:, None, None, :]
+
+
+def side_points(img: np.ndarray, to_image: TagMap, spacing: float, dark: float, light: float, n: int = 5) -> tuple[np.ndarray, np.ndarray]:
+    """Where the tag's sides are: on each side, at ``n`` points between its corners, the crossing of
+    ``(dark + light) / 2`` from the white gap into the black border, searched along the side's
+    normal from the gap's middle to 1.8 border cells in (``to_image``: the tag's current map,
+    :func:`tag_map`). Returns pixels (m, 2) and their sides (m,) (of :data:`SIDES`); sides cut by
+    an occluder or blur give fewer points."""
+    unit = _side_samples(float(spacing), n)  # (4, n, S, 2)
+    S = unit.shape[2]
+    px = to_image(unit.reshape(-1, 2)).reshape(4 * n, S, 2)
+    vals = values_at(img, px)
     mid = (dark + light) / 2
     below = vals < mid
     # One crossing only, white gap outside, black border inside (sides cut by an occluder or blur fail).
