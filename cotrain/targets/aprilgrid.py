@@ -19,11 +19,14 @@ are OpenCV's marker bits turned by a half turn.
 from __future__ import annotations
 
 import functools
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
-import torch
-from torch import Tensor
+
+if TYPE_CHECKING:  # torch loads on first use: the detector path imports targets without it
+    import torch
+    from torch import Tensor
 
 from cotrain.targets.target import TargetConfig, TargetError
 
@@ -112,13 +115,19 @@ class AprilGrid:
 
     def grid_ij(self) -> Tensor:
         """(N, 2) grid indices (c, r) of corner ids 0..N-1 (id = r * 2 tag_cols + c)."""
+        import torch
+
         r, c = torch.meshgrid(torch.arange(self.ny), torch.arange(self.nx), indexing="ij")
         return torch.stack([c.reshape(-1), r.reshape(-1)], dim=-1)
 
     def ij_of(self, ids):
         """(...) corner ids -> (..., 2) grid indices (c, r) (numpy or torch)."""
         c, r = ids % self.nx, ids // self.nx
-        return np.stack([c, r], -1) if isinstance(ids, np.ndarray) else torch.stack([c, r], -1)
+        if isinstance(ids, np.ndarray):
+            return np.stack([c, r], -1)
+        import torch  # only for torch ids: the detector passes numpy
+
+        return torch.stack([c, r], -1)
 
     def id_of(self, ij):
         """(..., 2) grid indices (c, r) -> (...) corner ids, -1 off the grid (numpy)."""
@@ -134,8 +143,11 @@ class AprilGrid:
         b = (t // self.tc) * 4 * self.tc + (t % self.tc) * 2
         return np.stack([b, b + 1, b + self.nx + 1, b + self.nx], -1)
 
-    def points(self, dtype: torch.dtype = torch.float64) -> Tensor:
+    def points(self, dtype: torch.dtype | None = None) -> Tensor:
         """(N, 3) board-frame coordinates (metres) of corner ids 0..N-1 (Kalibr's createGridPoints)."""
+        import torch
+
+        dtype = torch.float64 if dtype is None else dtype
         cr = self.grid_ij().to(torch.int64)
         xy = (cr // 2) * self.P + (cr % 2) * self.S
         xy = xy.to(dtype)
@@ -143,6 +155,8 @@ class AprilGrid:
 
     def _axis_grid(self, x: Tensor) -> Tensor:
         """Board coordinate along one axis -> corner-grid coordinate (corner k at k; piecewise linear)."""
+        import torch
+
         k = torch.floor(x / self.P)
         f = x - k * self.P
         return torch.where(f <= self.S, 2 * k + f / self.S, 2 * k + 1 + (f - self.S) / self.gap)
@@ -150,6 +164,8 @@ class AprilGrid:
     def grid_coordinates(self, xy: Tensor) -> tuple[Tensor, Tensor]:
         """Board points (..., 2) metres -> corner-grid coordinates (..., 2) (corner (c, r) at (c, r))
         and (...) bool: on the pattern (tags and the corner squares around them)."""
+        import torch
+
         u, v = self._axis_grid(xy[..., 0]), self._axis_grid(xy[..., 1])
         inside = (u > -1) & (u < self.nx) & (v > -1) & (v < self.ny)
         return torch.stack([u, v], -1), inside
@@ -162,6 +178,8 @@ class AprilGrid:
 
     def _value(self, x: Tensor, y: Tensor, bits: Tensor) -> Tensor:
         """Point-sampled print at board points: 0 black, 1 white."""
+        import torch
+
         kx, ky = torch.floor(x / self.P), torch.floor(y / self.P)
         fx, fy = x - kx * self.P, y - ky * self.P
         in_tag_x, in_tag_y = fx < self.S, fy < self.S
@@ -197,6 +215,8 @@ class AprilGrid:
             intensity (...) in [0, 1] (0 black, 1 white) and coverage (...) in [0, 1], the fraction
             of the footprint on the printed sheet.
         """
+        import torch
+
         bits = torch.from_numpy(self.printed).to(xy.device)
         x, y = xy[..., 0], xy[..., 1]
         x0, y0, x1, y1 = self.extent()

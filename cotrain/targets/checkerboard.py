@@ -8,10 +8,13 @@ the squares, x along ``squares_x``, y along ``squares_y``, z into the board (awa
 from __future__ import annotations
 
 import functools
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
-from torch import Tensor
+
+if TYPE_CHECKING:  # torch loads on first use: the detector path imports targets without it
+    import torch
+    from torch import Tensor
 
 from cotrain.targets.target import TargetConfig, TargetError
 
@@ -73,13 +76,19 @@ class Checkerboard:
 
     def grid_ij(self) -> Tensor:
         """(N, 2) integer grid indices (i, j) of corner ids 0..N-1 (id = j * nx + i)."""
+        import torch
+
         j, i = torch.meshgrid(torch.arange(self.ny), torch.arange(self.nx), indexing="ij")
         return torch.stack([i.reshape(-1), j.reshape(-1)], dim=-1)
 
     def ij_of(self, ids):
         """(...) corner ids -> (..., 2) grid indices (i, j) (numpy or torch)."""
         i, j = ids % self.nx, ids // self.nx
-        return np.stack([i, j], -1) if isinstance(ids, np.ndarray) else torch.stack([i, j], -1)
+        if isinstance(ids, np.ndarray):
+            return np.stack([i, j], -1)
+        import torch  # only for torch ids: the detector passes numpy
+
+        return torch.stack([i, j], -1)
 
     def id_of(self, ij):
         """(..., 2) grid indices (i, j) -> (...) corner ids, -1 off the board (numpy)."""
@@ -87,8 +96,11 @@ class Checkerboard:
         on = (ij[..., 0] >= 0) & (ij[..., 0] < self.nx) & (ij[..., 1] >= 0) & (ij[..., 1] < self.ny)
         return np.where(on, ij[..., 1] * self.nx + ij[..., 0], -1)
 
-    def points(self, dtype: torch.dtype = torch.float64) -> Tensor:
+    def points(self, dtype: torch.dtype | None = None) -> Tensor:
         """(N, 3) board-frame coordinates (metres) of the inner corners, row i = corner id i."""
+        import torch
+
+        dtype = torch.float64 if dtype is None else dtype
         ij = self.grid_ij().to(dtype)
         xy = (ij + 1) * self.s
         return torch.cat([xy, torch.zeros_like(xy[:, :1])], dim=-1)
@@ -96,6 +108,8 @@ class Checkerboard:
     def grid_coordinates(self, xy: Tensor) -> tuple[Tensor, Tensor]:
         """Board points (..., 2) metres -> corner-grid coordinates (..., 2) (corner (i, j) at (i, j))
         and (...) bool: on the checker squares."""
+        import torch
+
         u = xy[..., 0] / self.s - 1
         v = xy[..., 1] / self.s - 1
         inside = (u > -1) & (u < self.nx) & (v > -1) & (v < self.ny)
@@ -121,6 +135,8 @@ class Checkerboard:
         and every inner corner stays exactly at its saddle point (the filtered waves cross zero
         at the grid lines).
         """
+        import torch
+
         u = xy[..., 0] / self.s
         v = xy[..., 1] / self.s
         if footprint is None:
@@ -155,6 +171,8 @@ def _filtered_square_wave(u: Tensor, w: Tensor) -> Tensor:
     the filtered value is ``sign * min(2 d / w, 1)``, a linear ramp through 0 exactly on the
     grid line. Footprints wider than a cell fade to the mean (0).
     """
+    import torch
+
     r = torch.remainder(u, 2.0)
     sign = torch.where(r < 1.0, 1.0, -1.0).to(u.dtype)
     frac = torch.remainder(u, 1.0)
@@ -164,6 +182,8 @@ def _filtered_square_wave(u: Tensor, w: Tensor) -> Tensor:
 
 def _box_coverage(u: Tensor, lo: float, hi: float, w: Tensor) -> Tensor:
     """Fraction of the box [u - w/2, u + w/2] inside [lo, hi] (for w below hi - lo)."""
+    import torch
+
     return torch.clamp((u - lo) / w + 0.5, 0.0, 1.0) * torch.clamp((hi - u) / w + 0.5, 0.0, 1.0)
 
 

@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
-import torch
-from torch import Tensor
 
-from cotrain.geometry import cameras, poses
+if TYPE_CHECKING:  # torch loads on first use: the detector path imports targets without it
+    import torch
+    from torch import Tensor
 
 KINDS = ("checkerboard", "aprilgrid")  # target kinds this release knows
 
@@ -56,8 +56,8 @@ class Target(Protocol):
     def spacing(self) -> float:
         """Distance between neighbouring corners on the board, metres (the local 'square')."""
 
-    def points(self, dtype: torch.dtype = torch.float64) -> Tensor:
-        """(N, 3) board-frame coordinates of corner ids 0 .. N - 1, metres (z = 0)."""
+    def points(self, dtype: torch.dtype | None = None) -> Tensor:
+        """(N, 3) board-frame coordinates of corner ids 0 .. N - 1, metres (z = 0); ``dtype`` default torch.float64."""
 
     def extent(self) -> tuple[float, float, float, float]:
         """(x_min, y_min, x_max, y_max) of the printed sheet, metres."""
@@ -104,6 +104,10 @@ def square_px(model: str, params: Tensor, T_cam_board: Tensor, target: Target) -
     the board -> image map over one ``target.spacing`` (central differences). 0 where any of the
     four sample points does not project. The one definition of "local square size" (renderer
     labels, synthetic rigs). (N,) float64."""
+    import torch
+
+    from cotrain.geometry import cameras, poses
+
     P = target.points(torch.float64)
     s = target.spacing
     dx = torch.tensor([s / 2, 0, 0], dtype=torch.float64)
