@@ -176,7 +176,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--threshold", type=float, default=0.5, help="with --slots: visibility probability to report a corner")
     s.add_argument("--draw", help="folder for overlays of the detections")
     s.add_argument(
-        "--workers", type=int, default=0, help="AprilGrid (the tag pass): processes over the files (default 0: one per core, up to 8)"
+        "--workers",
+        type=int,
+        default=0,
+        help="processes over many files (default 0: one per core, up to 8; 1: this process only)",
     )
     s.add_argument(
         "--slots",

@@ -87,6 +87,19 @@ class OnnxModel:
         self.outputs = tuple(names)
 
     @property
+    def threads(self) -> int:
+        """onnxruntime's intra-op threads (0: half the cores); set before the first run."""
+        return self._threads
+
+    @threads.setter
+    def threads(self, n: int) -> None:
+        self._threads, self._session = n, None
+
+    def __getstate__(self) -> dict:
+        """Pickled (to a worker process) without the onnxruntime session: it is made there anew."""
+        return {**self.__dict__, "_session": None}
+
+    @property
     def session(self):
         """The onnxruntime session over the (possibly cut) graph, made on first use."""
         if self._session is None:

@@ -20,8 +20,11 @@ from cotrain.detect.detector import AprilGridDetector, Detector, draw_detection
 from cotrain.detect.images import ImageError, load_image
 
 LOOKAHEAD = 2  # images read and through the network ahead of the one the grid pass works on
-MAX_WORKERS = 8  # processes for the tag pass at most (workers=0: one per core up to this)
-MIN_FILES_PER_WORKER = 4  # a spawned process costs about 2 s (imports): fewer files per process run in this one
+MAX_WORKERS = 8  # worker processes at most (workers=0: one per core up to this)
+# Files per worker process below which the files are detected in this process: a spawned process
+# costs about a second (imports) and wins back, per file, about 70 ms with the tag pass and 8 ms
+# with the network detector (whose own two threads already overlap half the work).
+MIN_FILES_PER_WORKER = {"tag_pass": 4, "network": 50}
 
 
 def detect_files(
@@ -29,25 +32,28 @@ def detect_files(
 ) -> dict:
     """Run the detector over files; returns the detection JSON of docs/conventions.md (as a dict).
 
-    The network detector: two images are in flight; while the grid pass works on one image, a
-    second thread reads the next one and runs it through the network (decoding and onnxruntime
-    release the GIL), so on two cores the work per image is about the longer of the two halves,
-    not their sum. The tag pass (an AprilGrid) is Python from end to end: ``workers`` processes
-    run it on files side by side (0: one per core, at most :data:`MAX_WORKERS`; 1: in this
-    process). The output is the same either way."""
+    Over many files, ``workers`` processes detect files side by side (0: one per core, at most
+    :data:`MAX_WORKERS`; 1: all in this process), each with its own copy of the detector (the
+    network at one onnxruntime thread per core it has). Over fewer files than
+    :data:`MIN_FILES_PER_WORKER` per process, or with one worker, they are detected in this
+    process with two images in flight: while the grid pass (or the tag pass) works on one image,
+    a second thread reads the next one and runs it through the network (decoding and onnxruntime
+    release the GIL; the passes, Python, mostly hold it). The output is the same either way."""
     from tqdm import tqdm
 
     if draw_dir is not None:
         draw_dir.mkdir(parents=True, exist_ok=True)
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)  # a container's share
     n_proc = min(cores, MAX_WORKERS) if workers == 0 else workers
+    n_proc = min(n_proc, len(paths) // MIN_FILES_PER_WORKER["tag_pass" if isinstance(detector, AprilGridDetector) else "network"])
     bar = dict(desc="detect", unit="img", disable=not progress or len(paths) < 2)
     entries = []
-    if isinstance(detector, AprilGridDetector) and n_proc > 1 and len(paths) >= MIN_FILES_PER_WORKER * 2:
+    if n_proc > 1:
         # Spawned, not forked: the caller may hold torch or onnxruntime threads.
         ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(min(n_proc, len(paths) // MIN_FILES_PER_WORKER), mp_context=ctx) as pool:
-            jobs = [pool.submit(_detect_one, detector, p, draw_dir) for p in paths]
+        threads = max(1, cores // n_proc)
+        with ProcessPoolExecutor(n_proc, mp_context=ctx, initializer=_start_worker, initargs=(detector, threads)) as pool:
+            jobs = [pool.submit(_detect_in_worker, p, draw_dir) for p in paths]
             entries = [job.result() for job in tqdm(jobs, **bar)]
         return {"model": str(detector.path), "target": detector.target.to_json(), "images": entries}
 
@@ -83,9 +89,22 @@ def _entry(detector: Detector | AprilGridDetector, p: Path, pending, draw_dir: P
     return entry
 
 
-def _detect_one(detector: AprilGridDetector, p: Path, draw_dir: Path | None) -> dict:
+_worker_detector: Detector | AprilGridDetector | None = None  # a worker process's own detector
+
+
+def _start_worker(detector: Detector | AprilGridDetector, threads: int) -> None:
+    """A worker process's start in :func:`detect_files`: keep its copy of the detector (sent once
+    per process, not per file), its network at ``threads`` onnxruntime threads."""
+    global _worker_detector
+    if isinstance(detector, Detector):
+        detector.net.threads = threads
+    _worker_detector = detector
+
+
+def _detect_in_worker(p: Path, draw_dir: Path | None) -> dict:
     """A worker process's job in :func:`detect_files`: one file, read and detected."""
-    return _entry(detector, p, lambda: detector.network(load_image(p)), draw_dir)
+    det = _worker_detector
+    return _entry(det, p, lambda: det.network(load_image(p)), draw_dir)
 
 
 def json_safe(obj):

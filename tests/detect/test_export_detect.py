@@ -179,10 +179,11 @@ def test_expand_inputs_sorted(tmp_path):
     assert [p.name for p in expand_inputs([str(tmp_path)])] == ["a.jpg", "b.png"]
 
 
-def test_detect_files_finds_rendered_corners_and_records_errors(tmp_path):
+def test_detect_files_finds_rendered_corners_and_records_errors(tmp_path, monkeypatch):
     """detect_files with the shipped model on clean renders at twice the processing size (known
     corners): nearly every visible corner found under its own id, sub-pixel at input resolution,
-    nothing reported where the board is not; bad files become entries with an error."""
+    nothing reported where the board is not; bad files become entries with an error. Two worker
+    processes (the threshold of files per process lowered to these few files) give the same JSON."""
     from cotrain.render.renderer import RenderConfig
 
     cfg = RenderConfig(
@@ -231,6 +232,10 @@ def test_detect_files_finds_rendered_corners_and_records_errors(tmp_path):
     assert n_found == 3
     for e, why in zip([data["images"][2], data["images"][5]], ("not a readable image", "not found")):
         assert why in e["error"] and e["corners"] == [] and (e["width"], e["height"]) == (0, 0)
+    import cotrain.io.detections as detections
+
+    monkeypatch.setitem(detections.MIN_FILES_PER_WORKER, "network", 3)
+    assert detect_files(files, Detector(threads=1), progress=False, workers=2) == data
 
 
 def test_grid_consistency_drops_wrong_ids():
