@@ -21,10 +21,11 @@ from cotrain.detect.images import ImageError, load_image
 
 LOOKAHEAD = 2  # images read and through the network ahead of the one the grid pass works on
 MAX_WORKERS = 8  # worker processes at most (workers=0: one per core up to this)
-# Files per worker process below which the files are detected in this process: a spawned process
-# costs about a second (imports) and wins back, per file, about 70 ms with the tag pass and 8 ms
-# with the network detector (whose own two threads already overlap half the work).
-MIN_FILES_PER_WORKER = {"tag_pass": 4, "network": 50}
+# Files per worker process below which the files are detected in this process. Starting the
+# processes costs about 1.3 s in all on two cores; a worker then wins back, per file, about 70 ms
+# with the tag pass and 5-9 ms with the network detector, whose own two threads already overlap
+# half the work (measured: two processes break even with the threads at 220 files).
+MIN_FILES_PER_WORKER = {"tag_pass": 4, "network": 100}
 
 
 def detect_files(
