@@ -210,12 +210,13 @@ class AprilGridDetector:
         return self.finish(self.network(image))
 
     def network(self, image: np.ndarray) -> Pending:
-        """The image as the tag pass reads it (no network: the same two halves as :class:`Detector`)."""
+        """The image as the tag pass reads it (no network: the same two halves as :class:`Detector`);
+        an under-exposed frame is scaled up (:func:`cotrain.detect.images.brighten`), as for the grid pass."""
         grey = to_grey_float(image) if image.dtype != np.float32 or image.ndim != 2 else image
         h, w = grey.shape
         if min(h, w) < MIN_SIDE:
             raise ImageError(f"image too small ({w}x{h}); need at least {MIN_SIDE} px per side")
-        return Pending(grey, None, {})
+        return Pending(brighten(grey), None, {})
 
     def finish(self, pending: Pending) -> Detection:
         """The tag pass on an image from :meth:`network`."""
