@@ -7,7 +7,10 @@
    detectors a user would otherwise pick, where installed (``make peers``): OpenCV's aruco with
    ``DICT_APRILTAG_36h11`` and Kalibr's 2-bit border, ``aprilgrid`` (PyPI, a port of Kalibr's
    detector) and ``pupil-apriltags`` (AprilTag 3).
-3. Score per FoV, per 10-degree bin of the corner's off-axis angle and per bin of tag size.
+3. Score per FoV, per 10-degree bin of the corner's off-axis angle and per bin of tag size, and
+   on rows of hard frames of their own (``--per-condition``): the checkerboard evaluation's
+   conditions (:data:`calib_eval.detection.conditions.CONDITIONS`: large tags at the rim, over- and
+   under-exposure, a dull print, motion blur, strong vignetting), FoV drawn in 180-240 deg.
 
 Detectable corners: visible, and the tag at least ``min_tag_px`` across (the smaller singular
 value of the image of one tag side). A peer's tag gives its four corners the ids of that tag's
@@ -29,6 +32,7 @@ import cv2
 import numpy as np
 import torch
 
+from calib_eval.detection.conditions import CONDITIONS
 from calib_eval.detection.evaluation import TOL_PX, _render_cfg
 from cotrain.detect.detector import AprilGridDetector
 from cotrain.geometry import cameras
@@ -44,6 +48,8 @@ class TagEvalConfig:
     fovs: list[int] = field(default_factory=lambda: [180, 200, 220, 240])  # FoVs (deg)
     per_fov: int = 50  # frames per FoV
     n_empty: int = 10  # frames without a target
+    conditions: list[str] = field(default_factory=lambda: list(CONDITIONS))  # rows of hard frames (CONDITIONS)
+    per_condition: int = 16  # frames per condition (0: none)
     seed: int = 2027  # the set's seed
     min_tag_px: float = 8.0  # detectable: the tag at least this many px across
     width: int = 1280
@@ -112,13 +118,23 @@ def render_set(cfg: TagEvalConfig, board: AprilGrid, out: Path) -> list[dict]:
 
     ecfg = EvalConfig(width=cfg.width, height=cfg.height, target=board.cfg)
     jobs = [(fov, i) for fov in cfg.fovs for i in range(cfg.per_fov)] + [(0, i) for i in range(cfg.n_empty)]
+    jobs += [(c, i) for c in cfg.conditions for i in range(cfg.per_condition)]
     labels = []
     for fov, i in tqdm(jobs, desc="render aprilgrid set"):
-        others = [m for m in cameras.MODELS if m != "kb4"]
-        models = list(cameras.MODELS) if fov == 0 else (["kb4"] if i < cfg.per_fov // 2 else others)
-        rc = _render_cfg(fov or 200, ecfg, models, no_target=fov == 0)
-        b = render_batch(rc, [i], seed=cfg.seed * 1000 + (fov // 10))
-        name = f"{'empty' if fov == 0 else f'fov{fov}'}_{i:03d}.png"
+        condition = fov if isinstance(fov, str) else None
+        if condition:
+            if condition not in CONDITIONS:
+                raise ValueError(f"unknown condition {condition!r} (known: {', '.join(CONDITIONS)})")
+            rc = _render_cfg((180.0, 240.0), ecfg, list(cameras.MODELS), condition=condition)
+            b = render_batch(rc, [i], seed=cfg.seed * 1000 + 50 + list(CONDITIONS).index(condition))
+            name = f"{condition.replace(' ', '_').replace('-', '_')}_{i:03d}.png"
+            fov = None
+        else:
+            others = [m for m in cameras.MODELS if m != "kb4"]
+            models = list(cameras.MODELS) if fov == 0 else (["kb4"] if i < cfg.per_fov // 2 else others)
+            rc = _render_cfg(fov or 200, ecfg, models, no_target=fov == 0)
+            b = render_batch(rc, [i], seed=cfg.seed * 1000 + (fov // 10))
+            name = f"{'empty' if fov == 0 else f'fov{fov}'}_{i:03d}.png"
         cv2.imwrite(str(out / "images" / name), (b["image"][0, 0].numpy() * 255).round().astype(np.uint8))
         model = rc.models[int(b["model_index"][0])]
         p_cam = b["T_cam_board"][0, :3, :3] @ board.points(b["T_cam_board"].dtype).T + b["T_cam_board"][0, :3, 3:]
@@ -127,6 +143,7 @@ def render_set(cfg: TagEvalConfig, board: AprilGrid, out: Path) -> list[dict]:
             {
                 "image": name,
                 "fov": fov or None,
+                "condition": condition,
                 "model": model,
                 "corners": b["corners_raw"][0].tolist(),
                 "visible": b["visible"][0].tolist(),
@@ -200,11 +217,18 @@ def evaluate(cfg: TagEvalConfig, out: Path) -> dict:
 
 
 def summarise(rows: list) -> dict:
-    per_fov, per_bin, per_size = {}, {b: [0, 0] for b in BINS}, {z: [0, 0] for z in SIZES}
+    per_fov, per_bin, per_size, per_cond = {}, {b: [0, 0] for b in BINS}, {z: [0, 0] for z in SIZES}, {}
     det_all = hit_all = wrong = empty_reports = 0
     errs, ms = [], []
     for lab, s, t, n in rows:
         ms.append(t)
+        if lab.get("condition"):  # a row of its own, outside the FoV figures
+            c = per_cond.setdefault(lab["condition"], [0, 0, 0, []])
+            c[0] += int(s["det"].sum())
+            c[1] += int(s["hit"].sum())
+            c[2] += s["wrong"]
+            c[3] += s["err"]
+            continue
         if lab["fov"] is None:
             empty_reports += n > 0
             continue
@@ -236,6 +260,10 @@ def summarise(rows: list) -> dict:
         "fov": {k: {"recall": v[1] / max(v[0], 1), "corners": v[0], "wrong": v[2]} for k, v in sorted(per_fov.items())},
         "bins": {b: {"recall": v[1] / v[0] if v[0] else None, "corners": v[0]} for b, v in per_bin.items()},
         "sizes": {z: {"recall": v[1] / v[0] if v[0] else None, "corners": v[0]} for z, v in per_size.items()},
+        "conditions": {
+            k: {"recall": v[1] / max(v[0], 1), "corners": v[0], "wrong": v[2], "mean_err": float(np.mean(v[3])) if v[3] else None}
+            for k, v in per_cond.items()
+        },
     }
 
 
@@ -273,6 +301,18 @@ def table(res: dict, cfg: TagEvalConfig) -> str:
         cells = ["-" if res[n]["sizes"][z]["recall"] is None else f"{res[n]['sizes'][z]['recall']:.2f}" for z in SIZES]
         lines.append(f"| {n} | " + " | ".join(cells) + " |")
     lines.append("| (corners) | " + " | ".join(str(res[names[0]]["sizes"][z]["corners"]) for z in SIZES) + " |")
+    conds = [c for c in CONDITIONS if c in res[names[0]].get("conditions", {})]
+    if conds:
+        lines += [
+            "",
+            f"Hard frames, {cfg.per_condition} per condition (FoV 180-240; recall / wrong corners; corners in the last column):",
+            "",
+        ]
+        lines.append("| condition | " + " | ".join(names) + " | corners |")
+        lines.append("|---" * (2 + len(names)) + "|")
+        for c in conds:
+            cells = [f"{res[n]['conditions'][c]['recall']:.3f} / {res[n]['conditions'][c]['wrong']}" for n in names]
+            lines.append(f"| {c} | " + " | ".join(cells) + f" | {res[names[0]]['conditions'][c]['corners']} |")
     return "\n".join(lines) + "\n"
 
 
@@ -303,9 +343,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--per-fov", type=int, default=TagEvalConfig.per_fov)
     p.add_argument("--fov", type=int, nargs="+", default=None)
     p.add_argument("--seed", type=int, default=TagEvalConfig.seed)
+    p.add_argument("--per-condition", type=int, default=TagEvalConfig.per_condition, help="frames per hard condition (0: none)")
     p.add_argument("--out", default="runs/tags_eval")
     a = p.parse_args(argv)
-    cfg = TagEvalConfig(per_fov=a.per_fov, seed=a.seed)
+    cfg = TagEvalConfig(per_fov=a.per_fov, seed=a.seed, per_condition=a.per_condition)
     if a.fov:
         cfg.fovs = a.fov
     torch.set_num_threads(2)

@@ -26,15 +26,20 @@ def test_peer_tags_take_kalibr_ids_and_wrong_ones_count():
 
 def test_summary_counts_recall_per_fov_angle_and_tag_size():
     """Two frames: recall per FoV, per 10-degree off-axis bin and per tag-size bin from the corners
-    each frame makes detectable and hits; a report on an empty frame is counted."""
+    each frame makes detectable and hits; a report on an empty frame is counted; a frame of a hard
+    condition counts in its own row only."""
     n = 4
     lab_a = {"fov": 180, "angle": [5.0, 15.0, 15.0, 95.0], "tag_px": [9.0, 11.0, 40.0, 40.0]}
     lab_b = {"fov": 220, "angle": [105.0] * n, "tag_px": [13.0] * n}
     s_a = {"det": np.array([True, True, True, False]), "hit": np.array([True, False, True, False]), "err": [0.1, 0.2], "wrong": 1}
     s_b = {"det": np.ones(n, bool), "hit": np.array([True, True, True, False]), "err": [0.3] * 3, "wrong": 0}
     empty = {"fov": None}
-    r = summarise([(lab_a, s_a, 10.0, 3), (lab_b, s_b, 30.0, 3), (empty, None, 20.0, 2)])
+    # A frame of a hard condition: its own row, in none of the FoV, angle or size figures.
+    lab_c = {"fov": None, "condition": "motion blur", "angle": [5.0] * n, "tag_px": [40.0] * n}
+    s_c = {"det": np.ones(n, bool), "hit": np.array([True, False, False, False]), "err": [0.9], "wrong": 2}
+    r = summarise([(lab_a, s_a, 10.0, 3), (lab_b, s_b, 30.0, 3), (empty, None, 20.0, 2), (lab_c, s_c, 20.0, 3)])
     assert r["recall"] == 5 / 7 and r["wrong"] == 1 and r["empty_reports"] == 1 and r["ms"] == 20.0
+    assert r["conditions"] == {"motion blur": {"recall": 0.25, "corners": 4, "wrong": 2, "mean_err": 0.9}}
     assert r["fov"][180]["recall"] == 2 / 3 and r["fov"][220]["recall"] == 3 / 4
     assert r["bins"][0]["recall"] == 1.0 and r["bins"][10]["recall"] == 0.5 and r["bins"][90]["corners"] == 0
     assert r["bins"][100]["recall"] == 3 / 4
