@@ -94,19 +94,19 @@ def cmd_detect(args: argparse.Namespace) -> int:
         polish=args.polish,
         mode="slots" if args.slots else "grid",
     )
+    if args.workers < 0:
+        raise ValueError("--workers must be 0 (one per core) or a positive number")
     if args.bag:
         from cotrain.io.bags import sequence_from_bag
 
         out = Path(args.out) if args.out else Path(str(args.bag).rstrip("/") + ".sequence")
         if not 0 <= args.every < float("inf"):
             raise ValueError("--every must be 0 (every image) or a positive number of seconds")
-        folder, read = sequence_from_bag(args.bag, args.topics, out, det, interval_s=args.every)
+        folder, read = sequence_from_bag(args.bag, args.topics, out, det, interval_s=args.every, workers=args.workers)
         counts = ", ".join(f"{t} {n} images" for t, n in zip(args.topics, read["images"]))
         cached = " (cached)" if read["cached"] else ""
         print(f"{args.bag}: {counts}, {sum(read['skipped'])} undecodable skipped -> sequence folder {folder}{cached}")
         return 0
-    if args.workers < 0:
-        raise ValueError("--workers must be 0 (one per core) or a positive number")
     data = detect_files(paths, det, Path(args.draw) if args.draw else None, workers=args.workers)
     out = Path(args.out or "detections.json")
     write_json_atomic(data, out)

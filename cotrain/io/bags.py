@@ -191,14 +191,14 @@ def _bag_stamp(path: Path) -> list:
 
 
 def sequence_from_bag(
-    bag: str | Path, topics: list[str], out: str | Path, detector, progress: bool = True, interval_s: float = 0.0
+    bag: str | Path, topics: list[str], out: str | Path, detector, progress: bool = True, interval_s: float = 0.0, workers: int = 0
 ) -> tuple[Path, dict]:
     """A sequence folder with detections from the image topics of ``bag``, at ``out``: images and
     timestamps from :func:`bag_to_sequence`, ``camN/detections.json`` from ``detector``
     (a :class:`cotrain.detect.detector.Detector`). Both are cached: a second call for the same bag
     (path, size, modification time), topics and target detects nothing again. Returns the folder
     and what was read ({"images", "skipped", "thinned", "reasons", "cached"}). ``interval_s``: see
-    :func:`bag_to_sequence`."""
+    :func:`bag_to_sequence`; ``workers``: see :func:`cotrain.io.detections.detect_files`."""
     from cotrain.io.detections import detect_files, write_json_atomic
     from cotrain.io.sequence import write_camera_detections
 
@@ -230,7 +230,7 @@ def sequence_from_bag(
             shutil.rmtree(old)
     summary = bag_to_sequence(path, topics, out, progress, interval_s)
     for i in range(len(topics)):
-        write_camera_detections(out / f"cam{i}", lambda paths: detect_files(paths, detector, progress=progress))
+        write_camera_detections(out / f"cam{i}", lambda paths: detect_files(paths, detector, progress=progress, workers=workers))
     read = {"images": summary.images, "skipped": summary.skipped, "thinned": summary.thinned, "reasons": summary.reasons}
     write_json_atomic({"key": key, "read": read}, marker)
     return out, {**read, "cached": False}
