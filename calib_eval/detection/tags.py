@@ -221,14 +221,14 @@ def summarise(rows: list) -> dict:
     det_all = hit_all = wrong = empty_reports = 0
     errs, ms = [], []
     for lab, s, t, n in rows:
-        ms.append(t)
-        if lab.get("condition"):  # a row of its own, outside the FoV figures
+        if lab.get("condition"):  # a row of its own, outside the FoV figures (and the timing)
             c = per_cond.setdefault(lab["condition"], [0, 0, 0, []])
             c[0] += int(s["det"].sum())
             c[1] += int(s["hit"].sum())
             c[2] += s["wrong"]
             c[3] += s["err"]
             continue
+        ms.append(t)
         if lab["fov"] is None:
             empty_reports += n > 0
             continue

@@ -37,7 +37,7 @@ def test_summary_counts_recall_per_fov_angle_and_tag_size():
     # A frame of a hard condition: its own row, in none of the FoV, angle or size figures.
     lab_c = {"fov": None, "condition": "motion blur", "angle": [5.0] * n, "tag_px": [40.0] * n}
     s_c = {"det": np.ones(n, bool), "hit": np.array([True, False, False, False]), "err": [0.9], "wrong": 2}
-    r = summarise([(lab_a, s_a, 10.0, 3), (lab_b, s_b, 30.0, 3), (empty, None, 20.0, 2), (lab_c, s_c, 20.0, 3)])
+    r = summarise([(lab_a, s_a, 10.0, 3), (lab_b, s_b, 30.0, 3), (empty, None, 20.0, 2), (lab_c, s_c, 99.0, 3)])
     assert r["recall"] == 5 / 7 and r["wrong"] == 1 and r["empty_reports"] == 1 and r["ms"] == 20.0
     assert r["conditions"] == {"motion blur": {"recall": 0.25, "corners": 4, "wrong": 2, "mean_err": 0.9}}
     assert r["fov"][180]["recall"] == 2 / 3 and r["fov"][220]["recall"] == 3 / 4
