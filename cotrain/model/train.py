@@ -224,11 +224,13 @@ def train(cfg: TrainConfig, resume: bool = False) -> dict:
 
     init_state = None
     if s.init_from and not resume:
-        # Fine-tuning: the checkpoint carries its config; its architecture wins over the recipe's.
+        # Fine-tuning: the checkpoint carries its config; its architecture wins over the recipe's. The
+        # processing size is not architecture (the network is fully convolutional, attention
+        # included): it stays the recipe's, so a model can be fine-tuned to a smaller size.
         ck = load_checkpoint(s.init_from)
+        input_size = tuple(cfg.model.input_size)
         cfg.model = from_dict(ModelConfig, ck["config"]["model"])
-        if tuple(cfg.model.input_size) != (cfg.render.height, cfg.render.width):
-            raise ConfigError(f"{s.init_from}: its processing size {tuple(cfg.model.input_size)} differs from render.height/width")
+        cfg.model.input_size = input_size
         init_state = ck["model"]
     model = CornerNet(cfg.model)
     opt = torch.optim.AdamW(model.parameters(), lr=s.lr, weight_decay=s.weight_decay)

@@ -104,6 +104,12 @@ def test_fine_tuning_adopts_checkpoint_architecture(tmp_path):
     assert r["step"] == 1
     _, cfg = build_from_checkpoint(load_checkpoint(tmp_path / "b" / "last.pt"))
     assert cfg.model.identity == "classify"
+    # The processing size is the recipe's, not the checkpoint's: a model fine-tuned to a smaller size.
+    small = ("render.height=48", "render.width=64", "model.input_size=[48,64]")
+    r = train(tiny(tmp_path / "c", "train.steps=1", f"train.init_from={tmp_path / 'a' / 'last.pt'}", *small))
+    model, cfg = build_from_checkpoint(load_checkpoint(tmp_path / "c" / "last.pt"))
+    assert tuple(cfg.model.input_size) == (48, 64) and cfg.model.identity == "classify"
+    assert model(torch.rand(1, 1, 48, 64))["heatmap"].shape[-2:] == (12, 16)
 
 
 class _BoardOracle(torch.nn.Module):
