@@ -36,7 +36,7 @@ Pure functions over numpy arrays; pixels follow docs/conventions.md (centre of t
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -109,6 +109,28 @@ def find_candidates(
     return xy[keep], axes[keep]
 
 
+def contrast_scaled(cfg: GridConfig, grey: np.ndarray, roi: np.ndarray) -> GridConfig:
+    """``cfg`` with its contrast thresholds (saddle contrast, seed contrast, margin contrast)
+    scaled by k = the contrast of ``grey`` (H, W) in ``roi`` (H, W bool; 5th to 95th percentile) /
+    ``cfg.board_contrast`` where k < 1; unchanged otherwise. A grey print, a board in the shade or
+    behind glare has a fraction of the contrast these were set on, and its saddles and colours
+    scale with it. The tests that compare shares of a corner's own contrast need no change, and
+    the saddle response stays as it is: lowered, it lets in noise maxima that take the seeds'
+    turns (measured: a board lost for every two gained)."""
+    if cfg.board_contrast <= 0 or not roi.any():
+        return cfg
+    lo, hi = np.percentile(grey[roi][::4], [5, 95])
+    k = float(hi - lo) / cfg.board_contrast
+    if k >= 1:
+        return cfg
+    return replace(
+        cfg,
+        min_saddle_contrast=cfg.min_saddle_contrast * k,
+        min_seed_contrast=cfg.min_seed_contrast * k,
+        min_edge_contrast=cfg.min_edge_contrast * k,
+    )
+
+
 def placement_is_sure(margin: float, geometry_margin: float, n_corners: int, cfg: GridConfig) -> bool:
     """Whether a placement that beats the runner-up by ``margin`` nats, ``geometry_margin`` of them
     from the geometry alone (:class:`cotrain.detect.identity.Placement`), is reported: by
@@ -159,6 +181,7 @@ def grid_pass(
     x0, x1 = max(0, xs[0] - pad), min(grey.shape[1], xs[-1] + 1 + pad)
     grey, roi, allowed = grey[y0:y1, x0:x1], roi[y0:y1, x0:x1], allowed[y0:y1, x0:x1]
     offset = np.array([x0, y0], np.float64)
+    cfg = contrast_scaled(cfg, grey, roi)
     rim_dist = cv2.distanceTransform(allowed.astype(np.uint8), cv2.DIST_L2, 3)
     smoothed: dict[int, np.ndarray] = {}
     response = saddle_response(grey)

@@ -95,3 +95,45 @@ def test_board_margin_pins_a_partial_view():
         img, box, ones, ones, np.log(lc), np.log(lr), BOARD, GridConfig(edge_weight=0.0, min_margin=-np.inf, min_margin_votes_alone=-np.inf)
     )
     assert with_edges.margin > no_edges.margin + 10
+
+
+def test_contrast_scaled_thresholds():
+    """The contrast thresholds scale with the searched region's contrast (5th-95th percentile)
+    under ``board_contrast``; a region of higher contrast keeps them."""
+    from cotrain.detect.grid_pass import contrast_scaled
+
+    cfg = GridConfig(board_contrast=0.5)
+    grey = np.tile(np.linspace(0.3, 0.6, 400), (40, 1)).astype(np.float32)  # 5-95 %: 0.315 .. 0.585
+    roi = np.ones_like(grey, bool)
+    low = contrast_scaled(cfg, grey, roi)
+    k = (0.585 - 0.315) / 0.5
+    np.testing.assert_allclose(
+        [low.min_saddle_contrast, low.min_seed_contrast, low.min_edge_contrast],
+        [cfg.min_saddle_contrast * k, cfg.min_seed_contrast * k, cfg.min_edge_contrast * k],
+        rtol=0.01,  # the percentiles are taken over every 4th pixel
+    )
+    assert low.min_response == cfg.min_response and low.min_alternation == cfg.min_alternation  # shares stay
+    assert contrast_scaled(cfg, np.tile(np.linspace(0, 1, 400), (40, 1)).astype(np.float32), roi) is cfg
+    assert contrast_scaled(GridConfig(board_contrast=0.0), grey, roi) == GridConfig(board_contrast=0.0)
+
+
+def test_grid_pass_on_a_grey_print():
+    """Prints of grey on grey (black 0.3-0.4, white 0.55-0.65), rendered with exact labels and
+    oracle network maps: with the thresholds scaled to the region's contrast the pass finds more
+    corners than with them fixed (measured 244 against 234), in no frame fewer, every one with
+    its right id."""
+    cfg = RenderConfig(height=360, width=640, p_no_target=0.0, black_range=(0.3, 0.4), white_range=(0.55, 0.65))
+    n = 12
+    batch = render_batch(cfg, list(range(n)), seed=6)
+    box, h, w = Letterbox(640, 360, (216, 384)), 54, 96
+    found = {}
+    for name, grid in (("scaled", GridConfig()), ("fixed", GridConfig(board_contrast=0.0))):
+        found[name] = []
+        for k in range(n):
+            maps = _oracle_maps(batch, k, box.scale, h, w, 0.5, np.random.default_rng(k))
+            r = grid_pass(batch["image"][k, 0].numpy(), box, *maps, BOARD, grid)
+            e = np.linalg.norm(r.xy - batch["corners_raw"][k].numpy()[r.ids], axis=1)
+            assert (e < 3).all(), (name, k)
+            found[name].append(len(e))
+    assert all(a >= b for a, b in zip(found["scaled"], found["fixed"])), found
+    assert sum(found["scaled"]) > sum(found["fixed"]) + 5, found
