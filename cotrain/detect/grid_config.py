@@ -19,7 +19,7 @@ class GridConfig:
     crop_pad_px: int = 12  # the full-resolution work happens on the region's bounding box grown by this
     max_candidates: int = 600  # strongest saddle-response maxima kept as candidates
     min_response: float = 0.002  # saddle response (scale-normalised -det Hessian) a candidate needs
-    board_contrast: float = 0.5  # contrast thresholds hold for a region this contrasted (5-95th pct), scale down below it
+    board_contrast: float = 0.5  # contrast thresholds hold for a region this contrasted (5-95th pct), scale down below (0: off)
     seed_score_floor: float = 0.05  # added to the network's corner score when ranking seeds (response x score)
     merge_radius_px: float = 1.0  # candidates (or a candidate and a lattice corner) this close are one saddle
     # --- saddle fit (saddle) ---

@@ -109,18 +109,23 @@ def find_candidates(
     return xy[keep], axes[keep]
 
 
+MIN_CONTRAST_SCALE = 0.25  # the thresholds fall to a quarter at most (a flat region would take them to zero)
+
+
 def contrast_scaled(cfg: GridConfig, grey: np.ndarray, roi: np.ndarray) -> GridConfig:
     """``cfg`` with its contrast thresholds (saddle contrast, seed contrast, margin contrast)
     scaled by k = the contrast of ``grey`` (H, W) in ``roi`` (H, W bool; 5th to 95th percentile) /
-    ``cfg.board_contrast`` where k < 1; unchanged otherwise. A grey print, a board in the shade or
+    ``cfg.board_contrast`` where k < 1 (at least :data:`MIN_CONTRAST_SCALE`); unchanged otherwise
+    and where ``cfg.board_contrast`` is 0. A grey print, a board in the shade or
     behind glare has a fraction of the contrast these were set on, and its saddles and colours
     scale with it. The tests that compare shares of a corner's own contrast need no change, and
     the saddle response stays as it is: lowered, it lets in noise maxima that take the seeds'
     turns (measured: a board lost for every two gained)."""
-    if cfg.board_contrast <= 0 or not roi.any():
+    seen = grey[::4, ::4][roi[::4, ::4]]  # every 4th pixel each way: the percentiles of a region cost 0.5 ms
+    if cfg.board_contrast <= 0 or not seen.size:
         return cfg
-    lo, hi = np.percentile(grey[roi][::4], [5, 95])
-    k = float(hi - lo) / cfg.board_contrast
+    lo, hi = np.percentile(seen, [5, 95])
+    k = max(float(hi - lo) / cfg.board_contrast, MIN_CONTRAST_SCALE)
     if k >= 1:
         return cfg
     return replace(
