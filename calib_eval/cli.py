@@ -77,7 +77,9 @@ def _sequence(a: argparse.Namespace, cache: Path | None):
     det = make_detector(target, a.detector)
     if not 0 <= a.every < float("inf"):
         raise ValueError("--every must be 0 (every image) or a positive number of seconds")
-    folder, read = sequence_from_bag(a.bag, a.topics, cache or Path(str(a.bag).rstrip("/") + ".sequence"), det, interval_s=a.every)
+    folder, read = sequence_from_bag(
+        a.bag, a.topics, cache or Path(str(a.bag).rstrip("/") + ".sequence"), det, interval_s=a.every, workers=0
+    )
     skipped = sum(read["skipped"])
     how = "cached detections" if read["cached"] else "detected"
     counts = ", ".join(f"{t} {n} images" for t, n in zip(a.topics, read["images"]))
@@ -259,7 +261,7 @@ def cmd_opencv_detect(a: argparse.Namespace) -> int:
         from cotrain.io.detections import detect_files
 
         det = make_detector(tgt, a.model)
-        detect = lambda files: detect_files(files, det)  # noqa: E731
+        detect = lambda files: detect_files(files, det, workers=0)  # noqa: E731
     else:
         detect = lambda files: opencv_detect(files, tgt, "sb" if a.sb else "classic")  # noqa: E731
     seq = images_to_sequence(paths, Path(a.out), detect)

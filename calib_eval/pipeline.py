@@ -126,7 +126,7 @@ def run_pipeline(cfg: PipelineConfig, from_scratch: bool = False) -> int:
     _, gt = render_rig_sequence(rig, cfg.calib_frames, seq_dir, seed=11)
     for cam_dir in sorted(seq_dir.glob("cam*")):
         paths = sorted((cam_dir / "images").glob("*.png"))
-        data = detect_files(paths, det)
+        data = detect_files(paths, det, workers=0)
         for e in data["images"]:
             e["path"] = str(Path(e["path"]).relative_to(seq_dir))
         write_json_atomic(data, cam_dir / "detections.json")

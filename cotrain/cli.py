@@ -77,6 +77,8 @@ def cmd_detect(args: argparse.Namespace) -> int:
 
     if not (0.0 <= args.threshold <= 1.0):
         raise ValueError("--threshold must be in [0, 1]")
+    if args.workers < 0:
+        raise ValueError("--workers must be 0 (one per core) or a positive number")
     if bool(args.inputs) == bool(args.bag):
         raise ValueError("give images or folders, or --bag REC --topics T0 T1 ... (one of them)")
     if bool(args.topics) != bool(args.bag):
@@ -94,8 +96,6 @@ def cmd_detect(args: argparse.Namespace) -> int:
         polish=args.polish,
         mode="slots" if args.slots else "grid",
     )
-    if args.workers < 0:
-        raise ValueError("--workers must be 0 (one per core) or a positive number")
     if args.bag:
         from cotrain.io.bags import sequence_from_bag
 

@@ -42,7 +42,7 @@ def run(rig_name: str, frames: int, out: Path, seed: int = 11) -> dict:
     t_render = time.time() - t0
     det = AprilGridDetector(make_target(target))
     for c in range(len(gt.params)):
-        write_camera_detections(seq_dir / f"cam{c}", lambda paths: detect_files(paths, det))
+        write_camera_detections(seq_dir / f"cam{c}", lambda paths: detect_files(paths, det, workers=0))
     t_detect = time.time() - t0 - t_render
     seq = load_sequence(seq_dir)
     sel = select(seq, SelectorConfig())

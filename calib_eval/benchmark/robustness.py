@@ -113,7 +113,7 @@ def run_robustness(cfg: RobustnessConfig, out: Path) -> dict:
     t_render = time.time() - t0
     det = Detector(cfg.detector)
     for c in range(len(gt.params)):
-        write_camera_detections(seq_dir / f"cam{c}", lambda paths: detect_files(paths, det))
+        write_camera_detections(seq_dir / f"cam{c}", lambda paths: detect_files(paths, det, workers=0))
     t_detect = time.time() - t0 - t_render
     calib = CalibConfig(model=rig.model, fov=rig.fov)
     rows = {}

@@ -142,7 +142,7 @@ def bench_detect(model: str | None = None, runs: int = 5, sets: tuple[DetectSet,
         t_files, t_one, t_sb, t_grid = [], [], [], []
         for _ in range(runs):
             t0 = time.perf_counter()
-            detect_files(paths, det, progress=False)
+            detect_files(paths, det, progress=False, workers=0)
             t_files.append(1000 * (time.perf_counter() - t0) / n)
             t0 = time.perf_counter()
             for p in paths:

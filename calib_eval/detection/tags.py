@@ -117,18 +117,18 @@ def render_set(cfg: TagEvalConfig, board: AprilGrid, out: Path) -> list[dict]:
     from calib_eval.detection.evaluation import EvalConfig
 
     ecfg = EvalConfig(width=cfg.width, height=cfg.height, target=board.cfg)
-    jobs = [(fov, i) for fov in cfg.fovs for i in range(cfg.per_fov)] + [(0, i) for i in range(cfg.n_empty)]
-    jobs += [(c, i) for c in cfg.conditions for i in range(cfg.per_condition)]
+    unknown = [c for c in cfg.conditions if c not in CONDITIONS]
+    if unknown:
+        raise ValueError(f"unknown condition {unknown[0]!r} (known: {', '.join(CONDITIONS)})")
+    # (FoV, condition, index): FoV 0 is a frame without a target, None one of a condition's.
+    jobs = [(fov, None, i) for fov in cfg.fovs for i in range(cfg.per_fov)] + [(0, None, i) for i in range(cfg.n_empty)]
+    jobs += [(None, c, i) for c in cfg.conditions for i in range(cfg.per_condition)]
     labels = []
-    for fov, i in tqdm(jobs, desc="render aprilgrid set"):
-        condition = fov if isinstance(fov, str) else None
+    for fov, condition, i in tqdm(jobs, desc="render aprilgrid set"):
         if condition:
-            if condition not in CONDITIONS:
-                raise ValueError(f"unknown condition {condition!r} (known: {', '.join(CONDITIONS)})")
             rc = _render_cfg((180.0, 240.0), ecfg, list(cameras.MODELS), condition=condition)
             b = render_batch(rc, [i], seed=cfg.seed * 1000 + 50 + list(CONDITIONS).index(condition))
             name = f"{condition.replace(' ', '_').replace('-', '_')}_{i:03d}.png"
-            fov = None
         else:
             others = [m for m in cameras.MODELS if m != "kb4"]
             models = list(cameras.MODELS) if fov == 0 else (["kb4"] if i < cfg.per_fov // 2 else others)

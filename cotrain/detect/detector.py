@@ -34,6 +34,11 @@ from cotrain.geometry.letterbox import Letterbox
 from cotrain.model.outputs import DENSE_OUTPUTS
 from cotrain.targets import AprilGrid, Checkerboard, Target
 
+# Raised when a change of the code (not of the settings or the model) changes what the detectors
+# report: detections cached under an older version are made again (see Detector.cache_key).
+# 2: AprilGrid frames brightened; the grid pass's contrast thresholds scale with the board's contrast.
+OUTPUT_VERSION = 2
+
 
 @dataclass
 class Detection:
@@ -109,11 +114,13 @@ class Detector:
         detections are reused only under the same key."""
         model = Path(self.path)
         return {
+            "version": OUTPUT_VERSION,
             "model": [str(model.resolve()), model.stat().st_size, model.stat().st_mtime_ns],
             "mode": self.mode,
             "threshold": self.threshold,
             "consistency": self.consistency,
             "polish": self.polish,
+            "grid": dataclasses.asdict(self.grid),
         }
 
     def letterbox(self, grey: np.ndarray) -> Letterbox:
@@ -203,7 +210,7 @@ class AprilGridDetector:
 
     def cache_key(self) -> dict:
         """What decides this detector's output: its settings (see :meth:`Detector.cache_key`)."""
-        return {"tag_pass": dataclasses.asdict(self.cfg)}
+        return {"version": OUTPUT_VERSION, "tag_pass": dataclasses.asdict(self.cfg)}
 
     def detect(self, image: np.ndarray) -> Detection:
         """Detect corners in one image (any size, 8/16-bit or float, grey or colour)."""

@@ -88,7 +88,8 @@ class OnnxModel:
 
     @property
     def threads(self) -> int:
-        """onnxruntime's intra-op threads (0: half the cores); set before the first run."""
+        """onnxruntime's intra-op threads (0: half the cores); setting it drops the session, which
+        is made anew on the next run."""
         return self._threads
 
     @threads.setter

@@ -191,7 +191,7 @@ def _bag_stamp(path: Path) -> list:
 
 
 def sequence_from_bag(
-    bag: str | Path, topics: list[str], out: str | Path, detector, progress: bool = True, interval_s: float = 0.0, workers: int = 0
+    bag: str | Path, topics: list[str], out: str | Path, detector, progress: bool = True, interval_s: float = 0.0, workers: int = 1
 ) -> tuple[Path, dict]:
     """A sequence folder with detections from the image topics of ``bag``, at ``out``: images and
     timestamps from :func:`bag_to_sequence`, ``camN/detections.json`` from ``detector``

@@ -11,6 +11,7 @@ import math
 import multiprocessing
 import os
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
 import cv2
@@ -29,17 +30,21 @@ MIN_FILES_PER_WORKER = {"tag_pass": 4, "network": 100}
 
 
 def detect_files(
-    paths: list[Path], detector: Detector | AprilGridDetector, draw_dir: Path | None = None, progress: bool = True, workers: int = 0
+    paths: list[Path], detector: Detector | AprilGridDetector, draw_dir: Path | None = None, progress: bool = True, workers: int = 1
 ) -> dict:
     """Run the detector over files; returns the detection JSON of docs/conventions.md (as a dict).
 
-    Over many files, ``workers`` processes detect files side by side (0: one per core, at most
-    :data:`MAX_WORKERS`; 1: all in this process), each with its own copy of the detector (the
-    network at one onnxruntime thread per core it has). Over fewer files than
-    :data:`MIN_FILES_PER_WORKER` per process, or with one worker, they are detected in this
-    process with two images in flight: while the grid pass (or the tag pass) works on one image,
-    a second thread reads the next one and runs it through the network (decoding and onnxruntime
-    release the GIL; the passes, Python, mostly hold it). The output is the same either way."""
+    With ``workers`` other than 1 (0: one per core, at most :data:`MAX_WORKERS`) and enough files
+    (:data:`MIN_FILES_PER_WORKER` per process; with fewer, fewer processes), worker processes
+    detect files side by side, each with its own copy of the detector (the network at one
+    onnxruntime thread per core it has). They are spawned: a script that calls this with
+    ``workers != 1`` needs Python's ``if __name__ == "__main__":`` guard. The commands (``cotrain
+    detect``, ``calib-eval``, the main job) pass 0. Otherwise the files are detected in this
+    process with two images in flight: while the grid pass (or the tag pass) works on one image, a
+    second thread reads the next one and runs it through the network (decoding and onnxruntime
+    release the GIL; the passes, Python, mostly hold it). The output is the same either way; a
+    file that cannot be read is an entry with its error, and a worker that dies stops the run with
+    a one-line :class:`ChildProcessError`."""
     from tqdm import tqdm
 
     if draw_dir is not None:
@@ -53,9 +58,19 @@ def detect_files(
         # Spawned, not forked: the caller may hold torch or onnxruntime threads.
         ctx = multiprocessing.get_context("spawn")
         threads = max(1, cores // n_proc)
-        with ProcessPoolExecutor(n_proc, mp_context=ctx, initializer=_start_worker, initargs=(detector, threads)) as pool:
-            jobs = [pool.submit(_detect_in_worker, p, draw_dir) for p in paths]
-            entries = [job.result() for job in tqdm(jobs, **bar)]
+        try:
+            with ProcessPoolExecutor(n_proc, mp_context=ctx, initializer=_start_worker, initargs=(detector, threads)) as pool:
+                jobs = [pool.submit(_detect_in_worker, p, draw_dir) for p in paths]
+                try:
+                    entries = [job.result() for job in tqdm(jobs, **bar)]
+                except BaseException:
+                    pool.shutdown(wait=False, cancel_futures=True)  # an error or Ctrl+C stops the files not begun
+                    raise
+        except BrokenProcessPool:
+            raise ChildProcessError(
+                "a detection worker process stopped (killed, out of memory, or started from a script without "
+                "if __name__ == '__main__'); --workers 1 detects in this process"
+            ) from None
         return {"model": str(detector.path), "target": detector.target.to_json(), "images": entries}
 
     def front(p: Path):

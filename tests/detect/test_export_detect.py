@@ -234,8 +234,17 @@ def test_detect_files_finds_rendered_corners_and_records_errors(tmp_path, monkey
         assert why in e["error"] and e["corners"] == [] and (e["width"], e["height"]) == (0, 0)
     import cotrain.io.detections as detections
 
+    pools = []
+
+    class CountedPool(detections.ProcessPoolExecutor):
+        def __init__(self, *args, **kwargs):
+            pools.append(args[0])
+            super().__init__(*args, **kwargs)
+
+    monkeypatch.setattr(detections, "ProcessPoolExecutor", CountedPool)
     monkeypatch.setitem(detections.MIN_FILES_PER_WORKER, "network", 3)
     assert detect_files(files, Detector(threads=1), progress=False, workers=2) == data
+    assert pools == [2]  # the files went to two worker processes
 
 
 def test_grid_consistency_drops_wrong_ids():

@@ -35,7 +35,8 @@ def test_a_black_frame_is_left_alone():
 
 def test_the_detector_finds_an_under_exposed_board(monkeypatch):
     """A board rendered at a fifth of the normal exposure: found, with right ids, because the
-    frame is brightened first (without the gain the grid pass's intensity thresholds refuse it)."""
+    frame is brightened first (without the gain, and without the grid pass's contrast thresholds
+    scaled to the board's contrast, those thresholds refuse it)."""
     import cotrain.detect.detector as detector_mod
     from cotrain.detect.detector import Detector
     from cotrain.render.renderer import RenderConfig, render_batch
@@ -51,5 +52,8 @@ def test_the_detector_finds_an_under_exposed_board(monkeypatch):
         assert (err < 1.0).all()
         found.append(len(d.ids))
     assert sum(found) >= 0.8 * int(b["visible"].sum())
+    from cotrain.detect.grid_config import GridConfig
+
     monkeypatch.setattr(detector_mod, "brighten", lambda g: g)
-    assert sum(len(det.detect(b["image"][k, 0].numpy()).ids) for k in range(3)) < 0.5 * sum(found)
+    fixed = Detector(threads=1, grid=GridConfig(board_contrast=0.0))
+    assert sum(len(fixed.detect(b["image"][k, 0].numpy()).ids) for k in range(3)) < 0.5 * sum(found)
