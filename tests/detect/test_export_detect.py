@@ -179,7 +179,7 @@ def test_expand_inputs_sorted(tmp_path):
     assert [p.name for p in expand_inputs([str(tmp_path)])] == ["a.jpg", "b.png"]
 
 
-def test_detect_files_finds_rendered_corners_and_records_errors(tmp_path, monkeypatch):
+def test_detect_files_finds_rendered_corners_and_records_errors(tmp_path, monkeypatch, worker_pools):
     """detect_files with the shipped model on clean renders at twice the processing size (known
     corners): nearly every visible corner found under its own id, sub-pixel at input resolution,
     nothing reported where the board is not; bad files become entries with an error. Two worker
@@ -234,17 +234,9 @@ def test_detect_files_finds_rendered_corners_and_records_errors(tmp_path, monkey
         assert why in e["error"] and e["corners"] == [] and (e["width"], e["height"]) == (0, 0)
     import cotrain.io.detections as detections
 
-    pools = []
-
-    class CountedPool(detections.ProcessPoolExecutor):
-        def __init__(self, *args, **kwargs):
-            pools.append(args[0])
-            super().__init__(*args, **kwargs)
-
-    monkeypatch.setattr(detections, "ProcessPoolExecutor", CountedPool)
     monkeypatch.setitem(detections.MIN_FILES_PER_WORKER, "network", 3)
     assert detect_files(files, Detector(threads=1), progress=False, workers=2) == data
-    assert pools == [2]  # the files went to two worker processes
+    assert worker_pools == [2]  # the files went to two worker processes
 
 
 def test_grid_consistency_drops_wrong_ids():

@@ -624,11 +624,10 @@ def test_candidates_of_small_tags_pass_the_looser_symmetry_test():
     assert found(TagConfig(candidate_min_symmetry=TagConfig().grid.min_symmetry)) < 0.75
 
 
-def test_detect_files_runs_the_tag_pass_in_processes_with_the_same_output(tmp_path, monkeypatch):
+def test_detect_files_runs_the_tag_pass_in_processes_with_the_same_output(tmp_path, worker_pools):
     """``detect_files`` over AprilGrid renders and one file that is no image: in two worker
     processes the detection JSON is the same as in this process, entry for entry and in the
     files' order; the bad file is an entry with its error, and the corners are found."""
-    import cotrain.io.detections as detections
     from cotrain.io.detections import MIN_FILES_PER_WORKER, detect_files
 
     g = make_target(TargetConfig(kind="aprilgrid"))
@@ -645,16 +644,8 @@ def test_detect_files_runs_the_tag_pass_in_processes_with_the_same_output(tmp_pa
     assert len(files) >= 2 * MIN_FILES_PER_WORKER["tag_pass"]  # enough for the process pool
     det = AprilGridDetector(g)
     serial = detect_files(files, det, progress=False, workers=1)
-    pools = []
-
-    class CountedPool(detections.ProcessPoolExecutor):
-        def __init__(self, *args, **kwargs):
-            pools.append(args[0])
-            super().__init__(*args, **kwargs)
-
-    monkeypatch.setattr(detections, "ProcessPoolExecutor", CountedPool)
     parallel = detect_files(files, det, progress=False, workers=2)
-    assert pools == [2]  # the files went to two worker processes
+    assert worker_pools == [2]  # the files went to two worker processes
     assert parallel == serial
     assert [e["path"] for e in parallel["images"]] == [str(f) for f in files]
     assert parallel["images"][3]["error"] and not parallel["images"][3]["corners"]
