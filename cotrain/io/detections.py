@@ -22,11 +22,6 @@ from cotrain.detect.images import ImageError, load_image
 
 LOOKAHEAD = 2  # images read and through the network ahead of the one the grid pass works on
 MAX_WORKERS = 8  # worker processes at most (workers=0: one per core up to this)
-# Files per worker process below which the files are detected in this process. Starting the
-# processes costs about 1.3 s in all on two cores; a worker then wins back, per file, about 70 ms
-# with the tag pass and 5-9 ms with the network detector, whose own two threads already overlap
-# half the work (measured: two processes break even with the threads at 220 files).
-MIN_FILES_PER_WORKER = {"tag_pass": 4, "network": 100}
 
 
 def detect_files(
@@ -35,7 +30,7 @@ def detect_files(
     """Run the detector over files; returns the detection JSON of docs/conventions.md (as a dict).
 
     With ``workers`` other than 1 (0: one per core, at most :data:`MAX_WORKERS`) and enough files
-    (:data:`MIN_FILES_PER_WORKER` per process; with fewer, fewer processes), worker processes
+    (the detector's ``files_per_worker`` per process; with fewer, fewer processes), worker processes
     detect files side by side, each with its own copy of the detector (the network at one
     onnxruntime thread per core it has). They are spawned: a script that calls this with
     ``workers != 1`` needs Python's ``if __name__ == "__main__":`` guard. The commands (``cotrain
@@ -51,7 +46,7 @@ def detect_files(
         draw_dir.mkdir(parents=True, exist_ok=True)
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)  # a container's share
     n_proc = min(cores, MAX_WORKERS) if workers == 0 else workers
-    n_proc = min(n_proc, len(paths) // MIN_FILES_PER_WORKER["tag_pass" if isinstance(detector, AprilGridDetector) else "network"])
+    n_proc = min(n_proc, len(paths) // detector.files_per_worker)
     bar = dict(desc="detect", unit="img", disable=not progress or len(paths) < 2)
     entries = []
     if n_proc > 1:

@@ -232,9 +232,7 @@ def test_detect_files_finds_rendered_corners_and_records_errors(tmp_path, monkey
     assert n_found == 3
     for e, why in zip([data["images"][2], data["images"][5]], ("not a readable image", "not found")):
         assert why in e["error"] and e["corners"] == [] and (e["width"], e["height"]) == (0, 0)
-    import cotrain.io.detections as detections
-
-    monkeypatch.setitem(detections.MIN_FILES_PER_WORKER, "network", 3)
+    monkeypatch.setattr(Detector, "files_per_worker", 3)
     assert detect_files(files, Detector(threads=1), progress=False, workers=2) == data
     assert worker_pools == [2]  # the files went to two worker processes
 

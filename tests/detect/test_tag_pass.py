@@ -628,7 +628,7 @@ def test_detect_files_runs_the_tag_pass_in_processes_with_the_same_output(tmp_pa
     """``detect_files`` over AprilGrid renders and one file that is no image: in two worker
     processes the detection JSON is the same as in this process, entry for entry and in the
     files' order; the bad file is an entry with its error, and the corners are found."""
-    from cotrain.io.detections import MIN_FILES_PER_WORKER, detect_files
+    from cotrain.io.detections import detect_files
 
     g = make_target(TargetConfig(kind="aprilgrid"))
     c = centre(g)
@@ -641,7 +641,7 @@ def test_detect_files_runs_the_tag_pass_in_processes_with_the_same_output(tmp_pa
             cv2.imwrite(str(files[-1]), img)
     (tmp_path / "broken.png").write_bytes(b"not an image")
     files.insert(3, tmp_path / "broken.png")
-    assert len(files) >= 2 * MIN_FILES_PER_WORKER["tag_pass"]  # enough for the process pool
+    assert len(files) >= 2 * AprilGridDetector.files_per_worker  # enough for the process pool
     det = AprilGridDetector(g)
     serial = detect_files(files, det, progress=False, workers=1)
     parallel = detect_files(files, det, progress=False, workers=2)
