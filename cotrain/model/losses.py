@@ -36,6 +36,7 @@ class LossConfig:
     huber_updated_px: float = 1.0  # delta of the updated stage's Huber loss
     huber_refined_px: float = 0.25  # delta of the refined stage's Huber loss
     conf_sigma_px: float = 0.5  # sigma of the confidence target exp(-e^2 / 2 sigma^2)
+    distill_dense: float = 0.0  # with a teacher (train.teacher): its dense maps (corner score, board mask, column / row) as soft targets
 
 
 def gaussian_targets(corners: Tensor, h: int, w: int, sigma: float) -> Tensor:
@@ -71,9 +72,11 @@ def compute_losses(out: dict[str, Tensor], batch: dict[str, Tensor], cfg: LossCo
     """Every loss term, unweighted, plus ``total`` (weighted sum).
 
     ``batch`` needs (processing resolution): corners (B, N, 2), visible (B, N) bool,
-    learnability (B, N), board_mask (B, 1, H, W), board_uv (B, 2, H, W).
+    learnability (B, N), board_mask (B, 1, H, W), board_uv (B, 2, H, W); and may carry
+    ``teacher``, a teacher network's outputs on the same images (:func:`distillation_loss`).
     Returns dict of scalars: heat_pos, heat_neg, exclusion, rough, updated, refined, visibility,
-    learnability, confidence, board_uv, board_mask, corner, total; and ``refined_error`` (B, N) px.
+    learnability, confidence, board_uv, board_mask, corner (and distill_dense with a teacher),
+    total; and ``refined_error`` (B, N) px.
     """
     heat = out["heatmap"]
     B, N, h, w = heat.shape
@@ -145,4 +148,26 @@ def compute_losses(out: dict[str, Tensor], batch: dict[str, Tensor], cfg: LossCo
         "corner": L_corner,
     }
     total = sum(getattr(cfg, k) * v for k, v in terms.items())
+    if "teacher" in batch:
+        terms["distill_dense"] = distillation_loss(out, batch["teacher"])
+        total = total + cfg.distill_dense * terms["distill_dense"]
     return {**terms, "total": total, "refined_error": err}
+
+
+def distillation_loss(out: dict[str, Tensor], teacher: dict[str, Tensor]) -> Tensor:
+    """The student's dense maps against a teacher's (the outputs the detector's grid pass reads):
+    BCE of the corner score and the board mask towards the teacher's probabilities, and
+    KL(teacher || student) of the column and the row classes, per 1/4 cell, averaged. Zero when
+    the two agree everywhere. ``out`` and ``teacher``: :class:`cotrain.model.network.CornerNet`
+    outputs (corner_logit, board_mask_logit (B, 1, h, w); board_col_logits (B, nx + 2, h, w),
+    board_row_logits (B, ny + 2, h, w))."""
+
+    def bce(name: str) -> Tensor:
+        p = torch.sigmoid(teacher[name])
+        return F.binary_cross_entropy_with_logits(out[name], p) - F.binary_cross_entropy_with_logits(teacher[name], p)
+
+    def kl(name: str) -> Tensor:
+        lt = F.log_softmax(teacher[name], 1)
+        return (lt.exp() * (lt - F.log_softmax(out[name], 1))).sum(1).mean()
+
+    return bce("corner_logit") + bce("board_mask_logit") + kl("board_col_logits") + kl("board_row_logits")

@@ -29,6 +29,7 @@ class ModelConfig:
     input_size: tuple[int, int] = (216, 384)  # processing resolution (H, W); images are resized to it
     widths: list[int] = field(default_factory=lambda: [8, 16, 48, 80, 128, 160])  # full, 1/2, 1/4, 1/8, 1/16, 1/32
     decoder_width: int = 64  # channels of the 1/4 decoder output
+    decoder_bottleneck: int = 0  # >0: each decoder stage squeezes to this many channels (1x1 conv) before its 3x3 conv; 0: none
     attention_heads: int = 4  # heads of the self-attention block at 1/16
     tau: float = 0.35  # identity kernel width in grid units (see module docstring)
     slot_embed: int = 32  # learned per-slot embedding size for the point heads
@@ -45,6 +46,16 @@ class ModelConfig:
 
 def _conv(cin: int, cout: int, stride: int = 1) -> nn.Sequential:
     return nn.Sequential(nn.Conv2d(cin, cout, 3, stride, 1, bias=False), nn.BatchNorm2d(cout), nn.ReLU(inplace=True))
+
+
+def _decoder_stage(cin: int, cout: int, bottleneck: int) -> nn.Sequential:
+    """One decoder stage (cin -> cout at the skip's resolution): a 3x3 conv, or, with a
+    ``bottleneck`` > 0, a 1x1 conv to that many channels first (the 3x3 convs at 1/4 and 1/8 over
+    the concatenated skip and upsampled features are most of the network's time on a CPU)."""
+    if bottleneck <= 0:
+        return _conv(cin, cout)
+    squeeze = nn.Sequential(nn.Conv2d(cin, bottleneck, 1, bias=False), nn.BatchNorm2d(bottleneck), nn.ReLU(inplace=True))
+    return nn.Sequential(squeeze, _conv(bottleneck, cout))
 
 
 class _Block(nn.Sequential):
@@ -97,9 +108,10 @@ class CornerNet(nn.Module):
         self.enc5 = _Block(w[4], w[5], 2)
         self.attn = _Attention(w[4], cfg.attention_heads)
         self.ctx = nn.Sequential(nn.Linear(w[5], w[4]), nn.ReLU(inplace=True))
-        self.dec4 = _conv(w[4] + w[5], w[4])
-        self.dec3 = _conv(w[3] + w[4], w[3])
-        self.dec2 = _conv(w[2] + w[3], cfg.decoder_width)
+        b = cfg.decoder_bottleneck
+        self.dec4 = _decoder_stage(w[4] + w[5], w[4], b)
+        self.dec3 = _decoder_stage(w[3] + w[4], w[3], b)
+        self.dec2 = _decoder_stage(w[2] + w[3], cfg.decoder_width, b)
         D = cfg.decoder_width
         self.head_corner = nn.Conv2d(D, 1, 1)
         if cfg.identity not in ("regress", "classify"):

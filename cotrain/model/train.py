@@ -46,6 +46,13 @@ class TrainSettings:
     ckpt_minutes: float = 5.0  # wall minutes between checkpoints
     out_dir: str = "runs/default"  # checkpoints, TensorBoard logs, curve.csv
     init_from: str = ""  # checkpoint to start from (fine-tuning); ignored on --resume
+    init_partial: bool = (
+        False  # init_from: keep the recipe's architecture and load the tensors that match it by name and shape (a student from its teacher)
+    )
+    teacher: str = ""  # checkpoint whose outputs are soft targets (loss.distill_dense weighs them); it runs frozen beside the model
+    freeze: list[str] = field(
+        default_factory=list
+    )  # top-level modules (e.g. enc1, attn) not trained: no gradient, BatchNorm statistics kept
     save_rank_weights: bool = False  # debug: write each rank's final weights (DDP test)
     threads: int = 0  # torch threads per process (0 = leave torch's default)
     select_by: str = "recall"  # validation figure that picks best.pt: "recall" (per-slot path) or "board_id_acc" (grid pass)
@@ -94,6 +101,16 @@ def load_checkpoint(path: str | Path) -> dict:
         return torch.load(p, map_location="cpu", weights_only=True)
     except Exception as e:  # a truncated or foreign file
         raise ValueError(f"{path}: not a cotrain checkpoint ({type(e).__name__})") from None
+
+
+def load_matching(model: torch.nn.Module, state: dict[str, Tensor]) -> int:
+    """Load the tensors of ``state`` whose name and shape the model has (the rest keep their
+    initialisation); returns how many were loaded."""
+    own = model.state_dict()
+    match = {k: v for k, v in state.items() if k in own and own[k].shape == v.shape}
+    own.update(match)
+    model.load_state_dict(own)
+    return len(match)
 
 
 def _atomic_save(obj: dict, path: Path) -> None:
@@ -224,16 +241,35 @@ def train(cfg: TrainConfig, resume: bool = False) -> dict:
 
     init_state = None
     if s.init_from and not resume:
-        # Fine-tuning: the checkpoint carries its config; its architecture wins over the recipe's. The
-        # processing size is not architecture (the network is fully convolutional, attention
-        # included): it stays the recipe's, so a model can be fine-tuned to a smaller size.
+        # Fine-tuning: the checkpoint carries its config; its architecture wins over the recipe's
+        # (unless init_partial). The processing size is not architecture (the network is fully
+        # convolutional, attention included): it stays the recipe's, so a model can be fine-tuned
+        # to a smaller size.
         ck = load_checkpoint(s.init_from)
-        input_size = tuple(cfg.model.input_size)
-        cfg.model = from_dict(ModelConfig, ck["config"]["model"])
-        cfg.model.input_size = input_size
+        if not s.init_partial:
+            input_size = tuple(cfg.model.input_size)
+            cfg.model = from_dict(ModelConfig, ck["config"]["model"])
+            cfg.model.input_size = input_size
         init_state = ck["model"]
     model = CornerNet(cfg.model)
-    opt = torch.optim.AdamW(model.parameters(), lr=s.lr, weight_decay=s.weight_decay)
+    unknown = [name for name in s.freeze if not isinstance(getattr(model, name, None), torch.nn.Module)]
+    if unknown:
+        raise ConfigError(f"train.freeze: the network has no module {', '.join(unknown)}")
+    frozen = [getattr(model, name) for name in s.freeze]
+    for m in frozen:
+        m.requires_grad_(False)
+
+    def train_mode() -> None:
+        """The model in training mode, but its frozen modules in eval mode (BatchNorm statistics kept)."""
+        model.train()
+        for m in frozen:
+            m.eval()
+
+    teacher = None
+    if s.teacher:
+        teacher, _ = build_from_checkpoint(load_checkpoint(s.teacher))
+        teacher.requires_grad_(False)
+    opt = torch.optim.AdamW([p for p in model.parameters() if p.requires_grad], lr=s.lr, weight_decay=s.weight_decay)
     sched = torch.optim.lr_scheduler.LambdaLR(opt, _lr_lambda(s))
     step, best, wall0 = 0, -1.0, 0.0
     last = out_dir / "last.pt"
@@ -245,7 +281,13 @@ def train(cfg: TrainConfig, resume: bool = False) -> dict:
         torch.set_rng_state(ck["rng"])
         step, best, wall0 = ck["step"], ck["best_score"], ck["wall_time"]
     elif init_state is not None:
-        model.load_state_dict(init_state)
+        if s.init_partial:
+            loaded = load_matching(model, init_state)
+            if rank == 0:
+                print(f"init_from {s.init_from}: {loaded} of {len(model.state_dict())} tensors loaded (same name and shape)")
+        else:
+            model.load_state_dict(init_state)
+    train_mode()
     ddp = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
 
     board = make_target(cfg.render.target)
@@ -286,6 +328,9 @@ def train(cfg: TrainConfig, resume: bool = False) -> dict:
         first = (step * world + rank) * s.batch_size
         rcfg = easy if step < s.curriculum_steps else cfg.render  # validation always uses cfg.render
         batch = render_batch(rcfg, list(range(first, first + s.batch_size)), seed=s.seed, board=board)
+        if teacher is not None:
+            with torch.no_grad():
+                batch["teacher"] = teacher(batch["image"])
         out = ddp(batch["image"])
         losses = compute_losses(out, batch, cfg.loss)
         opt.zero_grad(set_to_none=True)
@@ -312,6 +357,7 @@ def train(cfg: TrainConfig, resume: bool = False) -> dict:
             t_log, n_log = time.time(), 0
         if step % s.val_every == 0 or step == s.steps:
             m = evaluate(model, val)
+            train_mode()
             for k, v in m.items():
                 writer.add_scalar(f"val/{k}", v, step)
             wall = time.time() - t_start
@@ -341,7 +387,7 @@ def train(cfg: TrainConfig, resume: bool = False) -> dict:
             with torch.no_grad():
                 model.eval()
                 o = model(val["image"][:4])
-                model.train()
+                train_mode()
             writer.add_image("val/predictions", _panel(o, val["image"][:4]), step)
         if time.time() - t_ckpt > s.ckpt_minutes * 60 or step == end:
             save(last)

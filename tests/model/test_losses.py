@@ -164,3 +164,30 @@ def test_corner_term_rewards_any_visible_corner():
     out["corner_logit"] = one
     l_one = compute_losses(out, batch, cfg)["corner"].item()
     assert l_both < l_one - 0.5  # measured 3.71 vs 4.86
+
+
+def test_distillation_is_zero_at_the_teacher_and_pulls_towards_it():
+    """distill_dense: zero when the student's dense maps are the teacher's, positive otherwise, and
+    its gradient moves the student's maps towards the teacher's."""
+    from cotrain.model.losses import distillation_loss
+
+    g = torch.Generator().manual_seed(0)
+
+    def maps():
+        return {
+            "corner_logit": torch.randn(2, 1, 5, 7, generator=g),
+            "board_mask_logit": torch.randn(2, 1, 5, 7, generator=g),
+            "board_col_logits": 3 * torch.randn(2, 11, 5, 7, generator=g),
+            "board_row_logits": 3 * torch.randn(2, 8, 5, 7, generator=g),
+        }
+
+    teacher, student = maps(), maps()
+    assert abs(float(distillation_loss(teacher, teacher))) < 1e-5
+    for v in student.values():
+        v.requires_grad_(True)
+    loss = distillation_loss(student, teacher)
+    assert float(loss.detach()) > 0.5
+    loss.backward()
+    with torch.no_grad():
+        stepped = {k: v - 0.5 * v.grad for k, v in student.items()}
+    assert float(distillation_loss(stepped, teacher)) < float(loss.detach())

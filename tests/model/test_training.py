@@ -180,3 +180,47 @@ def test_trains_on_an_aprilgrid(tmp_path):
         ship(tmp_path / "last.pt")
     with pytest.raises(ValueError, match="plain file stem"):
         ship(tmp_path / "last.pt", "../elsewhere")
+
+
+def test_bottleneck_decoder_keeps_the_outputs_and_costs_less():
+    """model.decoder_bottleneck: each decoder stage squeezes its input by a 1x1 conv first; every
+    output keeps its shape, so the heads of a plain model load into it, and the decoder has fewer
+    weights."""
+    cfg = tiny("/tmp/unused", "model.identity=classify")
+    plain = CornerNet(cfg.model)
+    cfg.model.decoder_bottleneck = 4
+    slim = CornerNet(cfg.model)
+    x = torch.rand(2, 1, 64, 96)
+    a, b = plain.eval()(x), slim.eval()(x)
+    assert a.keys() == b.keys()
+    assert all(a[k].shape == b[k].shape for k in a)
+
+    def weights(m, prefix):
+        return sum(p.numel() for n, p in m.named_parameters() if n.startswith(prefix))
+
+    assert weights(slim, "dec") < weights(plain, "dec")
+    heads = [n for n, _ in plain.named_parameters() if not n.startswith("dec")]
+    assert all(plain.state_dict()[n].shape == slim.state_dict()[n].shape for n in heads)
+
+
+def test_student_from_a_teacher_frozen_encoder(tmp_path):
+    """A student (another decoder) starts from its teacher's matching tensors (init_partial), its
+    frozen modules keep their weights and BatchNorm statistics, the teacher's dense maps enter the
+    loss (distill_dense), and the checkpoint rebuilds the student's architecture."""
+    train(tiny(tmp_path / "t", "train.steps=2", "model.identity=classify"))
+    teacher = tmp_path / "t" / "last.pt"
+    freeze = "train.freeze=[side,enc1,enc2,enc3,enc4,enc5,attn,ctx]"
+    student = ("model.identity=classify", "model.decoder_bottleneck=4", "train.init_partial=true", f"train.init_from={teacher}")
+    r = train(tiny(tmp_path / "s", "train.steps=3", *student, f"train.teacher={teacher}", "loss.distill_dense=5.0", freeze))
+    assert r["step"] == 3
+    t_state = load_checkpoint(teacher)["model"]
+    model, cfg = build_from_checkpoint(load_checkpoint(tmp_path / "s" / "last.pt"))
+    assert cfg.model.decoder_bottleneck == 4
+    s_state = model.state_dict()
+    for k, v in s_state.items():
+        if k.split(".")[0] in ("side", "enc1", "enc2", "enc3", "enc4", "enc5", "attn", "ctx"):
+            assert torch.equal(v, t_state[k]), k  # weights and running statistics alike
+    trained = [k for k in s_state if k.startswith("head_") and k in t_state]
+    assert trained and any(not torch.equal(s_state[k], t_state[k]) for k in trained)
+    with pytest.raises(Exception, match="no module"):
+        train(tiny(tmp_path / "x", "train.steps=1", "train.freeze=[encoder]"))
