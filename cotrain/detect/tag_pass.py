@@ -304,8 +304,13 @@ def edge_contrast(img: np.ndarray, p: np.ndarray, q: np.ndarray, normal: np.ndar
     """Mean brightness on the ``+normal`` side of segment p -> q minus the ``-normal`` side, sampled
     at a quarter, half and three quarters of the way, ``depth`` px to each side; NaN where no
     sample pair lies inside the image circle (``rim_dist`` (H, W) > 1)."""
-    side = (depth * normal)[None]
-    pts = np.concatenate([beside_points(p[None], (q - p)[None], side)[0], beside_points(p[None], (q - p)[None], -side)[0]])
+    px, py, dx, dy = float(p[0]), float(p[1]), float(q[0] - p[0]), float(q[1] - p[1])
+    sx, sy = float(depth * normal[0]), float(depth * normal[1])
+    # The points of beside_points, in scalar arithmetic (it runs per step tried): +side, then -side.
+    pts = np.array(
+        [[px + t * dx + sx, py + t * dy + sy] for t in (0.25, 0.5, 0.75)]
+        + [[px + t * dx - sx, py + t * dy - sy] for t in (0.25, 0.5, 0.75)]
+    )
     vals = values_at(img, pts)
     rd = values_at(rim_dist, pts)
     ok = (rd[:3] > 1) & (rd[3:] > 1) & np.isfinite(vals[:3]) & np.isfinite(vals[3:])
@@ -408,15 +413,18 @@ def _junction_on_step(p: np.ndarray, q: np.ndarray, xy: np.ndarray, tree: cKDTre
     ``tol`` of its length and of ``across`` (px, the lattice's long step across the segment): a step
     that jumped over a corner. (A tag's own data junctions lie at least two cells, a fifth of the
     tag, off its sides: a fifth of ``across`` where perspective narrows the tag.)"""
-    n = _norm(q - p)
-    near = tree.query_ball_point((p + q) / 2, 0.5 * n)
+    px, py, dx, dy = float(p[0]), float(p[1]), float(q[0] - p[0]), float(q[1] - p[1])  # scalar arithmetic: it runs per step tried
+    n = math.hypot(dx, dy)
+    near = tree.query_ball_point(((p[0] + q[0]) / 2, (p[1] + q[1]) / 2), 0.5 * n)
     if not near:
         return False
-    d = xy[near] - p
-    u = (q - p) / max(n, 1e-9)
-    t = d @ u / max(n, 1e-9)
-    off = np.abs(d[:, 0] * u[1] - d[:, 1] * u[0])
-    return bool(((t > 0.15) & (t < 0.85) & (off < tol * min(n, across))).any())
+    m = max(n, 1e-9)
+    ux, uy, lim = dx / m, dy / m, tol * min(n, across)
+    for x, y in xy[near].tolist():
+        ex, ey = x - px, y - py
+        if 0.15 < (ex * ux + ey * uy) / m < 0.85 and abs(ex * uy - ey * ux) < lim:
+            return True
+    return False
 
 
 def ray_step(
@@ -427,16 +435,20 @@ def ray_step(
     direction of the predicted step v (2,), within ``cfg.ray_step_angle`` and the growth's
     step-length ratios, nearest in direction first; None where there is none that is not a lattice
     corner yet (``used``)."""
-    steps = options[:, :, 0].reshape(-1, 2)  # the nearest along each ray: a farther one may skip a corner
-    steps = steps[~np.isnan(steps[:, 0])]
-    if not len(steps):
-        return None
-    n = np.linalg.norm(steps, axis=1)
-    nv = math.hypot(*v)
-    cos = steps @ v / np.maximum(n * nv, 1e-9)
-    ok = (cos >= np.cos(np.radians(cfg.ray_step_angle))) & (n >= cfg.min_step_ratio * nv) & (n <= cfg.max_step_ratio * nv)
-    for i in np.nonzero(ok)[0][np.argsort(-cos[ok])]:
-        d, j = tree.query(p + steps[i])
+    vx, vy = float(v[0]), float(v[1])
+    nv = math.hypot(vx, vy)
+    cos_min = math.cos(math.radians(cfg.ray_step_angle))
+    px, py = float(p[0]), float(p[1])
+    reach = []  # (-cos, order, step): scalar arithmetic, it runs for every prediction that finds nothing
+    for sx, sy in options[:, :, 0].reshape(-1, 2).tolist():  # the nearest along each ray: a farther one may skip a corner
+        if sx != sx:  # NaN: no neighbour along this ray
+            continue
+        n = math.hypot(sx, sy)
+        cos = (sx * vx + sy * vy) / max(n * nv, 1e-9)
+        if cos >= cos_min and cfg.min_step_ratio * nv <= n <= cfg.max_step_ratio * nv:
+            reach.append((-cos, len(reach), sx, sy))
+    for _, _, sx, sy in sorted(reach):
+        d, j = tree.query((px + sx, py + sy))
         if d < 0.5 and int(j) not in used:
             return int(j)
     return None
@@ -1078,18 +1090,22 @@ def place_board(cells: list[TagCell], board: AprilGrid) -> Placement | None:
 def steps_alternate(lat: Lattice, spacing: float, tol: float) -> np.ndarray:
     """(K,) bool: corners whose two steps along each lattice line, a tag side and a gap, have the
     target's ratio (1 / ``spacing``) within a factor ``tol`` (perspective changes it little over
-    one tag). A corner slid along a tag's side breaks it."""
+    one tag). A corner slid along a tag's side breaks it. (Scalar arithmetic: it runs per corner.)"""
     where = lat.where
+    pts = lat.xy.tolist()
     ok = np.ones(len(lat.ab), bool)
     for (a, b), k in where.items():
+        x, y = pts[k]
         for da, db in ((1, 0), (0, 1)):
             m1, m2 = where.get((a + da, b + db)), where.get((a - da, b - db))
             if m1 is None or m2 is None:
                 continue
-            d1, d2 = np.linalg.norm(lat.xy[m1] - lat.xy[k]), np.linalg.norm(lat.xy[m2] - lat.xy[k])
+            d1 = math.hypot(pts[m1][0] - x, pts[m1][1] - y)
+            d2 = math.hypot(pts[m2][0] - x, pts[m2][1] - y)
             long_side, gap = (d1, d2) if is_long(a if da else b, 1) else (d2, d1)
             r = long_side * spacing / max(gap, 1e-9)
-            ok[k] &= bool(1 / tol <= r <= tol)
+            if not 1 / tol <= r <= tol:
+                ok[k] = False
     return ok
 
 
@@ -1105,21 +1121,28 @@ def cells_close(lat: Lattice, tol: float, strict: np.ndarray | None = None) -> n
     of its other three corners would, within ``tol`` of the cell's longer side (over one cell the
     fisheye's bend is small); a corner in no complete cell needs a neighbour along each lattice
     axis, or, where ``strict`` (K,) says so (next to the image circle's rim, where the cut print
-    makes false junctions), is dropped. A corner slid along a side fails."""
+    makes false junctions), is dropped. A corner slid along a side fails. (Scalar arithmetic: it
+    runs per corner and cell.)"""
     where = lat.where
+    pts = lat.xy.tolist()
     ok = np.ones(len(lat.ab), bool)
     for (a, b), k in where.items():
-        errs = []
+        x, y = pts[k]
+        best = math.inf
         for da in (-1, 1):
+            ka = where.get((a + da, b))
+            if ka is None:
+                continue
+            xa, ya = pts[ka]
             for db in (-1, 1):
-                ka, kb, kab = where.get((a + da, b)), where.get((a, b + db)), where.get((a + da, b + db))
-                if ka is None or kb is None or kab is None:
+                kb, kab = where.get((a, b + db)), where.get((a + da, b + db))
+                if kb is None or kab is None:
                     continue
-                pa, pb, pab = lat.xy[ka], lat.xy[kb], lat.xy[kab]
-                side = max(np.linalg.norm(pa - lat.xy[k]), np.linalg.norm(pb - lat.xy[k]))
-                errs.append(np.linalg.norm(pa + pb - pab - lat.xy[k]) / max(side, 1e-9))
-        if errs:
-            ok[k] = min(errs) <= tol
+                (xb, yb), (xc, yc) = pts[kb], pts[kab]
+                side = max(math.hypot(xa - x, ya - y), math.hypot(xb - x, yb - y))
+                best = min(best, math.hypot(xa + xb - xc - x, ya + yb - yc - y) / max(side, 1e-9))
+        if best < math.inf:
+            ok[k] = best <= tol
         elif strict is not None and strict[k]:
             ok[k] = False
         else:  # in no complete cell: it needs a neighbour along each axis
