@@ -212,12 +212,11 @@ def corner_rays(img: np.ndarray, xy: np.ndarray, radius: np.ndarray) -> np.ndarr
     nxt = np.roll(d, -1, 1)
     cross = (d > 0) != (nxt > 0)
     out = np.full((K, 4, 2), np.nan)
-    good = (cross.sum(1) == 4) & np.isfinite(vals).all(1)
-    for k in np.nonzero(good)[0]:
-        i = np.nonzero(cross[k])[0]
-        t = d[k, i] / (d[k, i] - nxt[k, i])  # linear zero crossing between samples i and i + 1
-        a = (i + t) * (2 * np.pi / RAY_SAMPLES)
-        out[k] = np.stack([np.cos(a), np.sin(a)], 1)
+    good = np.nonzero((cross.sum(1) == 4) & np.isfinite(vals).all(1))[0]
+    i = np.nonzero(cross[good])[1].reshape(-1, 4)  # each good row's four crossings, in order of angle
+    dk, nk = np.take_along_axis(d[good], i, 1), np.take_along_axis(nxt[good], i, 1)
+    a = (i + dk / (dk - nk)) * (2 * np.pi / RAY_SAMPLES)  # linear zero crossing between samples i and i + 1
+    out[good] = np.stack([np.cos(a), np.sin(a)], -1)
     return out
 
 
@@ -293,10 +292,10 @@ def _seed_frames(nbr: np.ndarray, spacing: float, cfg: TagConfig) -> list[np.nda
                         else:
                             shorts.append(side * spacing)
                             rank += opp is not None and _norm(opp) > n_side  # the other way is longer: less likely the tag
-                    fa, fb = np.stack([A, shorts[0]]), np.stack([B, shorts[1]])
+                    fa, fb = (A, shorts[0]), (B, shorts[1])
                     if _cross(A, B) < 0:
                         fa, fb = fb, fa
-                    frames.append((i + j, rank, np.stack([fa, fb])))
+                    frames.append((i + j, rank, np.array([fa, fb])))
     return [f for *_, f in sorted(frames, key=lambda x: x[:2])]
 
 
@@ -331,7 +330,7 @@ def fourth_corner(
     parallelogram's corner than the tag's own."""
     pred = p0 + A + B
     r = cfg.fourth_radius * min(math.hypot(*A), math.hypot(*B))
-    ja, jb = int(tree.query(p0 + A)[1]), int(tree.query(p0 + B)[1])
+    ja, jb = tree.query(np.array([p0 + A, p0 + B]))[1].tolist()
     via = {ray_step(xy[ja], nbr[ja], B, xy, tree, set(), cfg), ray_step(xy[jb], nbr[jb], A, xy, tree, set(), cfg)} - {None}
     if len(via) == 1:
         j = via.pop()
