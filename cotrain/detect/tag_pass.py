@@ -538,7 +538,10 @@ def grow_tag_lattice(
                 m0, m1 = where.get((a + side[0], b + side[1])), where.get((t[0] + side[0], t[1] + side[1]))
                 if m0 is not None and m1 is not None:
                     preds.append(pts[k] + pts[m1] - pts[m0])
-            pred = np.mean(preds, 0)
+            sx, sy = 0.0, 0.0
+            for p_ in preds:  # their mean, in scalar arithmetic (in the order np.mean adds them)
+                sx, sy = sx + float(p_[0]), sy + float(p_[1])
+            pred = np.array([sx / len(preds), sy / len(preds)])
             step = _norm(v)
             if max(_norm(p_ - pred) for p_ in preds) > cfg.agree_radius * step:
                 continue
