@@ -267,8 +267,11 @@ def train(cfg: TrainConfig, resume: bool = False) -> dict:
 
     teacher = None
     if s.teacher:
-        teacher, _ = build_from_checkpoint(load_checkpoint(s.teacher))
+        teacher, t_cfg = build_from_checkpoint(load_checkpoint(s.teacher))
         teacher.requires_grad_(False)
+        same = ("grid_nx", "grid_ny", "identity")
+        if any(getattr(t_cfg.model, k) != getattr(cfg.model, k) for k in same):
+            raise ConfigError(f"train.teacher {s.teacher}: its dense maps are not the model's (target grid or model.identity differ)")
     opt = torch.optim.AdamW([p for p in model.parameters() if p.requires_grad], lr=s.lr, weight_decay=s.weight_decay)
     sched = torch.optim.lr_scheduler.LambdaLR(opt, _lr_lambda(s))
     step, best, wall0 = 0, -1.0, 0.0

@@ -224,3 +224,5 @@ def test_student_from_a_teacher_frozen_encoder(tmp_path):
     assert trained and any(not torch.equal(s_state[k], t_state[k]) for k in trained)
     with pytest.raises(Exception, match="no module"):
         train(tiny(tmp_path / "x", "train.steps=1", "train.freeze=[encoder]"))
+    with pytest.raises(Exception, match="dense maps are not"):  # a teacher of another target or identity head
+        train(tiny(tmp_path / "y", "train.steps=1", f"train.teacher={teacher}", "model.identity=regress"))
