@@ -46,13 +46,9 @@ class TrainSettings:
     ckpt_minutes: float = 5.0  # wall minutes between checkpoints
     out_dir: str = "runs/default"  # checkpoints, TensorBoard logs, curve.csv
     init_from: str = ""  # checkpoint to start from (fine-tuning); ignored on --resume
-    init_partial: bool = (
-        False  # init_from: keep the recipe's architecture and load the tensors that match it by name and shape (a student from its teacher)
-    )
+    init_partial: bool = False  # init_from: the recipe's architecture, the checkpoint's tensors of the same name and shape
     teacher: str = ""  # checkpoint whose outputs are soft targets (loss.distill_dense weighs them); it runs frozen beside the model
-    freeze: list[str] = field(
-        default_factory=list
-    )  # top-level modules (e.g. enc1, attn) not trained: no gradient, BatchNorm statistics kept
+    freeze: list[str] = field(default_factory=list)  # top-level modules (enc1, attn, ...) not trained, BatchNorm statistics kept
     save_rank_weights: bool = False  # debug: write each rank's final weights (DDP test)
     threads: int = 0  # torch threads per process (0 = leave torch's default)
     select_by: str = "recall"  # validation figure that picks best.pt: "recall" (per-slot path) or "board_id_acc" (grid pass)
