@@ -8,7 +8,7 @@ import sys
 import pytest
 import torch
 
-from cotrain.config import load_config
+from cotrain.config import ConfigError, load_config
 from cotrain.model.losses import compute_losses
 from cotrain.model.network import CornerNet
 from cotrain.model.train import TrainConfig, build_from_checkpoint, finalize_config, load_checkpoint, train
@@ -222,7 +222,7 @@ def test_student_from_a_teacher_frozen_encoder(tmp_path):
             assert torch.equal(v, t_state[k]), k  # weights and running statistics alike
     trained = [k for k in s_state if k.startswith("head_") and k in t_state]
     assert trained and any(not torch.equal(s_state[k], t_state[k]) for k in trained)
-    with pytest.raises(Exception, match="no module"):
+    with pytest.raises(ConfigError, match="no module"):
         train(tiny(tmp_path / "x", "train.steps=1", "train.freeze=[encoder]"))
-    with pytest.raises(Exception, match="dense maps are not"):  # a teacher of another target or identity head
+    with pytest.raises(ConfigError, match="dense maps are not"):  # a teacher of another target or identity head
         train(tiny(tmp_path / "y", "train.steps=1", f"train.teacher={teacher}", "model.identity=regress"))
