@@ -81,4 +81,7 @@ class GridConfig:
     margin_band_end: float = 0.25  # ... up to here
     max_violated_edges: float = 2.5  # margin evidence (corners' worth) a placement may contradict before the lattice is rejected
     max_violated_share: float = 0.35  # ... or this share of all the lattice's margin evidence, when that is more
+    merge_lattices: bool = True  # join the corners of other surely placed lattices that agree with the best one
+    merge_min_shared: int = 2  # ... sharing this many corners (ids and spots) with it
+    merge_crowd_px: float = 3.0  # ... a joined corner must lie this far from every corner already there
     filled_confidence: float = 0.9  # confidence factor of corners found by a saddle search, not among the candidates

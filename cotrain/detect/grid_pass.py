@@ -22,7 +22,8 @@ This pass turns them into identities the way a person would (docs/detector.md ha
    (square (i, j) of corners is black when i + j is even) and the board's white margin where the
    lattice stops, and the best one wins if it beats the runner-up by a margin (a board that looks
    the same turned, like 7 x 5 squares, is identified up to that turn: corner 0 goes nearest the
-   image's top left);
+   image's top left); other lattices of the same board, placed surely on their own and agreeing
+   with the best one where they overlap, add the corners it lacks (:func:`merge_lattices`);
 4. positions (:func:`cotrain.detect.lattice.refine_positions`): the reported corners are fitted
    once more in a small window (at most 3 px half-size), close to the junction, where bent edges
    and the blooming of real prints pull least.
@@ -44,7 +45,7 @@ from scipy.spatial import cKDTree
 
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.identity import assign_ids, canonical_ids, cell_darkness, corner_votes, edge_evidence
-from cotrain.detect.lattice import Lattice, grow_lattice, refine_positions, skipped_corners, verify_lattice
+from cotrain.detect.lattice import STEPS, Lattice, grow_lattice, refine_positions, skipped_corners, verify_lattice
 from cotrain.detect.saddle import fit_saddles, outside_circle, saddle_candidates, saddle_response, smooth_cached, window_half
 from cotrain.geometry.letterbox import CELLS, Letterbox
 from cotrain.targets import Checkerboard
@@ -153,6 +154,83 @@ def placement_is_sure(margin: float, geometry_margin: float, n_corners: int, cfg
     return margin >= max(cfg.min_margin_votes_alone, cfg.min_votes_per_corner * n_corners)
 
 
+def _fits_the_union(ij: tuple[int, int], q: np.ndarray, union: dict[tuple[int, int], np.ndarray], cfg: GridConfig) -> bool | None:
+    """Whether point q (2,) fits at board coordinates ij among the corners ``union`` has placed
+    (board (i, j) -> pixels (2,)): every prediction of ij, by the line of two corners behind it or
+    by the parallelogram of a cell it completes, within ``cfg.match_radius`` of that prediction's
+    step; None where nothing predicts it yet."""
+    i, j = ij
+    ok = None
+    for di, dj in STEPS:
+        p1, p2 = union.get((i - di, j - dj)), union.get((i - 2 * di, j - 2 * dj))
+        preds = []
+        if p1 is not None and p2 is not None:
+            preds.append((2 * p1 - p2, p1 - p2))
+        for ei, ej in ((dj, di), (-dj, -di)):  # the cell that (i - di, j - dj), ij and their neighbours across close
+            p3, p4 = union.get((i + ei, j + ej)), union.get((i - di + ei, j - dj + ej))
+            if p1 is not None and p3 is not None and p4 is not None:
+                preds.append((p1 + p3 - p4, p3 - p4))
+        for pred, step in preds:
+            if np.hypot(*(q - pred)) > cfg.match_radius * np.hypot(*step):
+                return False
+            ok = True
+    return ok
+
+
+def merge_lattices(
+    lat: Lattice, ids: np.ndarray, others: list[tuple[float, Lattice, np.ndarray, float]], board: Checkerboard, cfg: GridConfig
+) -> tuple[Lattice, np.ndarray]:
+    """The best placed lattice ``lat`` with ids (K,) joined by the corners of other lattices of the
+    same board. Another lattice (margin, lattice, ids, geometry margin) joins where it is placed
+    surely on its own (:func:`placement_is_sure`) and shares at least ``cfg.merge_min_shared``
+    corners with the same ids at the same spots (within ``cfg.merge_radius_px``; up to a turn of
+    a symmetric board) and none with other ids; each of its other corners joins where its id is
+    new, it lies ``cfg.merge_crowd_px`` from every corner there, and the corners already there
+    predict it (:func:`_fits_the_union`; a lattice's wrong corner at a spot the best one refused
+    does not fit). Returns the joined lattice, whose coordinates are the board's (i, j), and its
+    ids (K',). Seeds stopped by an occluder, a bend or blur grow parts of one board."""
+    on = ids >= 0
+    xy, out_ids, filled = lat.xy[on], ids[on], lat.filled[on]
+    union = {(int(v % board.nx), int(v // board.nx)): p for v, p in zip(out_ids, xy)}
+    joined: list[tuple[int, np.ndarray, bool]] = []
+    for margin, other, oids, geo in sorted(others, key=lambda x: -x[0]):
+        if not placement_is_sure(margin, geo, len(other.ab), cfg):
+            continue
+        o_on = oids >= 0
+        oxy, oid0, ofilled = other.xy[o_on], oids[o_on], other.filled[o_on]
+        d, nn = cKDTree(xy).query(oxy)
+        same_spot = d < cfg.merge_radius_px
+        if same_spot.sum() < cfg.merge_min_shared:
+            continue
+        for perm in (None, *board.symmetries()):
+            oid = oid0 if perm is None else perm[oid0]
+            if np.all(out_ids[nn[same_spot]] == oid[same_spot]):
+                break
+        else:
+            continue  # placed otherwise: not joined
+        todo = [k for k in np.nonzero(~same_spot & (d > cfg.merge_crowd_px))[0] if (oid[k] % board.nx, oid[k] // board.nx) not in union]
+        while todo:  # outwards from the corners already there
+            later = []
+            for k in todo:
+                ij = (int(oid[k] % board.nx), int(oid[k] // board.nx))
+                fits = None if ij in union else _fits_the_union(ij, oxy[k], union, cfg)
+                if fits is None and ij not in union:
+                    later.append(k)
+                elif fits:
+                    union[ij] = oxy[k]
+                    joined.append((int(oid[k]), oxy[k], bool(ofilled[k])))
+            if len(later) == len(todo):
+                break
+            todo = later
+    if not joined:
+        return lat, ids
+    out_ids = np.concatenate([out_ids, [k for k, _, _ in joined]]).astype(int)
+    xy = np.concatenate([xy, np.array([p for _, p, _ in joined])])
+    filled = np.concatenate([filled, [f for _, _, f in joined]]).astype(bool)
+    ab = np.stack([out_ids % board.nx, out_ids // board.nx], 1)
+    return Lattice(xy, ab, filled), out_ids
+
+
 def grid_pass(
     grey: np.ndarray,
     box: Letterbox,
@@ -198,6 +276,7 @@ def grid_pass(
     # Grow from several seeds (distractors can hold the strongest saddles); a lattice must lie on
     # what the network calls board, and the one whose identity is surest wins.
     best: tuple[float, Lattice, np.ndarray] | None = None
+    scored: list[tuple[float, Lattice, np.ndarray, float]] = []
     covered = np.zeros(len(xy), bool)
     tried = 0
     for seed in range(len(xy)):
@@ -224,6 +303,7 @@ def grid_pass(
         placed = assign_ids(lat.ab, lc, lr, dark, board, cfg, edges)
         if placed.violated > max(cfg.max_violated_edges, cfg.max_violated_share * sum(e[3] for e in edges)):
             continue  # the board ends where the target goes on: another target, or a distractor
+        scored.append((placed.margin, lat, placed.ids, placed.geometry_margin))
         if best is None or placed.margin > best[0]:
             best = (placed.margin, lat, placed.ids, placed.geometry_margin)
     if best is None:
@@ -231,6 +311,8 @@ def grid_pass(
     margin, lat, ids, geometry_margin = best
     if not placement_is_sure(margin, geometry_margin, len(lat.ab), cfg):
         return GridResult(np.zeros(0, int), np.zeros((0, 2)), np.zeros(0), float(margin))
+    if cfg.merge_lattices:
+        lat, ids = merge_lattices(lat, ids, [x for x in scored if x[1] is not lat], board, cfg)
     lat = refine_positions(lat, grey, cfg, smoothed, rim_dist)
     ids = canonical_ids(ids, lat.xy, board)
     on = ids >= 0

@@ -139,3 +139,60 @@ def test_grid_pass_on_a_grey_print():
             found[name].append(len(e))
     assert all(a >= b for a, b in zip(found["scaled"], found["fixed"])), found
     assert sum(found["scaled"]) > sum(found["fixed"]) + 5, found
+
+
+def test_merge_lattices_joins_agreeing_lattices_of_the_board():
+    """Two lattices of one board, grown from different seeds in their own lattice frames and each
+    placed surely, overlap in two columns: their union has every corner once, at its own spot.
+    A lattice placed one column off, one placed unsurely, and one that shares fewer corners than
+    ``merge_min_shared`` are not joined; on a board that looks the same turned, a lattice placed
+    up to that turn is joined with the best one's ids."""
+    from cotrain.detect.grid_pass import merge_lattices
+    from cotrain.detect.lattice import Lattice
+    from cotrain.targets import Checkerboard, TargetConfig
+
+    cfg = GridConfig()
+    ids = np.arange(NX * NY)
+    i, j = ids % NX, ids // NX
+    q = np.stack([40.0 + 30 * i, 36.0 + 30 * j], 1)
+
+    def lattice(sel: np.ndarray, ab: np.ndarray) -> Lattice:
+        return Lattice(q[sel], ab, np.zeros(sel.sum(), bool))
+
+    left, right = i <= 5, i >= 4
+    best = lattice(left, np.stack([i[left] + 3, j[left] - 2], 1))  # any lattice frame
+    other = lattice(right, np.stack([j[right], -i[right]], 1))  # another one, turned
+    sure, unsure = (100.0, 50.0), (1.0, -5.0)
+    lat, out = merge_lattices(best, ids[left], [(*sure[:1], other, ids[right], sure[1])], BOARD, cfg)
+    order = np.argsort(out)
+    np.testing.assert_array_equal(out[order], ids)
+    np.testing.assert_allclose(lat.xy[order], q)
+    np.testing.assert_array_equal(lat.ab[order], np.stack([i, j], 1))  # the board's own (i, j)
+
+    shifted = np.where(i[right] < NX - 1, ids[right] + 1, -1)  # placed one column off
+    few = right & (i >= 5) & (j == 0)  # shares one corner (id 5)
+    for margin, o, oids, geo in [
+        (sure[0], other, shifted, sure[1]),
+        (unsure[0], other, ids[right], unsure[1]),
+        (sure[0], lattice(few | (i >= 6), np.stack([i[few | (i >= 6)], j[few | (i >= 6)]], 1)), ids[few | (i >= 6)], sure[1]),
+    ]:
+        lat, out = merge_lattices(best, ids[left], [(margin, o, oids, geo)], BOARD, cfg)
+        np.testing.assert_array_equal(out, ids[left])
+
+    square = Checkerboard(TargetConfig(squares_x=7, squares_y=7))  # 6 x 6 corners, the same turned by 90 deg
+    assert square.symmetries()
+    perm = square.symmetries()[0]
+    sid = np.arange(36)
+    si, sj = sid % 6, sid // 6
+    sq = np.stack([40.0 + 30 * si, 36.0 + 30 * sj], 1)
+    a, b = si <= 3, si >= 2
+    lat, out = merge_lattices(
+        Lattice(sq[a], np.stack([si[a], sj[a]], 1), np.zeros(a.sum(), bool)),
+        sid[a],
+        [(100.0, Lattice(sq[b], np.stack([si[b], sj[b]], 1), np.zeros(b.sum(), bool)), perm[sid[b]], 50.0)],
+        square,
+        cfg,
+    )
+    order = np.argsort(out)
+    np.testing.assert_array_equal(out[order], sid)
+    np.testing.assert_allclose(lat.xy[order], sq)
