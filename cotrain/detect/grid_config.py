@@ -54,6 +54,7 @@ class GridConfig:
     oblique_ratio: float = 2.0  # squares with sides over this ratio are "oblique": a failed refit is retried with a smaller window
     max_refit_shift: float = 0.15  # a verifying refit must land within this fraction of the square on the corner
     max_rim_edge_angle: float = 15.0  # deg: a corner fitted in a window cut by the rim must have its edges along the lattice lines
+    rim_borrowed_angle: float = 30.0  # deg: ... and along an axis without a neighbour, the axis a neighbour across measures (0: off)
     max_skipped: float = 0.3  # share of lattice steps (cells) with an X-junction at the midpoint (centre) that drops a lattice
     skip_response_ratio: float = 0.5  # a midpoint (centre) is an X-junction when its response exceeds this x that of the weakest end
     final_max_half: int = 3  # px: largest fit window half-size for the reported positions (see refine_positions)
@@ -81,6 +82,7 @@ class GridConfig:
     margin_band_end: float = 0.25  # ... up to here
     max_violated_edges: float = 2.5  # margin evidence (corners' worth) a placement may contradict before the lattice is rejected
     max_violated_share: float = 0.35  # ... or this share of all the lattice's margin evidence, when that is more
+    join_lattices: bool = True  # lattices of other seeds that share corners under one turn and offset are joined before the placement
     merge_lattices: bool = True  # join the corners of other surely placed lattices that agree with the best one
     merge_min_shared: int = 2  # ... sharing this many corners (ids and spots) with it
     merge_crowd_px: float = 3.0  # ... a joined corner must lie this far from every corner already there

@@ -15,7 +15,8 @@ This pass turns them into identities the way a person would (docs/detector.md ha
    predicted spot (in large squares, to the one the checker edge leaving the corner leads to);
    checker colours must alternate and a checker edge must run along every step; a verification
    pass drops corners off their lattice lines, and lattices grown with skipped corners; the
-   result is a lattice coordinate (a, b) per corner;
+   result is a lattice coordinate (a, b) per corner; lattices of different seeds that share
+   corners under one turn and offset are joined (:func:`join_lattices`);
 3. identity (:mod:`cotrain.detect.identity`): the lattice is placed on the board by one of the
    four in-plane rotations and an integer offset; every placement is scored by the network's
    column / row log-probabilities at the corners, the checker colour of every lattice cell
@@ -48,7 +49,7 @@ from cotrain.detect.identity import assign_ids, canonical_ids, cell_darkness, co
 from cotrain.detect.lattice import STEPS, Lattice, grow_lattice, refine_positions, skipped_corners, verify_lattice
 from cotrain.detect.saddle import fit_saddles, outside_circle, saddle_candidates, saddle_response, smooth_cached, window_half
 from cotrain.geometry.letterbox import CELLS, Letterbox
-from cotrain.targets import Checkerboard
+from cotrain.targets import ROTATIONS, Checkerboard
 
 
 @dataclass
@@ -154,11 +155,71 @@ def placement_is_sure(margin: float, geometry_margin: float, n_corners: int, cfg
     return margin >= max(cfg.min_margin_votes_alone, cfg.min_votes_per_corner * n_corners)
 
 
+def _joined(big: Lattice, small: Lattice, cfg: GridConfig) -> Lattice | None:
+    """``big`` joined by ``small``'s corners where the two share at least ``cfg.merge_min_shared``
+    corners at the same spots (within ``cfg.merge_radius_px``) and one turn and offset of small's
+    lattice coordinates onto big's maps every shared corner onto its own; None where they do not,
+    or where a corner of small would land on a coordinate big has at another spot, or within
+    ``cfg.merge_crowd_px`` of one of big's corners."""
+    d, nn = cKDTree(big.xy).query(small.xy)
+    shared = np.nonzero(d < cfg.merge_radius_px)[0]
+    if len(shared) < cfg.merge_min_shared:
+        return None
+    for R in ROTATIONS:
+        o = big.ab[nn[shared[0]]] - small.ab[shared[0]] @ R.T
+        if np.array_equal(small.ab[shared] @ R.T + o, big.ab[nn[shared]]):
+            break
+    else:
+        return None
+    new = np.ones(len(small.ab), bool)
+    new[shared] = False
+    ab_new = small.ab @ R.T + o
+    if (d[new] <= cfg.merge_crowd_px).any() or any(tuple(t) in big.where for t in ab_new[new].tolist()):
+        return None
+    # Small's other corners join outwards from big's, each where the corners there by then predict it.
+    union = {tuple(t): q for t, q in zip(big.ab.tolist(), big.xy)}
+    todo, joined = list(np.nonzero(new)[0]), []
+    while todo:
+        later = []
+        for k in todo:
+            fits = _fits_the_union(tuple(ab_new[k].tolist()), small.xy[k], union, cfg)
+            if fits is None:
+                later.append(k)
+            elif fits:
+                union[tuple(ab_new[k].tolist())] = small.xy[k]
+                joined.append(k)
+        if len(later) == len(todo):
+            break
+        todo = later
+    if not joined:
+        return big
+    xy = np.concatenate([big.xy, small.xy[joined]])
+    return Lattice(xy, np.concatenate([big.ab, ab_new[joined]]), np.concatenate([big.filled, small.filled[joined]]))
+
+
+def join_lattices(lattices: list[Lattice], cfg: GridConfig) -> list[Lattice]:
+    """Lattices grown from different seeds that are parts of one lattice (:func:`_joined`: shared
+    corners at the same spots under one turn and offset, no coordinate claimed twice) joined into
+    one, largest first; the others as they are. A seed's growth stops at a missed candidate, a
+    bend or blur, and another seed's growth goes on from there: joined, both halves are placed
+    together, where each alone may leave the placement unsure."""
+    out: list[Lattice] = []
+    for lat in sorted(lattices, key=lambda x: -len(x.ab)):
+        for n, big in enumerate(out):
+            j = _joined(big, lat, cfg)
+            if j is not None:
+                out[n] = j
+                break
+        else:
+            out.append(lat)
+    return out
+
+
 def _fits_the_union(ij: tuple[int, int], q: np.ndarray, union: dict[tuple[int, int], np.ndarray], cfg: GridConfig) -> bool | None:
-    """Whether point q (2,) fits at board coordinates ij among the corners ``union`` has placed
-    (board (i, j) -> pixels (2,)): every prediction of ij, by the line of two corners behind it or
-    by the parallelogram of a cell it completes, within ``cfg.match_radius`` of that prediction's
-    step; None where nothing predicts it yet."""
+    """Whether point q (2,) fits at coordinates ij among the corners ``union`` has placed (board
+    (i, j), or lattice (a, b), -> pixels (2,)): every prediction of ij, by the line of two corners
+    behind it or by the parallelogram of a cell it completes, within ``cfg.match_radius`` of that
+    prediction's step; None where nothing predicts it yet."""
     i, j = ij
     ok = None
     for di, dj in STEPS:
@@ -279,6 +340,7 @@ def grid_pass(
     scored: list[tuple[float, Lattice, np.ndarray, float]] = []
     covered = np.zeros(len(xy), bool)
     tried = 0
+    grown: list[Lattice] = []
     for seed in range(len(xy)):
         if tried >= cfg.max_seeds:
             break
@@ -294,6 +356,13 @@ def grid_pass(
             continue
         if CELLS.sample(mask_prob[None], box.to_processing(lat.xy + offset))[:, 0].mean() < cfg.min_board_prob:
             continue
+        grown.append(lat)
+    if cfg.join_lattices:
+        # Joined lattices are placed beside their parts (a part alone can be surer), verified
+        # again with their corners' final neighbours.
+        parts = {id(x) for x in grown}
+        grown += [verify_lattice(x, grey, cfg, smoothed, rim_dist) for x in join_lattices(grown, cfg) if id(x) not in parts]
+    for lat in grown:
         blur1 = smooth_cached(smoothed, grey, -1)
         dark = cell_darkness(blur1, lat)
         if len(dark) < cfg.min_cells:

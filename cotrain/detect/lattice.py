@@ -434,16 +434,35 @@ def verify_lattice(
         qi = pixel_index(q, W, H)
         cut = keep & (rim_dist[qi[:, 1], qi[:, 0]] < 1 + 1.8 * halves)
         cos_max = np.cos(np.radians(cfg.max_rim_edge_angle))
+        cos_borrowed = np.cos(np.radians(cfg.rim_borrowed_angle))
         for k in np.nonzero(cut)[0]:
             # Cut by the rim, a square's corner against the margin or the rim can pass for half an
             # X-junction: the fitted edges must run along the lattice lines to the neighbours.
             a, b = lat.ab[k]
+            seen_axis = [False, False]
             for da, db in STEPS:
                 t = (a + da, b + db)
                 if t in where:
                     u = lat.xy[where[t]] - q[k]
                     u = u / max(np.linalg.norm(u), 1e-9)
                     keep[k] &= bool(np.abs(axes[k] @ u).max() >= cos_max)
+                    seen_axis[abs(db)] = True
+            for axis in (0, 1):
+                if seen_axis[axis] or not keep[k] or not cfg.rim_borrowed_angle:
+                    continue
+                # No neighbour along this lattice axis (a tip, or the rim): the axis as a neighbour
+                # across measures it. Where a square's edge meets the rim or the image border, the
+                # half-X there has the border as its second edge, across the lattice.
+                da, db = (1, 0) if axis == 0 else (0, 1)
+                for sa, sb in ((db, da), (-db, -da)):
+                    m, m2 = where.get((a + sa, b + sb)), None
+                    if m is not None:
+                        m2 = where.get((a + sa + da, b + sb + db)) or where.get((a + sa - da, b + sb - db))
+                    if m is not None and m2 is not None:
+                        u = lat.xy[m2] - lat.xy[m]
+                        u = u / max(np.linalg.norm(u), 1e-9)
+                        keep[k] &= bool(np.abs(axes[k] @ u).max() >= cos_borrowed)
+                        break
     xy = np.where(keep[:, None], q, lat.xy)
     lat = Lattice(xy[keep], lat.ab[keep], lat.filled[keep])
     big = _largest_component(lat)

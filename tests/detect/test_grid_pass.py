@@ -196,3 +196,38 @@ def test_merge_lattices_joins_agreeing_lattices_of_the_board():
     order = np.argsort(out)
     np.testing.assert_array_equal(out[order], sid)
     np.testing.assert_allclose(lat.xy[order], sq)
+
+
+def test_join_lattices_joins_parts_of_one_lattice():
+    """Two growths of one board in their own lattice frames (one turned by 90 deg and shifted)
+    that overlap in two columns join into one lattice in the larger one's frame, every corner once
+    at its own spot; parts whose shared corners need different turns, and a lattice far away,
+    stay apart; a corner of the smaller part that its new neighbours do not predict is left out."""
+    from cotrain.detect.grid_pass import join_lattices
+    from cotrain.detect.lattice import Lattice
+
+    cfg = GridConfig()
+    ids = np.arange(NX * NY)
+    i, j = ids % NX, ids // NX
+    q = np.stack([40.0 + 30 * i + 0.5 * j * j, 36.0 + 30 * j + 0.3 * i * i], 1)  # a slightly bent grid
+    left, right = i <= 5, i >= 4
+    big = Lattice(q[left], np.stack([i[left], j[left]], 1), np.zeros(left.sum(), bool))
+    turned = np.stack([j[right] + 7, -i[right] - 3], 1)  # (i, j) -> (j, -i), shifted
+    small = Lattice(q[right], turned, np.zeros(right.sum(), bool))
+    far = Lattice(q[left] + 1000.0, big.ab, big.filled)
+    out = join_lattices([small, big, far], cfg)
+    assert len(out) == 2 and out[1] is far
+    joined = out[0]
+    assert len(joined.ab) == NX * NY and len(joined.where) == NX * NY
+    np.testing.assert_allclose(joined.xy[[joined.where[(a, b)] for a, b in zip(i, j)]], q)
+
+    # The shared corners disagree about the turn: no join.
+    scrambled = Lattice(q[right], turned[np.random.default_rng(0).permutation(len(turned))], small.filled)
+    assert len(join_lattices([big, scrambled], cfg)) == 2
+
+    # A corner of the smaller part off its lattice line (a wrong corner at its end) is left out.
+    bad = q[right].copy()
+    k_bad = np.nonzero((i[right] == NX - 1) & (j[right] == 2))[0][0]
+    bad[k_bad] += [0.0, 16.0]  # over half a step off: 0.45 x 30 = 13.5 px
+    joined = join_lattices([big, Lattice(bad, turned, small.filled)], cfg)[0]
+    assert len(joined.ab) == NX * NY - 1 and (NX - 1, 2) not in joined.where

@@ -201,3 +201,41 @@ def test_edge_neighbour_follows_the_edge_where_the_prediction_missed():
     last = 2 * NX + NX - 1  # corner (8, 2)
     par_last = _diag_contrast(img, xy[last], sa, sb, cfg.diag_offset)
     assert edge_neighbour(img, xy[last], sa, bright, par_last, xy, axes, tree, {last}, cfg) is None
+
+
+def test_rim_cut_tip_corner_needs_edges_along_both_lattice_axes(monkeypatch):
+    """A corner whose window the image border cuts, at a lattice tip (one neighbour): its fitted
+    edges must follow the lattice line to that neighbour and, along the other axis, the direction
+    a neighbour across measures. Where a square's edge meets the border the half-X has the border
+    as its second edge and is dropped; a true X-junction there is kept. (The saddle fit is
+    replaced by one that returns the given edge directions, so the rule is tested alone.)"""
+    import math
+
+    import cotrain.detect.lattice as lattice_mod
+    from cotrain.detect.grid_config import GridConfig
+    from cotrain.detect.lattice import verify_lattice
+
+    th = math.radians(40)
+    ea, eb = np.array([math.cos(th), math.sin(th)]), np.array([-math.sin(th), math.cos(th)])  # lattice axes in the image
+    ab = np.array([(i, j) for j in range(3) for i in range(4)] + [(1, -1)])
+    xy = np.array([80.0, 6.5]) + 20.0 * (ab[:, :1] * ea + ab[:, 1:] * eb)
+    tip = len(ab) - 1
+    assert 2.0 < xy[tip, 1] < 6.0  # next to the top border
+    rim_dist = np.tile(np.arange(120, dtype=np.float32)[:, None], (1, 200))  # distance to the top border
+    grey = np.zeros((120, 200), np.float32)
+
+    def run(tip_axes: np.ndarray, borrowed: float) -> set:
+        def fake_fit(grey_, smoothed, q, half, cfg, rim_dist=None):
+            axes = np.tile(np.stack([ea, eb])[None], (len(q), 1, 1))
+            axes[np.linalg.norm(q - xy[tip], axis=1) < 1e-6] = tip_axes
+            return q.copy(), np.ones(len(q), bool), axes
+
+        monkeypatch.setattr(lattice_mod, "fit_saddles", fake_fit)
+        out = verify_lattice(Lattice(xy, ab, np.zeros(len(ab), bool)), grey, GridConfig(rim_borrowed_angle=borrowed), {}, rim_dist)
+        return {tuple(t) for t in out.ab.tolist()}
+
+    half_x = np.stack([eb, np.array([1.0, 0.0])])  # the square's edge along b, then the border
+    everything = {tuple(t) for t in ab.tolist()}
+    assert run(half_x, 30.0) == everything - {(1, -1)}
+    assert run(half_x, 0.0) == everything  # without the rule it stays
+    assert run(np.stack([eb, ea]), 30.0) == everything  # a true X-junction at the border stays
