@@ -63,7 +63,7 @@ class GridConfig:
     min_corners: int = 6  # smallest lattice that is reported
     min_cells: int = 2  # complete lattice squares (four corners) a reported lattice needs
     min_board_prob: float = 0.3  # mean board probability (network mask) at a lattice's corners
-    max_seeds: int = 12  # seeds tried (best corner scores first); the lattice with the surest identity wins
+    max_seeds: int = 16  # seeds tried (best corner scores first); the lattice with the surest identity wins
     # --- identity (identity) ---
     vote_offset: float = 0.25  # network votes are also read this fraction of a step along both lattice axes (the diagonals)
     parity_weight: float = 2.0  # log-likelihood per lattice cell whose checker colour agrees with a placement
