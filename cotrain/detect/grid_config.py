@@ -42,6 +42,7 @@ class GridConfig:
     walk_angle: float = 30.0  # ... within this (deg) of the predicted direction ...
     walk_axis_angle: float = 20.0  # ... with one of its own edge directions within this (deg) of the step
     fill_min_alternation: float = 0.15  # a saddle search where no candidate was predicted needs colours alternating this much there
+    remeasure_steps: bool = True  # a corner's steps (of 15 px or more) are measured to its neighbours placed by the time it grows
     match_radius: float = 0.45  # a neighbour must lie within this fraction of the grid step of its prediction
     agree_radius: float = 0.3  # predictions of one corner from different neighbours must agree within this fraction of a step
     min_step_ratio: float = 0.5  # a new step may be this much shorter than its prediction ...

@@ -277,6 +277,17 @@ def grow_lattice(
         a, b = queue.popleft()
         k = where[(a, b)]
         sa, sb = step[(a, b)]
+        if cfg.remeasure_steps:
+            # The corner's steps as its neighbours placed by now measure them: inherited along a row
+            # from its parent, the step across is stale where the lattice bends (near a fisheye's
+            # rim it turns by tens of degrees in a few squares). Small squares keep theirs (their
+            # neighbours' positions are noisier than the inherited step).
+            pairs = ((where.get((a + 1, b)), where.get((a - 1, b))), (where.get((a, b + 1)), where.get((a, b - 1))))
+            for axis, (m_f, m_b) in enumerate(pairs):
+                if m_f is not None or m_b is not None:
+                    s_ = pts[m_f] - pts[k] if m_f is not None else pts[k] - pts[m_b]
+                    if math.hypot(s_[0], s_[1]) >= cfg.walk_min_square_px:
+                        sa, sb = (s_, sb) if axis == 0 else (sa, s_)
         for da, db in STEPS:
             t = (a + da, b + db)
             if t in where:

@@ -239,3 +239,41 @@ def test_rim_cut_tip_corner_needs_edges_along_both_lattice_axes(monkeypatch):
     assert run(half_x, 30.0) == everything - {(1, -1)}
     assert run(half_x, 0.0) == everything  # without the rule it stays
     assert run(np.stack([eb, ea]), 30.0) == everything  # a true X-junction at the border stays
+
+
+def test_growth_remeasures_steps_where_the_lattice_bends():
+    """A board bent into rings about a centre above the image (columns turn by 20 deg per square,
+    squares shrink towards the centre, as near a fisheye's rim): a corner's step across, inherited
+    along a row from its parent, is soon tens of degrees off. Measured again to the neighbours
+    placed by the time the corner grows (``remeasure_steps``), the growth from a corner of the
+    inner rings takes as many corners as have a saddle that fits, each at its own lattice place
+    (measured: 49 of 54, the others out of the image); with inherited steps it stops short (44)."""
+    from cotrain.detect.grid_config import GridConfig
+    from cotrain.detect.lattice import grow_lattice
+    from cotrain.detect.saddle import fit_saddles
+
+    cx, cy, r0, dr, dth, th0 = 320.0, -20.0, 330.0, 45.0, np.radians(20.0), -0.2
+
+    def to_pixels(u, v):
+        return cx + (r0 - dr * v) * np.cos(th0 + dth * u), cy + (r0 - dr * v) * np.sin(th0 + dth * u)
+
+    def to_board(x, y):
+        return (np.arctan2(y - cy, x - cx) - th0) / dth, (r0 - np.hypot(x - cx, y - cy)) / dr
+
+    img, q = warped_board_image(to_board, to_pixels, (640, 480))
+    smoothed: dict[int, np.ndarray] = {}
+    xy, ok, axes = fit_saddles(img, smoothed, q + 0.3, 3, GridConfig())
+    ij = np.stack([np.arange(NX * NY) % NX, np.arange(NX * NY) // NX], 1)
+    assert ok.sum() >= 45 and np.abs(xy - q)[ok].max() < 0.5  # the others lie outside the image
+    seed = 4 * NX + 4
+    found = {}
+    for remeasure in (False, True):
+        cfg = GridConfig(remeasure_steps=remeasure)
+        lat = grow_lattice(xy, axes, seed, img, cfg, dict(smoothed))
+        at = np.array([np.argmin(np.linalg.norm(xy - p, axis=1)) for p in lat.xy])
+        assert len(set(at.tolist())) == len(at)  # each corner once
+        d, ab = ij[at] - ij[at[0]], lat.ab - lat.ab[0]
+        turns = ([[1, 0], [0, 1]], [[0, 1], [-1, 0]], [[-1, 0], [0, -1]], [[0, -1], [1, 0]])
+        assert any(np.array_equal(ab @ np.array(R), d) for R in turns)  # each at its own place
+        found[remeasure] = len(at)
+    assert found[True] >= ok.sum() and found[True] > found[False]
