@@ -468,7 +468,9 @@ def verify_lattice(
                 for sa, sb in ((db, da), (-db, -da)):
                     m, m2 = where.get((a + sa, b + sb)), None
                     if m is not None:
-                        m2 = where.get((a + sa + da, b + sb + db)) or where.get((a + sa - da, b + sb - db))
+                        m2 = where.get((a + sa + da, b + sb + db))
+                        if m2 is None:
+                            m2 = where.get((a + sa - da, b + sb - db))
                     if m is not None and m2 is not None:
                         u = lat.xy[m2] - lat.xy[m]
                         u = u / max(np.linalg.norm(u), 1e-9)
