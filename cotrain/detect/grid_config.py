@@ -42,7 +42,7 @@ class GridConfig:
     walk_angle: float = 30.0  # ... within this (deg) of the predicted direction ...
     walk_axis_angle: float = 20.0  # ... with one of its own edge directions within this (deg) of the step
     fill_min_alternation: float = 0.15  # a saddle search where no candidate was predicted needs colours alternating this much there
-    remeasure_steps: bool = True  # a corner's steps (of 15 px or more) are measured to its neighbours placed by the time it grows
+    remeasure_steps: bool = True  # a corner's steps (walk_min_square_px or more) are measured to its neighbours placed by the time it grows
     match_radius: float = 0.45  # a neighbour must lie within this fraction of the grid step of its prediction
     agree_radius: float = 0.3  # predictions of one corner from different neighbours must agree within this fraction of a step
     min_step_ratio: float = 0.5  # a new step may be this much shorter than its prediction ...
@@ -85,6 +85,6 @@ class GridConfig:
     max_violated_share: float = 0.35  # ... or this share of all the lattice's margin evidence, when that is more
     join_lattices: bool = True  # lattices of other seeds that share corners under one turn and offset are joined before the placement
     merge_lattices: bool = True  # join the corners of other surely placed lattices that agree with the best one
-    merge_min_shared: int = 2  # ... sharing this many corners (ids and spots) with it
-    merge_crowd_px: float = 3.0  # ... a joined corner must lie this far from every corner already there
+    merge_min_shared: int = 2  # lattices join (either way) where they share this many corners (spots, and coordinates or ids)
+    merge_crowd_px: float = 3.0  # a joined corner must lie this far from every corner there (join_lattices: else no join at all)
     filled_confidence: float = 0.9  # confidence factor of corners found by a saddle search, not among the candidates

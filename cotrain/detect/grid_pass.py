@@ -259,6 +259,9 @@ def merge_lattices(
             continue
         o_on = oids >= 0
         oxy, oid0, ofilled = other.xy[o_on], oids[o_on], other.filled[o_on]
+        if joined:  # the corners joined from earlier lattices count as there
+            xy = np.concatenate([lat.xy[on], np.array([p for _, p, _ in joined])])
+            out_ids = np.concatenate([ids[on], [k for k, _, _ in joined]]).astype(int)
         d, nn = cKDTree(xy).query(oxy)
         same_spot = d < cfg.merge_radius_px
         if same_spot.sum() < cfg.merge_min_shared:
@@ -285,8 +288,8 @@ def merge_lattices(
             todo = later
     if not joined:
         return lat, ids
-    out_ids = np.concatenate([out_ids, [k for k, _, _ in joined]]).astype(int)
-    xy = np.concatenate([xy, np.array([p for _, p, _ in joined])])
+    out_ids = np.concatenate([ids[on], [k for k, _, _ in joined]]).astype(int)
+    xy = np.concatenate([lat.xy[on], np.array([p for _, p, _ in joined])])
     filled = np.concatenate([filled, [f for _, _, f in joined]]).astype(bool)
     ab = np.stack([out_ids % board.nx, out_ids // board.nx], 1)
     return Lattice(xy, ab, filled), out_ids
@@ -361,7 +364,8 @@ def grid_pass(
         # Joined lattices are placed beside their parts (a part alone can be surer), verified
         # again with their corners' final neighbours.
         parts = {id(x) for x in grown}
-        grown += [verify_lattice(x, grey, cfg, smoothed, rim_dist) for x in join_lattices(grown, cfg) if id(x) not in parts]
+        joined = [verify_lattice(x, grey, cfg, smoothed, rim_dist) for x in join_lattices(grown, cfg) if id(x) not in parts]
+        grown += [x for x in joined if len(x.ab) >= cfg.min_corners and skipped_corners(x, response, cfg) <= cfg.max_skipped]
     for lat in grown:
         blur1 = smooth_cached(smoothed, grey, -1)
         dark = cell_darkness(blur1, lat)

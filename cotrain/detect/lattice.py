@@ -398,7 +398,8 @@ def verify_lattice(
       :func:`cotrain.detect.saddle.saddle_fit`: near the image circle's rim from the part of the
       window that is seen) does not land on it again (within ``max_refit_shift`` of the square),
       or, where the window is cut by the rim, its edge directions do not follow the lattice lines
-      (within ``max_rim_edge_angle``);
+      (within ``max_rim_edge_angle``) or, along an axis where it has no neighbour, the direction
+      a neighbour across measures along that axis (within ``rim_borrowed_angle``);
     - it breaks a lattice line: the midpoint of its two neighbours along a, or along b, misses it
       by more than ``max_line_offset`` of a step (where a group of corners slipped by a diagonal
       step during the growth, the corners along the seam fail this).
