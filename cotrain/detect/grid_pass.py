@@ -176,22 +176,10 @@ def _joined(big: Lattice, small: Lattice, cfg: GridConfig) -> Lattice | None:
     ab_new = small.ab @ R.T + o
     if (d[new] <= cfg.merge_crowd_px).any() or any(tuple(t) in big.where for t in ab_new[new].tolist()):
         return None
-    # Small's other corners join outwards from big's, each where the corners there by then predict it.
     union = {tuple(t): q for t, q in zip(big.ab.tolist(), big.xy)}
-    todo, joined = list(np.nonzero(new)[0]), []
-    while todo:
-        later = []
-        for k in todo:
-            fits = _fits_the_union(tuple(ab_new[k].tolist()), small.xy[k], union, cfg)
-            if fits is None:
-                later.append(k)
-            elif fits:
-                union[tuple(ab_new[k].tolist())] = small.xy[k]
-                joined.append(k)
-        if len(later) == len(todo):
-            break
-        todo = later
-    if not joined:
+    new_idx = np.nonzero(new)[0]
+    joined = new_idx[_join_outwards(union, [(tuple(ab_new[k].tolist()), small.xy[k]) for k in new_idx], cfg)]
+    if not len(joined):
         return big
     xy = np.concatenate([big.xy, small.xy[joined]])
     return Lattice(xy, np.concatenate([big.ab, ab_new[joined]]), np.concatenate([big.filled, small.filled[joined]]))
@@ -238,6 +226,28 @@ def _fits_the_union(ij: tuple[int, int], q: np.ndarray, union: dict[tuple[int, i
     return ok
 
 
+def _join_outwards(union: dict[tuple[int, int], np.ndarray], items: list[tuple[tuple[int, int], np.ndarray]], cfg: GridConfig) -> list[int]:
+    """Which of ``items`` ((coordinates, pixels (2,)) each) join ``union`` (coordinates -> pixels,
+    updated in place): outwards from the corners already there, each where those there by then
+    predict it (:func:`_fits_the_union`); none at coordinates ``union`` already has. Returns the
+    joined items' indices."""
+    todo, joined = [n for n, (ij, _) in enumerate(items) if ij not in union], []
+    while todo:
+        later = []
+        for n in todo:
+            ij, q = items[n]
+            fits = None if ij in union else _fits_the_union(ij, q, union, cfg)
+            if fits is None and ij not in union:
+                later.append(n)
+            elif fits:
+                union[ij] = q
+                joined.append(n)
+        if len(later) == len(todo):
+            break
+        todo = later
+    return joined
+
+
 def merge_lattices(
     lat: Lattice, ids: np.ndarray, others: list[tuple[float, Lattice, np.ndarray, float]], board: Checkerboard, cfg: GridConfig
 ) -> tuple[Lattice, np.ndarray]:
@@ -272,20 +282,9 @@ def merge_lattices(
                 break
         else:
             continue  # placed otherwise: not joined
-        todo = [k for k in np.nonzero(~same_spot & (d > cfg.merge_crowd_px))[0] if (oid[k] % board.nx, oid[k] // board.nx) not in union]
-        while todo:  # outwards from the corners already there
-            later = []
-            for k in todo:
-                ij = (int(oid[k] % board.nx), int(oid[k] // board.nx))
-                fits = None if ij in union else _fits_the_union(ij, oxy[k], union, cfg)
-                if fits is None and ij not in union:
-                    later.append(k)
-                elif fits:
-                    union[ij] = oxy[k]
-                    joined.append((int(oid[k]), oxy[k], bool(ofilled[k])))
-            if len(later) == len(todo):
-                break
-            todo = later
+        cand = np.nonzero(~same_spot & (d > cfg.merge_crowd_px))[0]
+        items = [((int(oid[k] % board.nx), int(oid[k] // board.nx)), oxy[k]) for k in cand]
+        joined += [(int(oid[k]), oxy[k], bool(ofilled[k])) for k in cand[_join_outwards(union, items, cfg)]]
     if not joined:
         return lat, ids
     out_ids = np.concatenate([ids[on], [k for k, _, _ in joined]]).astype(int)
@@ -339,7 +338,7 @@ def grid_pass(
         return empty
     # Grow from several seeds (distractors can hold the strongest saddles); a lattice must lie on
     # what the network calls board, and the one whose identity is surest wins.
-    best: tuple[float, Lattice, np.ndarray] | None = None
+    best: tuple[float, Lattice, np.ndarray, float] | None = None
     scored: list[tuple[float, Lattice, np.ndarray, float]] = []
     covered = np.zeros(len(xy), bool)
     tried = 0
