@@ -513,13 +513,8 @@ def skipped_corners(lat: Lattice, response: np.ndarray, cfg: GridConfig | None =
 # --------------------------------------------------------------------------------------------
 # Reported positions
 # --------------------------------------------------------------------------------------------
-def final_fits(
-    lat: Lattice, grey: np.ndarray, cfg: GridConfig, smoothed: dict[int, np.ndarray], rim_dist: np.ndarray | None = None
-) -> tuple[np.ndarray, np.ndarray]:
-    """Every corner fitted once more in a window of at most ``cfg.final_max_half`` (about a third
-    of its shortest lattice step below that). Returns xy (K, 2), the fit where it succeeded and
-    moved by at most ``cfg.max_final_shift`` of that step, the old position elsewhere, and which
-    corners those are (K,) bool."""
+def shortest_steps(lat: Lattice) -> np.ndarray:
+    """(K,) px: each corner's shortest step to a lattice neighbour (inf for a corner without one)."""
     where = lat.where
     short = np.full(len(lat.ab), np.inf)
     pts = lat.xy.tolist()  # scalar arithmetic in the per-corner loop
@@ -528,6 +523,17 @@ def final_fits(
             t = (a + da, b + db)
             if t in where:
                 short[k] = min(short[k], math.hypot(pts[where[t]][0] - pts[k][0], pts[where[t]][1] - pts[k][1]))
+    return short
+
+
+def final_fits(
+    lat: Lattice, grey: np.ndarray, cfg: GridConfig, smoothed: dict[int, np.ndarray], rim_dist: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Every corner fitted once more in a window of at most ``cfg.final_max_half`` (about a third
+    of its shortest lattice step below that). Returns xy (K, 2), the fit where it succeeded and
+    moved by at most ``cfg.max_final_shift`` of that step, the old position elsewhere, and which
+    corners those are (K,) bool."""
+    short = shortest_steps(lat)
     short = np.where(np.isfinite(short), short, 3 * cfg.min_step_px)
     halves = window_half(short, cfg.final_max_half)
     xy, fitted = lat.xy.copy(), np.zeros(len(lat.ab), bool)

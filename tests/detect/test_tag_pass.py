@@ -193,6 +193,22 @@ def test_blurred_small_tags_read_after_sharpening():
     assert decoded(0.0) < 33
 
 
+def test_small_gaps_keep_corners_whose_final_fit_fails():
+    """Tags about 13 px across (gaps of 4 px) blurred by 1 px: the final fit's smallest window
+    reaches across the crossing squares and fails at some true corners; those keep their lattice
+    positions, so more corners are reported, each within 0.6 px of its label."""
+    g = make_target(TargetConfig(kind="aprilgrid"))
+    c = centre(g)
+    img, q, vis, _ = render(g, "kb4", 200, [c[0] + 0.02, c[1] - 0.03, 1.1], c)
+    noise = np.random.default_rng(0).normal(0, 3, img.shape)
+    img = np.clip(cv2.GaussianBlur(img.astype(np.float32), (0, 0), 1.0) + noise, 0, 255).astype(np.uint8)
+    kept = AprilGridDetector(g).detect(img)
+    dropped = AprilGridDetector(g, TagConfig(keep_unfitted_px=0.0)).detect(img)
+    assert TagConfig().keep_unfitted_px > 0
+    assert len(kept.ids) >= len(dropped.ids) + 5
+    check_ids(kept, q, vis, tol=0.6)
+
+
 def test_otsu_split_matches_opencv():
     """The two-class split of 36 values is OpenCV's Otsu threshold on the same uint8 values."""
     rng = np.random.default_rng(3)
