@@ -42,7 +42,8 @@ def cmd_bench_render(args: argparse.Namespace) -> int:
 def cmd_train(args: argparse.Namespace) -> int:
     from cotrain.model.train import main_train
 
-    return main_train(args.config, args.overrides, resume=args.resume)
+    overrides = args.overrides + ([f"train.device={args.device}"] if args.device else [])
+    return main_train(args.config, overrides, resume=args.resume)
 
 
 def cmd_export(args: argparse.Namespace) -> int:
@@ -149,7 +150,8 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("train", help="train the corner network on online rendered data")
     s.add_argument("--config", required=True, help="training config, e.g. configs/tiny.yaml")
     s.add_argument("--resume", action="store_true", help="continue from the run's last checkpoint")
-    s.add_argument("overrides", nargs="*", help="key=value overrides, e.g. train.steps=100")
+    s.add_argument("--device", help="train and render on this torch device (cpu, cuda, cuda:1; default: the config's train.device, cpu)")
+    s.add_argument("overrides", nargs="*", help="key=value overrides, e.g. train.steps=100 train.stop_after_minutes=9")
     s.set_defaults(func=cmd_train)
 
     s = sub.add_parser("export", help="export a checkpoint to ONNX (with the onnxruntime parity check)")

@@ -53,6 +53,10 @@ class TrainSettings:
     threads: int = 0  # torch threads per process (0 = leave torch's default)
     select_by: str = "recall"  # validation figure that picks best.pt: "recall" (per-slot path) or "board_id_acc" (grid pass)
     stop_after: int = 0  # stop (with a checkpoint) after this step, as if interrupted (0 = run to the end)
+    stop_after_minutes: float = (
+        0.0  # stop (with a checkpoint) after this many wall minutes of this process (0 = no limit): resumable chunks
+    )
+    device: str = "cpu"  # where the model trains and the batches are rendered: "cpu", "cuda", "cuda:1", ...
     curriculum_steps: int = 0  # before this step, train on closer, less cropped boards (identity is learned there first)
     curriculum_distance: tuple[float, float] = (0.1, 0.45)  # render.distance_range during the curriculum
     curriculum_offaxis_margin_deg: float = -10.0  # render.offaxis_margin_deg during the curriculum (negative: inside the FoV)
@@ -78,7 +82,23 @@ def finalize_config(cfg: TrainConfig) -> TrainConfig:
         raise ConfigError("train.batch_size and train.steps must be positive")
     if cfg.train.select_by not in ("recall", "board_id_acc"):
         raise ConfigError(f"train.select_by must be 'recall' or 'board_id_acc', not {cfg.train.select_by!r}")
+    train_device(cfg.train)
     return cfg
+
+
+def train_device(s: TrainSettings) -> torch.device:
+    """The device of ``train.device``; a clear error where it does not exist here."""
+    try:
+        dev = torch.device(s.device)
+    except (RuntimeError, TypeError):
+        raise ConfigError(f"train.device {s.device!r} is not a torch device (cpu, cuda, cuda:1, ...)") from None
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise ConfigError(f"train.device {s.device!r}: this torch has no CUDA device (torch {torch.__version__})")
+    if dev.type == "cuda" and (dev.index or 0) >= torch.cuda.device_count():
+        raise ConfigError(f"train.device {s.device!r}: only {torch.cuda.device_count()} CUDA device(s) here")
+    if dev.type not in ("cpu", "cuda"):
+        raise ConfigError(f"train.device {s.device!r}: only cpu and cuda are supported")
+    return dev
 
 
 def build_from_checkpoint(ckpt: dict) -> tuple[CornerNet, TrainConfig]:
@@ -158,10 +178,10 @@ def evaluate(model: CornerNet, val: dict[str, Tensor], batch_size: int = 16, tol
     h, w = uv.shape[-2:]
     cell = CELLS.to_cell(val["corners"]).round().long()
     cx, cy = cell[..., 0].clamp(0, w - 1), cell[..., 1].clamp(0, h - 1)
-    bi = torch.arange(uv.shape[0])[:, None].expand_as(cx)
+    bi = torch.arange(uv.shape[0], device=uv.device)[:, None].expand_as(cx)
     got = torch.stack([uv[bi, 0, cy, cx], uv[bi, 1, cy, cx]], -1).round()
     nx = model.cfg.grid_nx
-    ids = torch.arange(val["corners"].shape[1])
+    ids = torch.arange(val["corners"].shape[1], device=got.device)
     want = torch.stack([ids % nx, ids // nx], -1).to(got.dtype)
     board_ok = (got == want[None]).all(-1)
     return {
@@ -208,7 +228,7 @@ def _panel(model_out: dict[str, Tensor], images: Tensor) -> Tensor:
 
     tiles = []
     for b in range(images.shape[0]):
-        im = cv2.cvtColor((images[b, 0].numpy() * 255).astype(np.uint8), cv2.COLOR_GRAY2RGB)
+        im = cv2.cvtColor((images[b, 0].cpu().numpy() * 255).astype(np.uint8), cv2.COLOR_GRAY2RGB)
         for (x, y), v in zip(model_out["corners"][b].tolist(), (model_out["visibility_logit"][b] > 0).tolist()):
             if v and 0 <= x < im.shape[1] and 0 <= y < im.shape[0]:
                 cv2.circle(im, (int(round(x)), int(round(y))), 2, (0, 255, 0), -1)
@@ -227,8 +247,13 @@ def train(cfg: TrainConfig, resume: bool = False) -> dict:
     s = cfg.train
     world = int(os.environ.get("WORLD_SIZE", "1"))
     rank = int(os.environ.get("RANK", "0"))
+    dev = train_device(s)
     if world > 1:
-        dist.init_process_group("gloo")
+        dist.init_process_group("gloo" if dev.type == "cpu" else "nccl")
+        if dev.type == "cuda" and dev.index is None:
+            dev = torch.device("cuda", int(os.environ.get("LOCAL_RANK", rank)))
+    if dev.type == "cuda":
+        torch.cuda.set_device(dev)
     if s.threads > 0:
         torch.set_num_threads(s.threads)
     out_dir = Path(s.out_dir)
@@ -247,7 +272,7 @@ def train(cfg: TrainConfig, resume: bool = False) -> dict:
             cfg.model = from_dict(ModelConfig, ck["config"]["model"])
             cfg.model.input_size = input_size
         init_state = ck["model"]
-    model = CornerNet(cfg.model)
+    model = CornerNet(cfg.model).to(dev)
     unknown = [name for name in s.freeze if not isinstance(getattr(model, name, None), torch.nn.Module)]
     if unknown:
         raise ConfigError(f"train.freeze: the network has no module {', '.join(unknown)}")
@@ -265,6 +290,7 @@ def train(cfg: TrainConfig, resume: bool = False) -> dict:
     if s.teacher:
         teacher, t_cfg = build_from_checkpoint(load_checkpoint(s.teacher))
         teacher.requires_grad_(False)
+        teacher.to(dev)
         same = ("grid_nx", "grid_ny", "identity")
         if any(getattr(t_cfg.model, k) != getattr(cfg.model, k) for k in same):
             raise ConfigError(f"train.teacher {s.teacher}: its dense maps are not the model's (target grid or model.identity differ)")
@@ -287,11 +313,11 @@ def train(cfg: TrainConfig, resume: bool = False) -> dict:
         else:
             model.load_state_dict(init_state)
     train_mode()
-    ddp = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
+    ddp = torch.nn.parallel.DistributedDataParallel(model, device_ids=[dev] if dev.type == "cuda" else None) if world > 1 else model
 
     board = make_target(cfg.render.target)
     easy = dataclasses.replace(cfg.render, distance_range=tuple(s.curriculum_distance), offaxis_margin_deg=s.curriculum_offaxis_margin_deg)
-    val = render_batch(cfg.render, list(range(s.val_size)), seed=s.val_seed, board=board) if rank == 0 else None
+    val = render_batch(cfg.render, list(range(s.val_size)), seed=s.val_seed, board=board, device=dev) if rank == 0 else None
     writer = None
     if rank == 0:
         from torch.utils.tensorboard import SummaryWriter
@@ -310,7 +336,7 @@ def train(cfg: TrainConfig, resume: bool = False) -> dict:
 
     def save(path: Path) -> None:
         ck = {
-            "model": model.state_dict(),
+            "model": {k: v.detach().cpu() for k, v in model.state_dict().items()},
             "optimizer": opt.state_dict(),
             "scheduler": sched.state_dict(),
             "rng": torch.get_rng_state(),
@@ -323,10 +349,19 @@ def train(cfg: TrainConfig, resume: bool = False) -> dict:
 
     end = min(s.steps, s.stop_after) if s.stop_after > 0 else s.steps
     last_loss = float("nan")
+    t_process, first_step = time.time(), step
     while step < end:
+        if s.stop_after_minutes > 0 and step > first_step:  # a chunk's time is up: checkpoint and stop (--resume goes on)
+            up = torch.tensor([float(time.time() - t_process > s.stop_after_minutes * 60)], device=dev)
+            if world > 1:
+                dist.all_reduce(up, op=dist.ReduceOp.MAX)  # every rank stops at the same step
+            if up.item() > 0:
+                if rank == 0:
+                    save(last)
+                break
         first = (step * world + rank) * s.batch_size
         rcfg = easy if step < s.curriculum_steps else cfg.render  # validation always uses cfg.render
-        batch = render_batch(rcfg, list(range(first, first + s.batch_size)), seed=s.seed, board=board)
+        batch = render_batch(rcfg, list(range(first, first + s.batch_size)), seed=s.seed, board=board, device=dev)
         if teacher is not None:
             with torch.no_grad():
                 batch["teacher"] = teacher(batch["image"])

@@ -85,6 +85,15 @@ class Scene:
         ]
         return torch.stack(pp).float()
 
+    def to(self, device: torch.device) -> Scene:
+        """The same scene with its tensors on ``device``."""
+        return Scene(
+            self.model, [p.to(device) for p in self.params], self.fov.to(device), self.radius.to(device), self.T_cam_board.to(device)
+        )
+
+
+CPU = torch.device("cpu")
+
 
 def sample_generator(seed: int, index: int) -> torch.Generator:
     """The generator of sample ``index`` under ``seed`` (independent of batch composition)."""
@@ -179,14 +188,14 @@ def sample_scene(cfg: RenderConfig, board: Target, gens: list[torch.Generator]) 
 # Geometry of the batch: rays, board intersection, labels
 # --------------------------------------------------------------------------------------------
 @functools.lru_cache(maxsize=8)
-def _pixel_grid(h: int, w: int, ss: int) -> Tensor:
-    """(h*ss, w*ss, 2) sample positions in output-pixel coordinates (centre convention); cached,
-    never modified in place."""
+def _pixel_grid(h: int, w: int, ss: int, device: torch.device = CPU) -> Tensor:
+    """(h*ss, w*ss, 2) sample positions in output-pixel coordinates (centre convention) on
+    ``device``; cached, never modified in place."""
     off = (torch.arange(ss, dtype=torch.float32) + 0.5) / ss - 0.5
     xs = (torch.arange(w, dtype=torch.float32)[:, None] + off[None]).reshape(-1)
     ys = (torch.arange(h, dtype=torch.float32)[:, None] + off[None]).reshape(-1)
     yy, xx = torch.meshgrid(ys, xs, indexing="ij")
-    return torch.stack([xx, yy], dim=-1)
+    return torch.stack([xx, yy], dim=-1).to(device)
 
 
 def _rays(scene: Scene, grid: Tensor) -> tuple[Tensor, Tensor]:
@@ -259,18 +268,19 @@ def corner_labels(cfg: RenderConfig, board: Target, scene: Scene) -> dict[str, T
 # --------------------------------------------------------------------------------------------
 # Appearance
 # --------------------------------------------------------------------------------------------
-def _coords(h: int, w: int) -> tuple[Tensor, Tensor]:
-    yy, xx = torch.meshgrid(torch.linspace(-1, 1, h), torch.linspace(-1, 1, w), indexing="ij")
+def _coords(h: int, w: int, device: torch.device = CPU) -> tuple[Tensor, Tensor]:
+    yy, xx = torch.meshgrid(torch.linspace(-1, 1, h, device=device), torch.linspace(-1, 1, w, device=device), indexing="ij")
     return xx, yy
 
 
-def _background(cfg: RenderConfig, gens: list[torch.Generator], h: int, w: int) -> Tensor:
-    """Procedural backgrounds (B, 1, h, w): gradients, clouds, rectangles, lines, distractors."""
-    xx, yy = _coords(h, w)
+def _background(cfg: RenderConfig, gens: list[torch.Generator], h: int, w: int, device: torch.device = CPU) -> Tensor:
+    """Procedural backgrounds (B, 1, h, w) on ``device``: gradients, clouds, rectangles, lines,
+    distractors (drawn from the CPU generators ``gens``, so every device renders the same)."""
+    xx, yy = _coords(h, w, device)
     out = []
     K = cfg.n_shapes
     for g in gens:
-        r = lambda *shape, g=g: torch.rand(*shape, generator=g)  # noqa: E731
+        r = lambda *shape, g=g: torch.rand(*shape, generator=g).to(device)  # noqa: E731
         base = r(1) * 0.7 + 0.1
         img = base + (r(1) - 0.5) * 0.6 * xx + (r(1) - 0.5) * 0.6 * yy
         clouds = F.interpolate(r(1, 1, 6, 10) - 0.5, size=(h, w), mode="bicubic", align_corners=False)[0, 0]
@@ -324,8 +334,11 @@ def motion_blur_shift(kernel_size: int, angle: float, direction: float) -> torch
     return -torch.stack([(k.sum(0) * c).sum(), (k.sum(1) * c).sum()]).float()
 
 
-def render_batch(cfg: RenderConfig, indices: list[int], seed: int = 0, board: Target | None = None) -> dict[str, Tensor]:
-    """Render samples ``indices`` of the stream ``seed``.
+def render_batch(
+    cfg: RenderConfig, indices: list[int], seed: int = 0, board: Target | None = None, device: str | torch.device = CPU
+) -> dict[str, Tensor]:
+    """Render samples ``indices`` of the stream ``seed`` on ``device`` (a GPU renders the same
+    samples: the random draws come from per-sample CPU generators, the pixels are computed there).
 
     Returns a dict:
         image: (B, 1, H, W) float32 in [0, 1], grey
@@ -343,17 +356,24 @@ def render_batch(cfg: RenderConfig, indices: list[int], seed: int = 0, board: Ta
     """
     board = board or make_target(cfg.target)
     gens = [sample_generator(seed, i) for i in indices]
-    return render_scene(cfg, board, sample_scene(cfg, board, gens), gens)
+    return render_scene(cfg, board, sample_scene(cfg, board, gens), gens, device)
 
 
-def render_scene(cfg: RenderConfig, board: Target, scene: Scene, gens: list[torch.Generator]) -> dict[str, Tensor]:
-    """Render given cameras and poses (``scene``); appearance is drawn from ``gens`` (one per
-    sample). Returns the dict of :func:`render_batch`."""
+def render_scene(
+    cfg: RenderConfig, board: Target, scene: Scene, gens: list[torch.Generator], device: str | torch.device = CPU
+) -> dict[str, Tensor]:
+    """Render given cameras and poses (``scene``) on ``device``; appearance is drawn from ``gens``
+    (one per sample). Returns the dict of :func:`render_batch`, every tensor on ``device``."""
+    dev = torch.device(device)
     B, H, W, ss = len(gens), cfg.height, cfg.width, cfg.supersample
-    labels = corner_labels(cfg, board, scene)
-    no_target = torch.tensor([_u(g) < cfg.p_no_target for g in gens])
+    labels = {k: v.to(dev) for k, v in corner_labels(cfg, board, scene).items()}  # a few points: computed on the CPU
+    no_target = torch.tensor([_u(g) < cfg.p_no_target for g in gens], device=dev)
+    scene = scene.to(dev)
 
-    grid = _pixel_grid(H, W, ss)
+    def drawn(values: list[float]) -> Tensor:  # per-sample scalars (B, 1, 1) on the device
+        return torch.tensor(values, device=dev)[:, None, None]
+
+    grid = _pixel_grid(H, W, ss, dev)
     v, in_circle = _rays(scene, grid)
     xy, hit = _board_hit(v, scene.T_cam_board, board.front)
     # Footprint of a sample in board metres, from finite differences across neighbouring samples.
@@ -377,22 +397,22 @@ def render_scene(cfg: RenderConfig, board: Target, scene: Scene, gens: list[torc
     def rr(g: torch.Generator, lo: float = 0.0, hi: float = 1.0) -> float:
         return _u(g, lo, hi)
 
-    black = torch.tensor([rr(g, *cfg.black_range) for g in gens])[:, None, None]
-    white = torch.tensor([rr(g, *cfg.white_range) for g in gens])[:, None, None]
-    lx = torch.tensor([rr(g, -0.5, 0.5) for g in gens])[:, None, None]
-    ly = torch.tensor([rr(g, -0.5, 0.5) for g in gens])[:, None, None]
+    black = drawn([rr(g, *cfg.black_range) for g in gens])
+    white = drawn([rr(g, *cfg.white_range) for g in gens])
+    lx = drawn([rr(g, -0.5, 0.5) for g in gens])
+    ly = drawn([rr(g, -0.5, 0.5) for g in gens])
     ext = board.extent()
     bx = (xy_safe[..., 0] - (ext[0] + ext[2]) / 2) / (ext[2] - ext[0])
     by = (xy_safe[..., 1] - (ext[1] + ext[3]) / 2) / (ext[3] - ext[1])
     shade = (1 + lx * bx + ly * by).clamp(0.3, 1.6)
     board_img = (black + (white - black) * value) * shade
 
-    bg = _background(cfg, gens, H * ss, W * ss)[:, 0]
+    bg = _background(cfg, gens, H * ss, W * ss, dev)[:, 0]
     img = bg * (1 - cover) + board_img * cover
 
     # Occluders: ellipses in front of everything.
-    occ = torch.zeros(B, H * ss, W * ss)
-    xx, yy = _coords(H * ss, W * ss)
+    occ = torch.zeros(B, H * ss, W * ss, device=dev)
+    xx, yy = _coords(H * ss, W * ss, dev)
     for b, g in enumerate(gens):
         if rr(g) < cfg.p_occluder:
             for _ in range(1 + int(rr(g) * 3)):
@@ -411,7 +431,7 @@ def render_scene(cfg: RenderConfig, board: Target, scene: Scene, gens: list[torc
     r_px = (grid[None] - centres[:, None, None, :]).norm(dim=-1)
     rad = scene.radius[:, None, None].float()
     rim = (rad - r_px + 0.5).clamp(0, 1)
-    vig_strength = torch.tensor([rr(g, *cfg.vignette_range) for g in gens])[:, None, None]
+    vig_strength = drawn([rr(g, *cfg.vignette_range) for g in gens])
     vignette = 1 - vig_strength * (r_px / rad).clamp(0, 1) ** 3
     img = img * vignette * rim
 
@@ -426,30 +446,30 @@ def render_scene(cfg: RenderConfig, board: Target, scene: Scene, gens: list[torc
         cover_m = (in_sq.float() * cover)[:, None]
 
     # Optics and sensor: exposure and gamma, defocus, motion blur, noise, JPEG.
-    exposure = torch.tensor([rr(g, *cfg.exposure_range) for g in gens])[:, None, None, None]
-    gamma = torch.tensor([rr(g, *cfg.gamma_range) for g in gens])[:, None, None, None]
+    exposure = drawn([rr(g, *cfg.exposure_range) for g in gens])[..., None]
+    gamma = drawn([rr(g, *cfg.gamma_range) for g in gens])[..., None]
     img = (img * exposure).clamp(0, 1) ** gamma
-    sig = torch.tensor([rr(g, 0.3, cfg.max_blur_sigma) if rr(g) < cfg.p_blur else 0.0 for g in gens])
+    sig = torch.tensor([rr(g, 0.3, cfg.max_blur_sigma) if rr(g) < cfg.p_blur else 0.0 for g in gens], device=dev)
     if bool((sig > 0).any()):
         blurred = kornia.filters.gaussian_blur2d(img, (7, 7), torch.stack([sig.clamp_min(0.05)] * 2, -1))
         img = torch.where(sig[:, None, None, None] > 0, blurred, img)
-    motion_shift = torch.zeros(B, 2)  # where motion blur moved the image: the labels follow
+    motion_shift = torch.zeros(B, 2, device=dev)  # where motion blur moved the image: the labels follow
     for b, g in enumerate(gens):
         if rr(g) < cfg.p_motion:
             lo, hi = cfg.motion_kernel
             k = lo if lo == hi else lo + 2 * int(rr(g) * ((hi - lo) // 2 + 1))  # odd lengths lo .. hi
             angle, direction = rr(g, 0, 180), rr(g, *cfg.motion_direction)
             img[b : b + 1] = kornia.filters.motion_blur(img[b : b + 1], min(k, hi), angle, direction)
-            motion_shift[b] = motion_blur_shift(min(k, hi), angle, direction)
-    noise = torch.tensor([rr(g, *cfg.noise_range) for g in gens])[:, None, None, None]
-    noise_fields = torch.stack([torch.randn(1, H, W, generator=g) for g in gens])
+            motion_shift[b] = motion_blur_shift(min(k, hi), angle, direction).to(dev)
+    noise = drawn([rr(g, *cfg.noise_range) for g in gens])[..., None]
+    noise_fields = torch.stack([torch.randn(1, H, W, generator=g) for g in gens]).to(dev)
     img = (img + noise * noise_fields * (0.5 + img)).clamp(0, 1)
     for b, g in enumerate(gens):
         if rr(g) < cfg.p_jpeg:
-            q8 = (img[b, 0] * 255).round().to(torch.uint8).numpy()
+            q8 = (img[b, 0] * 255).round().to(torch.uint8).cpu().numpy()
             ok_enc, buf = cv2.imencode(".jpg", q8, [cv2.IMWRITE_JPEG_QUALITY, int(rr(g, 35, 95))])
             if ok_enc:
-                img[b, 0] = torch.from_numpy(cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE).astype(np.float32) / 255.0)
+                img[b, 0] = torch.from_numpy(cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE).astype(np.float32) / 255.0).to(dev)
 
     # Occlusion and blur enter the labels; a corner's label is where the exposure puts its image.
     q = labels["corners_raw"] + motion_shift[:, None, :].to(labels["corners_raw"].dtype)
@@ -474,7 +494,7 @@ def render_scene(cfg: RenderConfig, board: Target, scene: Scene, gens: list[torc
         "fov": scene.fov.float(),
         "has_target": ~no_target,
         "radius": scene.radius.float(),
-        "model_index": torch.tensor([cfg.models.index(m) if m in cfg.models else -1 for m in scene.model]),
+        "model_index": torch.tensor([cfg.models.index(m) if m in cfg.models else -1 for m in scene.model], device=dev),
         "T_cam_board": scene.T_cam_board,
         "params": scene.params,
     }

@@ -64,6 +64,52 @@ def test_resume_matches_uninterrupted(tmp_path):
     assert cfg.model.n_corners == 54 and isinstance(model, CornerNet)
 
 
+def test_time_chunks_resume_like_an_uninterrupted_run(tmp_path):
+    """train.stop_after_minutes ends a process with a checkpoint once its time is up (here after
+    its first step); --resume goes on as if the run had not stopped."""
+    torch.set_num_threads(1)
+    a = train(tiny(tmp_path / "a", "train.steps=3", "train.ckpt_minutes=0"))
+    chunk = ("train.steps=3", "train.ckpt_minutes=60", "train.stop_after_minutes=0.000001")
+    assert train(tiny(tmp_path / "b", *chunk))["step"] == 1
+    assert load_checkpoint(tmp_path / "b" / "last.pt")["step"] == 1
+    assert train(tiny(tmp_path / "b", *chunk), resume=True)["step"] == 2
+    b = train(tiny(tmp_path / "b", *chunk), resume=True)
+    assert b["step"] == 3
+    assert abs(a["last_loss"] - b["last_loss"]) < 1e-5 * max(1.0, abs(a["last_loss"]))
+
+
+def test_device_names_are_checked_before_training(tmp_path):
+    with pytest.raises(ConfigError, match="not a torch device"):
+        tiny(tmp_path, "train.device=gpu0")
+    if not torch.cuda.is_available():
+        with pytest.raises(ConfigError, match="no CUDA device"):
+            tiny(tmp_path, "train.device=cuda")
+    r = subprocess.run(
+        [sys.executable, "-m", "cotrain.cli", "train", "--config", str(TINY), "--device", "gpu0", f"train.out_dir={tmp_path}"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=120,
+    )
+    assert r.returncode != 0 and "Traceback" not in r.stderr and "not a torch device" in r.stderr
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_cuda_renders_and_trains_like_the_cpu(tmp_path):
+    """On a GPU the batches are rendered there, the same samples as on the CPU, and a few steps
+    train (the checkpoint holds CPU tensors)."""
+    cfg = tiny(tmp_path)
+    cpu = render_batch(cfg.render, [0, 1, 2, 3], seed=5)
+    gpu = render_batch(cfg.render, [0, 1, 2, 3], seed=5, device="cuda")
+    assert gpu["image"].is_cuda and gpu["corners"].is_cuda
+    assert torch.equal(cpu["visible"], gpu["visible"].cpu())
+    assert (cpu["image"] - gpu["image"].cpu()).abs().mean() < 2e-3
+    assert (cpu["corners"] - gpu["corners"].cpu()).abs().max() < 1e-3
+    r = train(tiny(tmp_path, "train.steps=3", "train.device=cuda", "train.ckpt_minutes=0"))
+    assert r["step"] == 3 and r["last_loss"] == r["last_loss"]
+    assert all(not v.is_cuda for v in load_checkpoint(tmp_path / "last.pt")["model"].values())
+
+
 def test_two_process_gloo(tmp_path):
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
