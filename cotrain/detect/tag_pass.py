@@ -114,7 +114,9 @@ class TagConfig:
     lend_depth: int = 3  # ... and on through unread tags beside it, up to this many tags away (1: beside it only)
     fringe_steps: int = 2  # an unread tag's corner next to a kept one keeps its id up to this many steps from a min_lend_corr match
     max_cell_misfit: float = 0.25  # a corner must close one of its cells as a parallelogram within this fraction of its side
-    max_ray_angle: float = 20.0  # deg: a corner's steps to its lattice neighbours leave along its own edge rays within this
+    max_ray_angle: float = 20.0  # deg: a corner's steps to its lattice neighbours leave along its own edge rays within this ...
+    small_gap_px: float = 3.5  # ... or, where its shortest lattice step is under this (tags under 12 px: no data junctions resolve) ...
+    max_ray_angle_small: float = 30.0  # ... within this: on a circle of 1.5-1.75 px the rays' angles are coarse
     rim_strict_px: float = 8.0  # corners this close to the rim are reported only in a complete lattice cell
     max_side_gap_ratio: float = 2.0  # a corner's tag side / gap on a lattice line may differ from the target's by this factor
     keep_unfitted_px: float = (
@@ -1189,7 +1191,13 @@ def rays_agree(lat: Lattice, img: np.ndarray, spacing: float, cfg: TagConfig) ->
     rays = corner_rays(img, lat.xy, cfg.ray_radius * np.where(np.isfinite(gap), gap, 0.0))
     cos = np.einsum("knd,krd->knr", steps / np.where(np.isnan(dist), 1.0, dist)[..., None], rays)
     best = np.where(np.isnan(cos), -2.0, cos).max(axis=2)  # (K, 4): the nearest ray of each step
-    ok = (best >= np.cos(np.radians(cfg.max_ray_angle))) | np.isnan(dist)
+    # In the gaps of small tags the circle is at its smallest (1.5 px) and its rays' angles are
+    # coarse, while data cells under 1.2 px make no junctions to mistake for corners: a looser angle
+    # there (on three sets, FoV recall +0.004 each, no new wrong corner; 40 and 90 deg, or gaps up
+    # to 4 px, brought wrong ones).
+    shortest = np.where(np.isnan(dist), np.inf, dist).min(axis=1)  # the corner's own shortest step: its gap where it has one
+    angle = np.where(shortest < cfg.small_gap_px, cfg.max_ray_angle_small, cfg.max_ray_angle)
+    ok = (best >= np.cos(np.radians(angle))[:, None]) | np.isnan(dist)
     return ok.all(1) & ~np.isnan(rays[:, 0, 0])
 
 

@@ -266,6 +266,28 @@ def test_corners_off_their_junctions_fail_the_ray_check():
     assert ok.sum() >= len(q) - 5  # its neighbours may lose their step to it, nothing else
 
 
+def test_small_gaps_read_their_rays_with_a_looser_angle():
+    """Tags about 10 px across (gaps under 3.5 px) blurred by 1.2 px with noise: on the smallest
+    ray circle (1.5 px) the rays' angles are coarse, and with the 20 deg of larger tags many true
+    corners fail; with ``max_ray_angle_small`` most pass. (A corner slid into a larger tag still
+    fails: the test above.)"""
+    g = make_target(TargetConfig(kind="aprilgrid"))
+    c = centre(g)
+    img, q, vis, _ = render(g, "kb4", 200, [c[0] + 0.02, c[1] - 0.03, 1.2], c)
+    assert vis.all()
+    noise = np.random.default_rng(0).normal(0, 6, img.shape)
+    grey = np.clip(cv2.GaussianBlur(img.astype(np.float32), (0, 0), 1.2) + noise, 0, 255).astype(np.float32) / 255
+    grey = cv2.GaussianBlur(grey, (0, 0), 0.7)  # as the tag pass smooths for its rays
+    ids = np.arange(g.n_corners)
+    lat = Lattice(q.astype(np.float64), np.stack([ids % (2 * g.tc), ids // (2 * g.tc)], 1), np.zeros(len(q), bool))
+    gap_steps = [i for i in ids if i % (2 * g.tc) % 2 == 1 and i % (2 * g.tc) < 2 * g.tc - 1]  # corner column 1 -> 2, ...
+    assert np.median(np.linalg.norm(q[gap_steps] - q[np.array(gap_steps) + 1], axis=1)) < TagConfig().small_gap_px
+    loose = rays_agree(lat, grey, g.cfg.tag_spacing, TagConfig())
+    strict = rays_agree(lat, grey, g.cfg.tag_spacing, TagConfig(max_ray_angle_small=TagConfig().max_ray_angle))
+    assert loose.sum() >= strict.sum() + 10
+    assert loose.mean() > 0.85
+
+
 def test_slipped_corr_is_the_best_match_among_the_tags_a_one_tag_slip_would_give():
     """A clean read of tag 14 correlates with its own code by nearly 1 and with the codes of tags
     8, 13, 15 and 20 (where a lattice slipped by one tag would put it) far less; read where tag 13
