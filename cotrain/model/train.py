@@ -129,6 +129,17 @@ def load_matching(model: torch.nn.Module, state: dict[str, Tensor]) -> int:
     return len(match)
 
 
+def _on_cpu(obj):
+    """A state dict (nested dicts and lists of tensors and plain values) with every tensor on the CPU."""
+    if isinstance(obj, Tensor):
+        return obj.detach().cpu()
+    if isinstance(obj, dict):
+        return {k: _on_cpu(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return type(obj)(_on_cpu(v) for v in obj)
+    return obj
+
+
 def _atomic_save(obj: dict, path: Path) -> None:
     tmp = path.with_suffix(path.suffix + ".tmp")
     torch.save(obj, tmp)
@@ -244,16 +255,21 @@ def main_train(config_path: str, overrides: list[str], resume: bool = False) -> 
 
 def train(cfg: TrainConfig, resume: bool = False) -> dict:
     """The training loop. Returns {"step", "last_loss", "best_score"}."""
+    t_process = time.time()  # train.stop_after_minutes counts from here: setup included
     s = cfg.train
     world = int(os.environ.get("WORLD_SIZE", "1"))
     rank = int(os.environ.get("RANK", "0"))
     dev = train_device(s)
+    if dev.type == "cuda":  # one device per process: the given one, or the process's own
+        if world > 1 and dev.index is not None:
+            raise ConfigError(f"train.device {s.device!r}: with several processes give cuda, each takes the GPU of its LOCAL_RANK")
+        local = int(os.environ.get("LOCAL_RANK", rank)) if world > 1 else torch.cuda.current_device()
+        dev = torch.device("cuda", local if dev.index is None else dev.index)
+        if dev.index >= torch.cuda.device_count():
+            raise ConfigError(f"train.device: process {rank} wants GPU {dev.index}, but this machine has {torch.cuda.device_count()}")
+        torch.cuda.set_device(dev)
     if world > 1:
         dist.init_process_group("gloo" if dev.type == "cpu" else "nccl")
-        if dev.type == "cuda" and dev.index is None:
-            dev = torch.device("cuda", int(os.environ.get("LOCAL_RANK", rank)))
-    if dev.type == "cuda":
-        torch.cuda.set_device(dev)
     if s.threads > 0:
         torch.set_num_threads(s.threads)
     out_dir = Path(s.out_dir)
@@ -336,8 +352,8 @@ def train(cfg: TrainConfig, resume: bool = False) -> dict:
 
     def save(path: Path) -> None:
         ck = {
-            "model": {k: v.detach().cpu() for k, v in model.state_dict().items()},
-            "optimizer": opt.state_dict(),
+            "model": _on_cpu(model.state_dict()),  # a run trained on a GPU resumes and exports anywhere
+            "optimizer": _on_cpu(opt.state_dict()),
             "scheduler": sched.state_dict(),
             "rng": torch.get_rng_state(),
             "step": step,
@@ -349,14 +365,14 @@ def train(cfg: TrainConfig, resume: bool = False) -> dict:
 
     end = min(s.steps, s.stop_after) if s.stop_after > 0 else s.steps
     last_loss = float("nan")
-    t_process, first_step = time.time(), step
+    first_step, saved_at = step, -1
     while step < end:
         if s.stop_after_minutes > 0 and step > first_step:  # a chunk's time is up: checkpoint and stop (--resume goes on)
             up = torch.tensor([float(time.time() - t_process > s.stop_after_minutes * 60)], device=dev)
             if world > 1:
                 dist.all_reduce(up, op=dist.ReduceOp.MAX)  # every rank stops at the same step
             if up.item() > 0:
-                if rank == 0:
+                if rank == 0 and saved_at != step:
                     save(last)
                 break
         first = (step * world + rank) * s.batch_size
@@ -425,7 +441,7 @@ def train(cfg: TrainConfig, resume: bool = False) -> dict:
             writer.add_image("val/predictions", _panel(o, val["image"][:4]), step)
         if time.time() - t_ckpt > s.ckpt_minutes * 60 or step == end:
             save(last)
-            t_ckpt = time.time()
+            t_ckpt, saved_at = time.time(), step
     bar.close()
     if world > 1:  # BatchNorm statistics of the last step are per rank: take rank 0's, as DDP does
         for buf in model.buffers():

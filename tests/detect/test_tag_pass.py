@@ -204,7 +204,6 @@ def test_small_gaps_keep_corners_whose_final_fit_fails():
     img = np.clip(cv2.GaussianBlur(img.astype(np.float32), (0, 0), 1.0) + noise, 0, 255).astype(np.uint8)
     kept = AprilGridDetector(g).detect(img)
     dropped = AprilGridDetector(g, TagConfig(keep_unfitted_px=0.0)).detect(img)
-    assert TagConfig().keep_unfitted_px > 0
     assert len(kept.ids) >= len(dropped.ids) + 5
     check_ids(kept, q, vis, tol=0.6)
 
