@@ -119,9 +119,7 @@ class TagConfig:
     max_ray_angle_small: float = 30.0  # ... within this: on a circle of 1.5-1.75 px the rays' angles are coarse
     rim_strict_px: float = 8.0  # corners this close to the rim are reported only in a complete lattice cell
     max_side_gap_ratio: float = 2.0  # a corner's tag side / gap on a lattice line may differ from the target's by this factor
-    keep_unfitted_px: float = (
-        6.0  # px: a corner whose shortest lattice step is under this keeps its lattice position where the final fit fails
-    )
+    keep_unfitted_px: float = 6.0  # px: shortest lattice step under which a failed final fit keeps the lattice position
     # --- boards ---
     min_corners: int = 4  # smallest lattice that is reported
     grid: GridConfig = field(default_factory=GridConfig)  # saddle fit and final positions (the grid pass's)
