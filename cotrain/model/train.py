@@ -53,9 +53,7 @@ class TrainSettings:
     threads: int = 0  # torch threads per process (0 = leave torch's default)
     select_by: str = "recall"  # validation figure that picks best.pt: "recall" (per-slot path) or "board_id_acc" (grid pass)
     stop_after: int = 0  # stop (with a checkpoint) after this step, as if interrupted (0 = run to the end)
-    stop_after_minutes: float = (
-        0.0  # stop (with a checkpoint) after this many wall minutes of this process (0 = no limit): resumable chunks
-    )
+    stop_after_minutes: float = 0.0  # stop with a checkpoint after this many minutes of this process (0 = no limit)
     device: str = "cpu"  # where the model trains and the batches are rendered: "cpu", "cuda", "cuda:1", ...
     curriculum_steps: int = 0  # before this step, train on closer, less cropped boards (identity is learned there first)
     curriculum_distance: tuple[float, float] = (0.1, 0.45)  # render.distance_range during the curriculum
