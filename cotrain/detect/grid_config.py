@@ -79,6 +79,7 @@ class GridConfig:
     min_edge_contrast: float = 0.1  # intensity difference of the two outward profiles half a step out that margin evidence needs
     edge_end_min: float = 0.7  # steps out: the last squares must end (both profiles turn white) no closer than this ...
     edge_end_max: float = 1.6  # ... and no farther
+    edge_predict_min_px: float = 15.0  # margin evidence reads along the predicted next step if this long (else the last step)
     margin_band_start: float = 0.1  # steps beyond the squares' end where the white margin is sampled ...
     margin_band_end: float = 0.25  # ... up to here
     max_violated_edges: float = 2.5  # margin evidence (corners' worth) a placement may contradict before the lattice is rejected

@@ -21,7 +21,7 @@ from typing import NamedTuple
 import numpy as np
 
 from cotrain.detect.grid_config import GridConfig
-from cotrain.detect.lattice import STEPS, Lattice, value_at, values_at
+from cotrain.detect.lattice import STEPS, Lattice, next_step, value_at, values_at
 from cotrain.geometry.letterbox import CELLS, Letterbox
 from cotrain.targets.checkerboard import ROTATIONS, Checkerboard
 
@@ -110,10 +110,13 @@ def edge_evidence(blur: np.ndarray, lat: Lattice, cfg: GridConfig | None = None)
     (``cfg.edge_end_min`` .. ``cfg.edge_end_max`` steps out: perspective and the fisheye change
     the step) both turn white, and stay white over the band ``cfg.margin_band_start`` ..
     ``cfg.margin_band_end`` beyond. Where the board goes on (occlusion, image edge, rim)
-    the profiles keep differing, or turn dark, and there is no evidence. The outward step comes
-    from the corner behind and the sideways step from a neighbour across; where one of them is
-    missing (a lattice one corner deep, a corner at a tip) it is the other turned by 90 degrees
-    (lattice axes have a x b > 0 in the image).
+    the profiles keep differing, or turn dark, and there is no evidence. The outward step is the
+    one the lattice line would take next (:func:`cotrain.detect.lattice.next_step` from the two
+    steps behind: towards a fisheye's rim the last square can be 0.6 of the step before it, and the
+    line bends) where that is ``cfg.edge_predict_min_px`` long at least (the ratio of shorter,
+    blurred steps is noise), else the last step; the sideways step comes from a neighbour across.
+    Where one of them is missing (a lattice one corner deep, a corner at a tip) it is the other
+    turned by 90 degrees (lattice axes have a x b > 0 in the image).
     """
     cfg = cfg or GridConfig()
     where = lat.where
@@ -131,6 +134,11 @@ def edge_evidence(blur: np.ndarray, lat: Lattice, cfg: GridConfig | None = None)
             rot90 = lambda v: np.array([-v[1], v[0]])  # noqa: E731
             if back is not None:
                 out_step = lat.xy[k] - lat.xy[back]
+                back2 = where.get((a - 2 * da, b - 2 * db))
+                if back2 is not None:  # the step the squares would take next (they shrink fast towards a rim)
+                    pred = next_step(lat.xy[back] - lat.xy[back2], out_step)
+                    if np.hypot(pred[0], pred[1]) >= cfg.edge_predict_min_px:
+                        out_step = pred
             if any(m is not None for m in side):
                 m = next(m for m in side if m is not None)
                 sgn = 1.0 if m == side[0] else -1.0

@@ -8,7 +8,7 @@ from cotrain.detect.identity import assign_ids, canonical_ids, edge_evidence
 from cotrain.detect.lattice import Lattice
 from cotrain.detect.saddle import smooth_for
 from cotrain.targets import ROTATIONS, Checkerboard, TargetConfig, board_symmetries
-from tests.detect.boards import BOARD, NX, NY, board_image
+from tests.detect.boards import BOARD, NX, NY, board_image, warped_board_image
 
 
 def _board_ab() -> tuple[np.ndarray, np.ndarray]:
@@ -156,3 +156,30 @@ def test_votes_alone_must_be_surer_than_votes_with_geometry():
     assert not placement_is_sure(cfg.min_margin_votes_alone + 5, 0.0, n, cfg)
     assert placement_is_sure(cfg.min_votes_per_corner * n + 1, 0.0, n, cfg)
     assert placement_is_sure(cfg.min_margin + 1, 5.0, n, cfg)  # the geometry backs it: no per-corner rule
+
+
+def test_margin_evidence_where_the_squares_shrink_towards_the_edge():
+    """Columns shrink by 0.6 per square towards the board's right edge, as near a fisheye's rim:
+    the last square is 30 px where the step before it is 50 px, 0.6 of it, too short for an end of
+    the squares one step out. Read along the step the lattice would take next (33 px), the white
+    margin is found beside every corner of the last column; on the left the squares go on, and
+    nothing is claimed there."""
+    q_ratio = 1 / 0.6  # each square towards the left is this much wider
+    x_end = 280.0  # where the squares end (u = 10), then half a square of margin
+
+    def to_pixels(u, v):
+        return x_end - 30 * (q_ratio ** (10 - np.asarray(u, float)) - 1) / (q_ratio - 1), 20 + 30 * np.asarray(v, float)
+
+    def to_board(x, y):
+        arg = np.clip(1 + (x_end - x) * (q_ratio - 1) / 30, 1e-6, None)
+        return 10 - np.log(arg) / np.log(q_ratio), (y - 20) / 30
+
+    img, q = warped_board_image(to_board, to_pixels, (300, 260))
+    ids = np.arange(NX * NY)
+    cols = ids % NX
+    keep = cols >= 6  # corner columns 6-8: x = 117, 200, 250 (the column before is off the image)
+    lat = Lattice(q[keep], np.stack([cols[keep] - 6, ids[keep] // NX], 1), np.zeros(keep.sum(), bool))
+    ev = edge_evidence(smooth_for(img, -1), lat)
+    right = {k for k, da, db, e in ev if (da, db) == (1, 0) and e > 0.8}
+    assert right == set(np.nonzero(cols[keep] == 8)[0])
+    assert not [e for e in ev if (e[1], e[2]) == (-1, 0)]
