@@ -4,6 +4,9 @@ Rendering, a training step, the detector against findChessboardCornersSB on the 
 the calibration of a 480-frame stereo sequence; each figure is a median of several runs.
 ``python -m calib_eval.benchmark.timing detect [--model M.onnx]`` runs the detector figures alone
 (``--model``: another graph, like the int8 one of ``cotrain export --int8``, on the same frames).
+``python -m calib_eval.benchmark.timing train [--config C] [--set train.device=cuda ...] [--profile]``
+splits one training step into its parts on the training device (a GPU session's first command:
+where the time of a step goes, before a run is planned).
 """
 
 from __future__ import annotations
@@ -22,12 +25,13 @@ import torch
 from calib_eval.benchmark.rigs import SynthSpec, make_sequence, paper_config
 from calib_eval.calibration.calibrator import CalibConfig, calibrate
 from calib_eval.calibration.selector import SelectorConfig, select
-from cotrain.config import load_config
+from cotrain.config import ConfigError, load_config
 from cotrain.detect.detector import Detector
 from cotrain.model.losses import compute_losses
 from cotrain.model.network import CornerNet
-from cotrain.model.train import TrainConfig, finalize_config
-from cotrain.render.renderer import RenderConfig, render_batch
+from cotrain.model.train import TrainConfig, build_from_checkpoint, finalize_config, load_checkpoint, train_device
+from cotrain.render.renderer import RenderConfig, render_batch, render_scene, sample_generator, sample_scene
+from cotrain.targets import make_target
 
 
 def bench_render(cfg: RenderConfig, batch: int = 8, repeats: int = 5, seed: int = 123) -> dict:
@@ -81,6 +85,80 @@ def bench_render_vs_step(cfg_path: str = "configs/default.yaml", repeats: int = 
         f"training batch {B} at {cfg.render.width}x{cfg.render.height}: render {mr * 1000:.0f} ms, step {ms * 1000:.0f} ms "
         f"(render/step = {mr / ms:.2f}); training {B / (mr + ms):.1f} samples/s, {torch.get_num_threads()} threads"
     )
+    return out
+
+
+TRAIN_PARTS = ("scene_draws", "render", "teacher", "forward", "losses", "backward", "optimizer")
+
+
+def bench_train_parts(
+    config: str = "configs/default.yaml", overrides: tuple[str, ...] = (), repeats: int = 5, profile: bool = False
+) -> dict:
+    """Median seconds of each part of one training step, as ``cotrain train`` runs it on
+    ``train.device`` (give ``train.device=cuda`` among ``overrides``): the per-sample random draws
+    of cameras and poses on the CPU (``scene_draws``), the rendering (``render``: labels on the
+    CPU, pixels on the device), the frozen teacher (configs with ``train.teacher``; 0 otherwise),
+    the forward pass, the losses, the backward pass and the optimizer step. On a GPU every part
+    ends with a synchronisation, so a part's time is its own. ``profile``: one more step under
+    ``torch.profiler``, its 25 costliest operators printed and returned as ``profile``."""
+    cfg = finalize_config(load_config(TrainConfig, config, list(overrides)))
+    dev = train_device(cfg.train)
+    if dev.type == "cuda" and dev.index is None:
+        dev = torch.device("cuda", 0)
+    board = make_target(cfg.render.target)
+    model = CornerNet(cfg.model).to(dev).train()
+    teacher = None
+    if cfg.train.teacher:
+        teacher = build_from_checkpoint(load_checkpoint(cfg.train.teacher))[0].to(dev).eval()
+        teacher.requires_grad_(False)
+    opt = torch.optim.AdamW(model.parameters(), lr=1e-4)
+    B = cfg.train.batch_size
+
+    def sync() -> float:
+        if dev.type == "cuda":
+            torch.cuda.synchronize(dev)
+        return time.perf_counter()
+
+    def step(r: int) -> list[float]:
+        t = [sync()]
+        gens = [sample_generator(77, i) for i in range(r * B, (r + 1) * B)]
+        scene = sample_scene(cfg.render, board, gens)
+        t.append(sync())
+        batch = render_scene(cfg.render, board, scene, gens, dev)
+        t.append(sync())
+        if teacher is not None:
+            with torch.no_grad():
+                batch["teacher"] = teacher(batch["image"])
+        t.append(sync())
+        out = model(batch["image"])
+        t.append(sync())
+        loss = compute_losses(out, batch, cfg.loss)["total"]
+        t.append(sync())
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        t.append(sync())
+        opt.step()
+        t.append(sync())
+        return [b - a for a, b in zip(t, t[1:])]
+
+    times = [step(r) for r in range(repeats + 1)][1:]  # the first is a warm-up
+    med = {k: statistics.median(x[i] for x in times) for i, k in enumerate(TRAIN_PARTS)}
+    total = sum(med.values())
+    out = {"device": str(dev), "batch": B, "threads": torch.get_num_threads(), "parts_s": med, "step_s": total, "samples_per_s": B / total}
+    size = f"{cfg.render.width}x{cfg.render.height}"
+    print(f"training step, batch {B} at {size} on {dev} (median of {repeats}): {total * 1000:.0f} ms, {B / total:.1f} samples/s")
+    for k, v in med.items():
+        print(f"  {k:12s} {v * 1000:8.1f} ms  {100 * v / total:5.1f} %")
+    if profile:
+        from torch.profiler import ProfilerActivity
+        from torch.profiler import profile as torch_profile
+
+        acts = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if dev.type == "cuda" else [])
+        with torch_profile(activities=acts) as prof:
+            step(repeats + 1)
+        key = "self_cuda_time_total" if dev.type == "cuda" else "self_cpu_time_total"
+        out["profile"] = prof.key_averages().table(sort_by=key, row_limit=25)
+        print(out["profile"])
     return out
 
 
@@ -217,12 +295,33 @@ def bench_calibration(config: str = "FoV220_90", frames: int = 480, repeats: int
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m calib_eval.benchmark.timing", description=__doc__.splitlines()[0])
-    ap.add_argument("what", nargs="?", choices=("all", "detect"), default="all", help="all figures (make bench) or the detector's alone")
+    ap.add_argument(
+        "what",
+        nargs="?",
+        choices=("all", "detect", "train"),
+        default="all",
+        help="all figures (make bench), the detector's, or a training step's parts",
+    )
     ap.add_argument("--model", help="ONNX model for the detector figures (default: the shipped model)")
-    ap.add_argument("--runs", type=int, default=5, help="runs per detector figure (the median is quoted)")
+    ap.add_argument("--runs", type=int, default=5, help="runs per figure (the median is quoted)")
+    ap.add_argument("--config", default="configs/default.yaml", help="train: the training config")
+    ap.add_argument(
+        "--set", action="append", default=[], metavar="KEY=VALUE", help="train: a config override (train.device=cuda, train.batch_size=64)"
+    )
+    ap.add_argument("--profile", action="store_true", help="train: one more step under torch.profiler, its costliest operators")
     args = ap.parse_args(sys.argv[1:] if argv is None else argv)
     if args.model and not Path(args.model).is_file():
         ap.error(f"no model file {args.model}")
+    if args.what == "train":
+        try:
+            results = bench_train_parts(args.config, tuple(args.set), repeats=args.runs, profile=args.profile)
+        except (ConfigError, FileNotFoundError) as e:
+            ap.error(str(e))
+        out = Path("report") / "bench_train.json"
+        out.parent.mkdir(exist_ok=True)
+        out.write_text(json.dumps(results, indent=1, default=str))
+        print(f"wrote {out}")
+        return 0
     if args.what == "detect":
         results = {"detect": bench_detect(args.model, runs=args.runs), "model": args.model or "shipped"}
         out = Path("report") / ("bench_detect.json" if not args.model else f"bench_detect_{Path(args.model).stem}.json")

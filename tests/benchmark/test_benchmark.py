@@ -5,6 +5,7 @@ import zlib
 
 import numpy as np
 import pytest
+import torch
 
 from calib_eval.benchmark.analysis import PROFILES, coupling_index, distribution_metrics
 from calib_eval.cli import run as calib_cli
@@ -80,6 +81,35 @@ def test_timing_command_line_refuses_bad_input_before_running_anything(tmp_path,
     from calib_eval.benchmark.timing import main
 
     for argv in (["bogus"], ["--help-me"], ["detect", "--model", str(tmp_path / "missing.onnx")]):
+        with pytest.raises(SystemExit) as e:
+            main(argv)
+        assert e.value.code == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err[-1].startswith("python -m calib_eval.benchmark.timing: error:")
+
+
+def test_training_step_parts_add_up_to_the_step(capsys):
+    """``timing train``: every part of a training step is timed, the teacher only where the config
+    has one, the step is their sum, and the profile names the convolutions the network runs."""
+    from calib_eval.benchmark.timing import TRAIN_PARTS, bench_train_parts
+
+    out = bench_train_parts("configs/tiny.yaml", ("train.batch_size=3",), repeats=1, profile=True)
+    assert set(out["parts_s"]) == set(TRAIN_PARTS) and out["batch"] == 3 and out["device"] == "cpu"
+    assert out["parts_s"]["teacher"] < 1e-3  # tiny.yaml has no teacher: the part is a no-op
+    assert all(out["parts_s"][k] > 0 for k in TRAIN_PARTS if k != "teacher")
+    assert out["step_s"] == pytest.approx(sum(out["parts_s"].values()))
+    assert out["samples_per_s"] == pytest.approx(3 / out["step_s"])
+    assert "convolution" in out["profile"]
+    assert "training step, batch 3 at 96x64 on cpu" in capsys.readouterr().out
+
+
+def test_timing_train_refuses_a_missing_config_or_device_in_one_line(tmp_path, capsys):
+    from calib_eval.benchmark.timing import main
+
+    bad = [["train", "--config", str(tmp_path / "missing.yaml")], ["train", "--config", "configs/tiny.yaml", "--set", "train.device=tpu"]]
+    if not torch.cuda.is_available():
+        bad.append(["train", "--config", "configs/tiny.yaml", "--set", "train.device=cuda"])
+    for argv in bad:
         with pytest.raises(SystemExit) as e:
             main(argv)
         assert e.value.code == 2
