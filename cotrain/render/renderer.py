@@ -199,14 +199,21 @@ def _pixel_grid(h: int, w: int, ss: int, device: torch.device = CPU) -> Tensor:
 
 
 def _rays(scene: Scene, grid: Tensor) -> tuple[Tensor, Tensor]:
-    """Unit rays (B, H, W, 3) and the in-circle mask (B, H, W) for every sample position."""
-    vs, oks = [], []
-    for model, p, fov in zip(scene.model, scene.params, scene.fov):
-        v, ok = cameras.unproject(model, grid, p.float())
-        ok = ok & (cameras.off_axis_angle(v) <= math.radians(float(fov)) / 2)
-        vs.append(v)
-        oks.append(ok)
-    return torch.stack(vs), torch.stack(oks)
+    """Unit rays (B, H, W, 3) and the in-circle mask (B, H, W) for every sample position (grid
+    (H, W, 2)). The samples of one camera family are unprojected together (their parameters
+    broadcast over the grid), so a batch costs a few kernels per family, not per sample."""
+    B, (H, W) = len(scene.model), grid.shape[:2]
+    v_all = grid.new_empty(B, H, W, 3)
+    ok_all = torch.empty(B, H, W, dtype=torch.bool, device=grid.device)
+    for model in dict.fromkeys(scene.model):  # each family once, in order of appearance
+        idx = [b for b, m in enumerate(scene.model) if m == model]
+        p = torch.stack([scene.params[b].float() for b in idx])[:, None, None, :]  # (G, 1, 1, P)
+        v, ok = cameras.unproject(model, grid[None], p)
+        # The half FoV per sample, rounded to float32 as a Python scalar would be.
+        half = torch.tensor([math.radians(float(scene.fov[b])) / 2 for b in idx], dtype=v.dtype, device=v.device)
+        v_all[idx] = v
+        ok_all[idx] = ok & (cameras.off_axis_angle(v) <= half[:, None, None])
+    return v_all, ok_all
 
 
 def _board_hit(v: Tensor, T_cam_board: Tensor, front: int = -1) -> tuple[Tensor, Tensor]:
@@ -275,47 +282,66 @@ def _coords(h: int, w: int, device: torch.device = CPU) -> tuple[Tensor, Tensor]
 
 def _background(cfg: RenderConfig, gens: list[torch.Generator], h: int, w: int, device: torch.device = CPU) -> Tensor:
     """Procedural backgrounds (B, 1, h, w) on ``device``: gradients, clouds, rectangles, lines,
-    distractors (drawn from the CPU generators ``gens``, so every device renders the same)."""
+    distractors. Each sample's random numbers are drawn from its CPU generator in ``gens`` first
+    (so every device renders the same), then the pixels are painted for the whole batch at once
+    (a few kernels per shape, not per sample: on a GPU the per-sample ops were launch-bound)."""
     xx, yy = _coords(h, w, device)
-    out = []
     K = cfg.n_shapes
-    for g in gens:
-        r = lambda *shape, g=g: torch.rand(*shape, generator=g).to(device)  # noqa: E731
-        base = r(1) * 0.7 + 0.1
-        img = base + (r(1) - 0.5) * 0.6 * xx + (r(1) - 0.5) * 0.6 * yy
-        clouds = F.interpolate(r(1, 1, 6, 10) - 0.5, size=(h, w), mode="bicubic", align_corners=False)[0, 0]
-        img = img + clouds * 0.5 * r(1)
-        fine = F.interpolate(r(1, 1, h // 4 + 1, w // 4 + 1) - 0.5, size=(h, w), mode="bilinear", align_corners=False)[0, 0]
-        img = img + fine * 0.15 * r(1)
-        # Rectangles and lines (thin rectangles), rotated.
-        c = r(K, 2) * 2.4 - 1.2
-        ang = r(K) * math.pi
-        half = torch.where(r(K, 1) < 0.35, torch.cat([r(K, 1) * 0.8 + 0.1, r(K, 1) * 0.01 + 0.004], 1), r(K, 2) * 0.4 + 0.03)
-        val = r(K)
-        ca, sa = torch.cos(ang)[:, None, None], torch.sin(ang)[:, None, None]
-        dx = xx[None] - c[:, 0, None, None]
-        dy = (yy[None] - c[:, 1, None, None]) * (h / w)
-        u = ca * dx + sa * dy
-        v = -sa * dx + ca * dy
-        inside = (u.abs() < half[:, 0, None, None]) & (v.abs() < half[:, 1, None, None])
-        for k in range(K):
-            img = torch.where(inside[k], val[k], img)
-        # Checker-like distractors that are not the target (2x2 .. 4x3 squares).
+
+    def draw(g: torch.Generator) -> dict:  # every random number of one sample, in drawing order
+        r = lambda *shape: torch.rand(*shape, generator=g)  # noqa: E731
+        d = {"base": r(1), "gx": r(1), "gy": r(1), "clouds": r(1, 1, 6, 10), "clouds_amp": r(1)}
+        d |= {"fine": r(1, 1, h // 4 + 1, w // 4 + 1), "fine_amp": r(1), "c": r(K, 2), "ang": r(K)}
+        d |= {"line": r(K, 1), "line_len": r(K, 1), "line_width": r(K, 1), "rect": r(K, 2), "val": r(K)}
+        d["distractors"] = []
         if float(r(1)) < cfg.p_distractor:
             for _ in range(int(r(1) * 3) + 1):
-                c0 = r(2) * 1.6 - 0.8
-                a0 = float(r(1)) * math.pi
-                sq = float(r(1)) * 0.08 + 0.03
-                nx, ny = int(r(1) * 3) + 2, int(r(1) * 2) + 2
-                dx = xx - c0[0]
-                dy = (yy - c0[1]) * (h / w)
-                u = (math.cos(a0) * dx + math.sin(a0) * dy) / sq + nx / 2
-                v = (-math.sin(a0) * dx + math.cos(a0) * dy) / sq + ny / 2
-                inside = (u > 0) & (u < nx) & (v > 0) & (v < ny)
-                pattern = ((torch.floor(u) + torch.floor(v)) % 2 == 0).float() * 0.8 + 0.1
-                img = torch.where(inside, pattern, img)
-        out.append(img)
-    return torch.stack(out)[:, None].clamp(0, 1).float()
+                d["distractors"].append((r(2), r(1), r(1), r(1), r(1)))  # centre, angle, square, nx, ny
+        return d
+
+    ds = [draw(g) for g in gens]
+
+    def stacked(key: str) -> Tensor:
+        return torch.stack([d[key] for d in ds]).to(device)
+
+    def per_sample(key: str) -> Tensor:  # (B, 1, 1) from (1,) draws
+        return stacked(key)[:, :, None]
+
+    img = per_sample("base") * 0.7 + 0.1
+    img = img + (per_sample("gx") - 0.5) * 0.6 * xx + (per_sample("gy") - 0.5) * 0.6 * yy
+    clouds = F.interpolate(stacked("clouds")[:, 0] - 0.5, size=(h, w), mode="bicubic", align_corners=False)[:, 0]
+    img = img + clouds * 0.5 * per_sample("clouds_amp")
+    fine = F.interpolate(stacked("fine")[:, 0] - 0.5, size=(h, w), mode="bilinear", align_corners=False)[:, 0]
+    img = img + fine * 0.15 * per_sample("fine_amp")
+    # Rectangles and lines (thin rectangles), rotated; painted one after the other.
+    c = stacked("c") * 2.4 - 1.2  # (B, K, 2)
+    ang = stacked("ang") * math.pi
+    line = torch.cat([stacked("line_len") * 0.8 + 0.1, stacked("line_width") * 0.01 + 0.004], 2)
+    half = torch.where(stacked("line") < 0.35, line, stacked("rect") * 0.4 + 0.03)  # (B, K, 2)
+    val = stacked("val")
+    ca, sa = torch.cos(ang)[:, :, None, None], torch.sin(ang)[:, :, None, None]
+    for k in range(K):
+        dx = xx[None] - c[:, k, 0, None, None]
+        dy = (yy[None] - c[:, k, 1, None, None]) * (h / w)
+        u = ca[:, k] * dx + sa[:, k] * dy
+        v = -sa[:, k] * dx + ca[:, k] * dy
+        inside = (u.abs() < half[:, k, 0, None, None]) & (v.abs() < half[:, k, 1, None, None])
+        img = torch.where(inside, val[:, k, None, None], img)
+    # Checker-like distractors that are not the target (2x2 .. 4x3 squares): a few samples have some.
+    for b, d in enumerate(ds):
+        for c0, a_r, sq_r, nx_r, ny_r in d["distractors"]:
+            c0 = (c0 * 1.6 - 0.8).to(device)
+            a0 = float(a_r) * math.pi
+            sq = float(sq_r) * 0.08 + 0.03
+            nx, ny = int(nx_r * 3) + 2, int(ny_r * 2) + 2
+            dx = xx - c0[0]
+            dy = (yy - c0[1]) * (h / w)
+            u = (math.cos(a0) * dx + math.sin(a0) * dy) / sq + nx / 2
+            v = (-math.sin(a0) * dx + math.cos(a0) * dy) / sq + ny / 2
+            inside = (u > 0) & (u < nx) & (v > 0) & (v < ny)
+            pattern = ((torch.floor(u) + torch.floor(v)) % 2 == 0).float() * 0.8 + 0.1
+            img[b] = torch.where(inside, pattern, img[b])
+    return img[:, None].clamp(0, 1).float()
 
 
 # Version of the labels' conventions (rendered sets cached with another one are rendered again,
@@ -477,7 +503,7 @@ def render_scene(
     qi = q.round().long()
     qi[..., 0] = qi[..., 0].clamp(0, W - 1)
     qi[..., 1] = qi[..., 1].clamp(0, H - 1)
-    occluded = torch.stack([occ_d[b, qi[b, :, 1], qi[b, :, 0]] > 0.01 for b in range(B)])
+    occluded = occ_d[torch.arange(B, device=dev)[:, None], qi[..., 1], qi[..., 0]] > 0.01
     visible = labels["visible"] & ~occluded & ~no_target[:, None]
     blur_term = (1 - ((sig - 0.8) / 1.5).clamp(0, 1))[:, None]
     learn = labels["learn_geom"] * blur_term * visible.float()
