@@ -327,21 +327,30 @@ def _background(cfg: RenderConfig, gens: list[torch.Generator], h: int, w: int, 
         v = -sa[:, k] * dx + ca[:, k] * dy
         inside = (u.abs() < half[:, k, 0, None, None]) & (v.abs() < half[:, k, 1, None, None])
         img = torch.where(inside, val[:, k, None, None], img)
-    # Checker-like distractors that are not the target (2x2 .. 4x3 squares): a few samples have some.
-    for b, d in enumerate(ds):
-        for c0, a_r, sq_r, nx_r, ny_r in d["distractors"]:
-            c0 = (c0 * 1.6 - 0.8).to(device)
-            a0 = float(a_r) * math.pi
-            sq = float(sq_r) * 0.08 + 0.03
-            nx, ny = int(nx_r * 3) + 2, int(ny_r * 2) + 2
-            dx = xx - c0[0]
-            dy = (yy - c0[1]) * (h / w)
-            u = (math.cos(a0) * dx + math.sin(a0) * dy) / sq + nx / 2
-            v = (-math.sin(a0) * dx + math.cos(a0) * dy) / sq + ny / 2
-            inside = (u > 0) & (u < nx) & (v > 0) & (v < ny)
-            pattern = ((torch.floor(u) + torch.floor(v)) % 2 == 0).float() * 0.8 + 0.1
-            img[b] = torch.where(inside, pattern, img[b])
+    # Checker-like distractors that are not the target (2x2 .. 4x3 squares): the j-th of every
+    # sample that has one, together.
+    for j in range(max((len(d["distractors"]) for d in ds), default=0)):
+        idx = [b for b, d in enumerate(ds) if len(d["distractors"]) > j]
+        items = [ds[b]["distractors"][j] for b in idx]
+        c0 = (torch.stack([it[0] for it in items]) * 1.6 - 0.8).to(device)[:, :, None, None]  # (G, 2, 1, 1)
+        a0 = [float(it[1]) * math.pi for it in items]
+        sq = per_item([float(it[2]) * 0.08 + 0.03 for it in items], device)
+        nx = per_item([int(it[3] * 3) + 2 for it in items], device)
+        ny = per_item([int(it[4] * 2) + 2 for it in items], device)
+        cos, sin = per_item([math.cos(a) for a in a0], device), per_item([math.sin(a) for a in a0], device)
+        dx = xx - c0[:, 0]
+        dy = (yy - c0[:, 1]) * (h / w)
+        u = (cos * dx + sin * dy) / sq + nx / 2
+        v = (-sin * dx + cos * dy) / sq + ny / 2
+        inside = (u > 0) & (u < nx) & (v > 0) & (v < ny)
+        pattern = ((torch.floor(u) + torch.floor(v)) % 2 == 0).float() * 0.8 + 0.1
+        img[idx] = torch.where(inside, pattern, img[idx])
     return img[:, None].clamp(0, 1).float()
+
+
+def per_item(values: list[float], device: torch.device) -> Tensor:
+    """(G, 1, 1) float32 from Python numbers, each rounded as a Python scalar in a float32 op is."""
+    return torch.tensor(values, dtype=torch.float32, device=device)[:, None, None]
 
 
 # Version of the labels' conventions (rendered sets cached with another one are rendered again,
@@ -436,21 +445,27 @@ def render_scene(
     bg = _background(cfg, gens, H * ss, W * ss, dev)[:, 0]
     img = bg * (1 - cover) + board_img * cover
 
-    # Occluders: ellipses in front of everything.
+    # Occluders: ellipses in front of everything (1-3 in some samples), drawn per sample, painted
+    # the j-th of every sample together.
     occ = torch.zeros(B, H * ss, W * ss, device=dev)
     xx, yy = _coords(H * ss, W * ss, dev)
+    ellipses: list[list[tuple[float, ...]]] = [[] for _ in gens]  # (cx, cy, ax, ay, angle, value)
     for b, g in enumerate(gens):
         if rr(g) < cfg.p_occluder:
             for _ in range(1 + int(rr(g) * 3)):
                 cxo, cyo = rr(g, -1, 1), rr(g, -1, 1)
                 ax, ay = rr(g, 0.05, 0.35), rr(g, 0.05, 0.35) * W / H
-                a = rr(g, 0, math.pi)
-                dx, dy = xx - cxo, yy - cyo
-                uu = (math.cos(a) * dx + math.sin(a) * dy) / ax
-                vv2 = (-math.sin(a) * dx + math.cos(a) * dy) / ay
-                m = ((uu * uu + vv2 * vv2) < 1).float()
-                img[b] = img[b] * (1 - m) + rr(g, 0.0, 1.0) * m
-                occ[b] = torch.maximum(occ[b], m)
+                ellipses[b].append((cxo, cyo, ax, ay, rr(g, 0, math.pi), rr(g, 0.0, 1.0)))
+    for j in range(max(len(e) for e in ellipses)):
+        idx = [b for b, e in enumerate(ellipses) if len(e) > j]
+        cxo, cyo, ax, ay, a, val = zip(*(ellipses[b][j] for b in idx))
+        cos, sin = per_item([math.cos(t) for t in a], dev), per_item([math.sin(t) for t in a], dev)
+        dx, dy = xx - per_item(cxo, dev), yy - per_item(cyo, dev)
+        uu = (cos * dx + sin * dy) / per_item(ax, dev)
+        vv2 = (-sin * dx + cos * dy) / per_item(ay, dev)
+        m = ((uu * uu + vv2 * vv2) < 1).float()
+        img[idx] = img[idx] * (1 - m) + per_item(val, dev) * m
+        occ[idx] = torch.maximum(occ[idx], m)
 
     # Image circle: black outside, with a soft, anti-aliased rim and vignetting.
     centres = scene.principal_points()
