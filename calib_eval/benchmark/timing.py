@@ -29,7 +29,15 @@ from cotrain.config import ConfigError, load_config
 from cotrain.detect.detector import Detector
 from cotrain.model.losses import compute_losses
 from cotrain.model.network import CornerNet
-from cotrain.model.train import TrainConfig, build_from_checkpoint, finalize_config, load_checkpoint, train_device
+from cotrain.model.train import (
+    TrainConfig,
+    build_from_checkpoint,
+    finalize_config,
+    fine_tuned_model,
+    freeze,
+    load_checkpoint,
+    train_device,
+)
 from cotrain.render.renderer import RenderConfig, render_batch, render_scene, sample_generator, sample_scene
 from cotrain.targets import make_target
 
@@ -98,21 +106,31 @@ def bench_train_parts(
     ``train.device`` (give ``train.device=cuda`` among ``overrides``): the per-sample random draws
     of cameras and poses on the CPU (``scene_draws``), the rendering (``render``: labels on the
     CPU, pixels on the device), the frozen teacher (configs with ``train.teacher``; 0 otherwise),
-    the forward pass, the losses, the backward pass and the optimizer step. On a GPU every part
+    the forward pass, the losses, the backward pass and the optimizer step (gradient clipping
+    included), with the run's architecture, frozen modules and threads. On a GPU every part
     ends with a synchronisation, so a part's time is its own. ``profile``: one more step under
     ``torch.profiler``, its 25 costliest operators printed and returned as ``profile``."""
     cfg = finalize_config(load_config(TrainConfig, config, list(overrides)))
-    dev = train_device(cfg.train)
+    s = cfg.train
+    dev = train_device(s)
     if dev.type == "cuda" and dev.index is None:
         dev = torch.device("cuda", 0)
+    if s.threads > 0:
+        torch.set_num_threads(s.threads)
     board = make_target(cfg.render.target)
+    if s.init_from:  # the architecture the run trains (the weights do not change the time)
+        cfg.model = fine_tuned_model(cfg)[0]
     model = CornerNet(cfg.model).to(dev).train()
+    for m in freeze(model, s.freeze):  # as the loop keeps them: no gradients, eval mode
+        m.eval()
+    n_params = sum(p.numel() for p in model.parameters())
     teacher = None
-    if cfg.train.teacher:
-        teacher = build_from_checkpoint(load_checkpoint(cfg.train.teacher))[0].to(dev).eval()
+    if s.teacher:
+        teacher = build_from_checkpoint(load_checkpoint(s.teacher))[0].to(dev).eval()
         teacher.requires_grad_(False)
-    opt = torch.optim.AdamW(model.parameters(), lr=1e-4)
-    B = cfg.train.batch_size
+    trained = [p for p in model.parameters() if p.requires_grad]
+    opt = torch.optim.AdamW(trained, lr=s.lr, weight_decay=s.weight_decay)
+    B = s.batch_size
 
     def sync() -> float:
         if dev.type == "cuda":
@@ -137,6 +155,8 @@ def bench_train_parts(
         opt.zero_grad(set_to_none=True)
         loss.backward()
         t.append(sync())
+        if s.grad_clip > 0:
+            torch.nn.utils.clip_grad_norm_(trained, s.grad_clip)
         opt.step()
         t.append(sync())
         return [b - a for a, b in zip(t, t[1:])]
@@ -145,6 +165,7 @@ def bench_train_parts(
     med = {k: statistics.median(x[i] for x in times) for i, k in enumerate(TRAIN_PARTS)}
     total = sum(med.values())
     out = {"device": str(dev), "batch": B, "threads": torch.get_num_threads(), "parts_s": med, "step_s": total, "samples_per_s": B / total}
+    out["trained_params"], out["params"] = sum(p.numel() for p in trained), n_params
     size = f"{cfg.render.width}x{cfg.render.height}"
     print(f"training step, batch {B} at {size} on {dev} (median of {repeats}): {total * 1000:.0f} ms, {B / total:.1f} samples/s")
     for k, v in med.items():
@@ -312,6 +333,8 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(sys.argv[1:] if argv is None else argv)
     if args.model and not Path(args.model).is_file():
         ap.error(f"no model file {args.model}")
+    if args.runs < 1:
+        ap.error(f"--runs must be at least 1, not {args.runs}")
     if args.what == "train":
         try:
             results = bench_train_parts(args.config, tuple(args.set), repeats=args.runs, profile=args.profile)

@@ -133,7 +133,7 @@ def edge_evidence(blur: np.ndarray, lat: Lattice, cfg: GridConfig | None = None)
             # come from the other turned by 90 degrees (rot90: b = rot90(a) in the image).
             rot90 = lambda v: np.array([-v[1], v[0]])  # noqa: E731
             if back is not None:
-                out_step = lat.xy[k] - lat.xy[back]
+                out_step = last = lat.xy[k] - lat.xy[back]
                 back2 = where.get((a - 2 * da, b - 2 * db))
                 if back2 is not None:  # the step the squares would take next (they shrink fast towards a rim)
                     pred = next_step(lat.xy[back] - lat.xy[back2], out_step)
@@ -145,8 +145,8 @@ def edge_evidence(blur: np.ndarray, lat: Lattice, cfg: GridConfig | None = None)
                 across = sgn * (lat.xy[m] - lat.xy[k])
                 if back is None:
                     out_step = -rot90(across) if da else rot90(across)
-            else:
-                across = rot90(out_step) if da else -rot90(out_step)
+            else:  # sideways the squares keep the last step's size (they shrink outwards)
+                across = rot90(last) if da else -rot90(last)
             jobs.append((k, da, db, lat.xy[k], out_step, across))
     if not jobs:
         return []

@@ -251,6 +251,31 @@ def main_train(config_path: str, overrides: list[str], resume: bool = False) -> 
     return 0
 
 
+def fine_tuned_model(cfg: TrainConfig) -> tuple[ModelConfig, dict]:
+    """The model config and weights a run starts from with ``train.init_from``. The checkpoint
+    carries its config; its architecture wins over the recipe's (unless ``train.init_partial``).
+    The processing size is not architecture (the network is fully convolutional, attention
+    included): it stays the recipe's, so a model can be fine-tuned to a smaller size."""
+    ck = load_checkpoint(cfg.train.init_from)
+    model_cfg = cfg.model
+    if not cfg.train.init_partial:
+        model_cfg = from_dict(ModelConfig, ck["config"]["model"])
+        model_cfg.input_size = tuple(cfg.model.input_size)
+    return model_cfg, ck["model"]
+
+
+def freeze(model: CornerNet, names: list[str]) -> list[torch.nn.Module]:
+    """Top-level modules ``names`` of ``model`` taken out of training (``train.freeze``); returns
+    them (the loop keeps them in eval mode, so their BatchNorm statistics stay)."""
+    unknown = [name for name in names if not isinstance(getattr(model, name, None), torch.nn.Module)]
+    if unknown:
+        raise ConfigError(f"train.freeze: the network has no module {', '.join(unknown)}")
+    frozen = [getattr(model, name) for name in names]
+    for m in frozen:
+        m.requires_grad_(False)
+    return frozen
+
+
 def train(cfg: TrainConfig, resume: bool = False) -> dict:
     """The training loop. Returns {"step", "last_loss", "best_score"}."""
     t_process = time.time()  # train.stop_after_minutes counts from here: setup included
@@ -276,23 +301,9 @@ def train(cfg: TrainConfig, resume: bool = False) -> dict:
 
     init_state = None
     if s.init_from and not resume:
-        # Fine-tuning: the checkpoint carries its config; its architecture wins over the recipe's
-        # (unless init_partial). The processing size is not architecture (the network is fully
-        # convolutional, attention included): it stays the recipe's, so a model can be fine-tuned
-        # to a smaller size.
-        ck = load_checkpoint(s.init_from)
-        if not s.init_partial:
-            input_size = tuple(cfg.model.input_size)
-            cfg.model = from_dict(ModelConfig, ck["config"]["model"])
-            cfg.model.input_size = input_size
-        init_state = ck["model"]
+        cfg.model, init_state = fine_tuned_model(cfg)
     model = CornerNet(cfg.model).to(dev)
-    unknown = [name for name in s.freeze if not isinstance(getattr(model, name, None), torch.nn.Module)]
-    if unknown:
-        raise ConfigError(f"train.freeze: the network has no module {', '.join(unknown)}")
-    frozen = [getattr(model, name) for name in s.freeze]
-    for m in frozen:
-        m.requires_grad_(False)
+    frozen = freeze(model, s.freeze)
 
     def train_mode() -> None:
         """The model in training mode, but its frozen modules in eval mode (BatchNorm statistics kept)."""

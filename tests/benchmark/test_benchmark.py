@@ -101,12 +101,27 @@ def test_training_step_parts_add_up_to_the_step(capsys):
     assert out["samples_per_s"] == pytest.approx(3 / out["step_s"])
     assert "convolution" in out["profile"]
     assert "training step, batch 3 at 96x64 on cpu" in capsys.readouterr().out
+    assert out["trained_params"] == out["params"]
+
+
+def test_training_step_parts_follow_the_recipe_of_a_distillation():
+    """configs/grid_distill.yaml: the teacher runs (its part takes time), the frozen encoder is not
+    trained (fewer parameters than the network has), and the architecture is the recipe's."""
+    from calib_eval.benchmark.timing import bench_train_parts
+
+    out = bench_train_parts("configs/grid_distill.yaml", ("train.batch_size=1",), repeats=1)
+    assert out["parts_s"]["teacher"] > 1e-3
+    assert 0 < out["trained_params"] < 0.5 * out["params"]
 
 
 def test_timing_train_refuses_a_missing_config_or_device_in_one_line(tmp_path, capsys):
     from calib_eval.benchmark.timing import main
 
-    bad = [["train", "--config", str(tmp_path / "missing.yaml")], ["train", "--config", "configs/tiny.yaml", "--set", "train.device=tpu"]]
+    bad = [
+        ["train", "--config", str(tmp_path / "missing.yaml")],
+        ["train", "--config", "configs/tiny.yaml", "--set", "train.device=tpu"],
+        ["train", "--config", "configs/tiny.yaml", "--runs", "0"],
+    ]
     if not torch.cuda.is_available():
         bad.append(["train", "--config", "configs/tiny.yaml", "--set", "train.device=cuda"])
     for argv in bad:
