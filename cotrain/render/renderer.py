@@ -495,13 +495,19 @@ def render_scene(
         blurred = kornia.filters.gaussian_blur2d(img, (7, 7), torch.stack([sig.clamp_min(0.05)] * 2, -1))
         img = torch.where(sig[:, None, None, None] > 0, blurred, img)
     motion_shift = torch.zeros(B, 2, device=dev)  # where motion blur moved the image: the labels follow
+    motion: dict[int, list[tuple[int, float, float]]] = {}  # kernel length -> (sample, angle, direction)
     for b, g in enumerate(gens):
         if rr(g) < cfg.p_motion:
             lo, hi = cfg.motion_kernel
             k = lo if lo == hi else lo + 2 * int(rr(g) * ((hi - lo) // 2 + 1))  # odd lengths lo .. hi
             angle, direction = rr(g, 0, 180), rr(g, *cfg.motion_direction)
-            img[b : b + 1] = kornia.filters.motion_blur(img[b : b + 1], min(k, hi), angle, direction)
+            motion.setdefault(min(k, hi), []).append((b, angle, direction))
             motion_shift[b] = motion_blur_shift(min(k, hi), angle, direction).to(dev)
+    for k, items in motion.items():  # the samples of one kernel length blurred together
+        idx = [b for b, _, _ in items]
+        angle = torch.tensor([a for _, a, _ in items], device=dev)
+        direction = torch.tensor([d for _, _, d in items], device=dev)
+        img[idx] = kornia.filters.motion_blur(img[idx], k, angle, direction)
     noise = drawn([rr(g, *cfg.noise_range) for g in gens])[..., None]
     noise_fields = torch.stack([torch.randn(1, H, W, generator=g) for g in gens]).to(dev)
     img = (img + noise * noise_fields * (0.5 + img)).clamp(0, 1)
