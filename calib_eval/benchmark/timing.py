@@ -67,35 +67,6 @@ def bench_render(cfg: RenderConfig, batch: int = 8, repeats: int = 5, seed: int 
     return out
 
 
-def bench_render_vs_step(cfg_path: str = "configs/default.yaml", repeats: int = 5) -> dict:
-    """Median time to render one training batch and to run one training step on it (same process)."""
-
-    cfg = finalize_config(load_config(TrainConfig, cfg_path))
-    B = cfg.train.batch_size
-    model = CornerNet(cfg.model)
-    opt = torch.optim.AdamW(model.parameters(), lr=1e-4)
-    t_render, t_step = [], []
-    for r in range(repeats + 1):
-        t0 = time.perf_counter()
-        batch = render_batch(cfg.render, list(range(r * B, (r + 1) * B)), 77)
-        t1 = time.perf_counter()
-        loss = compute_losses(model(batch["image"]), batch, cfg.loss)["total"]
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        t2 = time.perf_counter()
-        if r:  # skip warm-up
-            t_render.append(t1 - t0)
-            t_step.append(t2 - t1)
-    mr, ms = statistics.median(t_render), statistics.median(t_step)
-    out = {"render_s": mr, "step_s": ms, "ratio": mr / ms, "samples_per_s_render": B / mr, "samples_per_s_train": B / (mr + ms)}
-    print(
-        f"training batch {B} at {cfg.render.width}x{cfg.render.height}: render {mr * 1000:.0f} ms, step {ms * 1000:.0f} ms "
-        f"(render/step = {mr / ms:.2f}); training {B / (mr + ms):.1f} samples/s, {torch.get_num_threads()} threads"
-    )
-    return out
-
-
 TRAIN_PARTS = ("scene_draws", "render", "teacher", "forward", "losses", "backward", "optimizer")
 
 
@@ -180,6 +151,19 @@ def bench_train_parts(
         key = "self_cuda_time_total" if dev.type == "cuda" else "self_cpu_time_total"
         out["profile"] = prof.key_averages().table(sort_by=key, row_limit=25)
         print(out["profile"])
+    return out
+
+
+def bench_render_vs_step(cfg_path: str = "configs/default.yaml", repeats: int = 5) -> dict:
+    """Median time to render one training batch and to run one training step on it: the parts of
+    :func:`bench_train_parts` in two sums (draws and rendering; teacher, forward, losses, backward
+    and optimizer)."""
+    parts = bench_train_parts(cfg_path, repeats=repeats)
+    B, p = parts["batch"], parts["parts_s"]
+    mr = p["scene_draws"] + p["render"]
+    ms = parts["step_s"] - mr
+    out = {"render_s": mr, "step_s": ms, "ratio": mr / ms, "samples_per_s_render": B / mr, "samples_per_s_train": B / (mr + ms)}
+    print(f"render/step = {mr / ms:.2f} (render {mr * 1000:.0f} ms, step {ms * 1000:.0f} ms); training {B / (mr + ms):.1f} samples/s")
     return out
 
 

@@ -334,10 +334,10 @@ def _background(cfg: RenderConfig, gens: list[torch.Generator], h: int, w: int, 
         items = [ds[b]["distractors"][j] for b in idx]
         c0 = (torch.stack([it[0] for it in items]) * 1.6 - 0.8).to(device)[:, :, None, None]  # (G, 2, 1, 1)
         a0 = [float(it[1]) * math.pi for it in items]
-        sq = per_item([float(it[2]) * 0.08 + 0.03 for it in items], device)
-        nx = per_item([int(it[3] * 3) + 2 for it in items], device)
-        ny = per_item([int(it[4] * 2) + 2 for it in items], device)
-        cos, sin = per_item([math.cos(a) for a in a0], device), per_item([math.sin(a) for a in a0], device)
+        sq = _scalars([float(it[2]) * 0.08 + 0.03 for it in items], device)
+        nx = _scalars([int(it[3] * 3) + 2 for it in items], device)
+        ny = _scalars([int(it[4] * 2) + 2 for it in items], device)
+        cos, sin = _scalars([math.cos(a) for a in a0], device), _scalars([math.sin(a) for a in a0], device)
         dx = xx - c0[:, 0]
         dy = (yy - c0[:, 1]) * (h / w)
         u = (cos * dx + sin * dy) / sq + nx / 2
@@ -348,7 +348,7 @@ def _background(cfg: RenderConfig, gens: list[torch.Generator], h: int, w: int, 
     return img[:, None].clamp(0, 1).float()
 
 
-def per_item(values: list[float], device: torch.device) -> Tensor:
+def _scalars(values: list[float] | tuple[float, ...], device: torch.device) -> Tensor:
     """(G, 1, 1) float32 from Python numbers, each rounded as a Python scalar in a float32 op is."""
     return torch.tensor(values, dtype=torch.float32, device=device)[:, None, None]
 
@@ -405,9 +405,6 @@ def render_scene(
     no_target = torch.tensor([_u(g) < cfg.p_no_target for g in gens], device=dev)
     scene = scene.to(dev)
 
-    def drawn(values: list[float]) -> Tensor:  # per-sample scalars (B, 1, 1) on the device
-        return torch.tensor(values, device=dev)[:, None, None]
-
     grid = _pixel_grid(H, W, ss, dev)
     v, in_circle = _rays(scene, grid)
     xy, hit = _board_hit(v, scene.T_cam_board, board.front)
@@ -432,10 +429,10 @@ def render_scene(
     def rr(g: torch.Generator, lo: float = 0.0, hi: float = 1.0) -> float:
         return _u(g, lo, hi)
 
-    black = drawn([rr(g, *cfg.black_range) for g in gens])
-    white = drawn([rr(g, *cfg.white_range) for g in gens])
-    lx = drawn([rr(g, -0.5, 0.5) for g in gens])
-    ly = drawn([rr(g, -0.5, 0.5) for g in gens])
+    black = _scalars([rr(g, *cfg.black_range) for g in gens], dev)
+    white = _scalars([rr(g, *cfg.white_range) for g in gens], dev)
+    lx = _scalars([rr(g, -0.5, 0.5) for g in gens], dev)
+    ly = _scalars([rr(g, -0.5, 0.5) for g in gens], dev)
     ext = board.extent()
     bx = (xy_safe[..., 0] - (ext[0] + ext[2]) / 2) / (ext[2] - ext[0])
     by = (xy_safe[..., 1] - (ext[1] + ext[3]) / 2) / (ext[3] - ext[1])
@@ -459,12 +456,12 @@ def render_scene(
     for j in range(max(len(e) for e in ellipses)):
         idx = [b for b, e in enumerate(ellipses) if len(e) > j]
         cxo, cyo, ax, ay, a, val = zip(*(ellipses[b][j] for b in idx))
-        cos, sin = per_item([math.cos(t) for t in a], dev), per_item([math.sin(t) for t in a], dev)
-        dx, dy = xx - per_item(cxo, dev), yy - per_item(cyo, dev)
-        uu = (cos * dx + sin * dy) / per_item(ax, dev)
-        vv2 = (-sin * dx + cos * dy) / per_item(ay, dev)
+        cos, sin = _scalars([math.cos(t) for t in a], dev), _scalars([math.sin(t) for t in a], dev)
+        dx, dy = xx - _scalars(cxo, dev), yy - _scalars(cyo, dev)
+        uu = (cos * dx + sin * dy) / _scalars(ax, dev)
+        vv2 = (-sin * dx + cos * dy) / _scalars(ay, dev)
         m = ((uu * uu + vv2 * vv2) < 1).float()
-        img[idx] = img[idx] * (1 - m) + per_item(val, dev) * m
+        img[idx] = img[idx] * (1 - m) + _scalars(val, dev) * m
         occ[idx] = torch.maximum(occ[idx], m)
 
     # Image circle: black outside, with a soft, anti-aliased rim and vignetting.
@@ -472,7 +469,7 @@ def render_scene(
     r_px = (grid[None] - centres[:, None, None, :]).norm(dim=-1)
     rad = scene.radius[:, None, None].float()
     rim = (rad - r_px + 0.5).clamp(0, 1)
-    vig_strength = drawn([rr(g, *cfg.vignette_range) for g in gens])
+    vig_strength = _scalars([rr(g, *cfg.vignette_range) for g in gens], dev)
     vignette = 1 - vig_strength * (r_px / rad).clamp(0, 1) ** 3
     img = img * vignette * rim
 
@@ -487,8 +484,8 @@ def render_scene(
         cover_m = (in_sq.float() * cover)[:, None]
 
     # Optics and sensor: exposure and gamma, defocus, motion blur, noise, JPEG.
-    exposure = drawn([rr(g, *cfg.exposure_range) for g in gens])[..., None]
-    gamma = drawn([rr(g, *cfg.gamma_range) for g in gens])[..., None]
+    exposure = _scalars([rr(g, *cfg.exposure_range) for g in gens], dev)[..., None]
+    gamma = _scalars([rr(g, *cfg.gamma_range) for g in gens], dev)[..., None]
     img = (img * exposure).clamp(0, 1) ** gamma
     sig = torch.tensor([rr(g, 0.3, cfg.max_blur_sigma) if rr(g) < cfg.p_blur else 0.0 for g in gens], device=dev)
     if bool((sig > 0).any()):
@@ -508,7 +505,7 @@ def render_scene(
         angle = torch.tensor([a for _, a, _ in items], device=dev)
         direction = torch.tensor([d for _, _, d in items], device=dev)
         img[idx] = kornia.filters.motion_blur(img[idx], k, angle, direction)
-    noise = drawn([rr(g, *cfg.noise_range) for g in gens])[..., None]
+    noise = _scalars([rr(g, *cfg.noise_range) for g in gens], dev)[..., None]
     noise_fields = torch.stack([torch.randn(1, H, W, generator=g) for g in gens]).to(dev)
     img = (img + noise * noise_fields * (0.5 + img)).clamp(0, 1)
     for b, g in enumerate(gens):
