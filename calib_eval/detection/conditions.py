@@ -1,7 +1,7 @@
 """The detection evaluation's hard conditions: each a row of its own (``calib-eval detection``).
 
 Real recordings have them and our FoV rows mostly do not: a board filling a circular image at its
-rim, frames over- or under-exposed, a dull print, motion blur, strong vignetting. Each condition
+rim, frames over- or under-exposed, a dull print, motion blur, strong vignetting, glare on the print. Each condition
 is a set of :class:`cotrain.render.renderer.RenderConfig` fields changed from the FoV set's; its
 frames draw their FoV in 180-240 deg. (A plain dict, so the command line can list them without
 loading the renderer.)
@@ -22,4 +22,7 @@ CONDITIONS: dict[str, dict] = {
     # stays at the centre of its blurred image.
     "motion blur": {"p_motion": 1.0, "motion_kernel": (9, 15), "motion_direction": (0.0, 0.0), "p_blur": 0.0},
     "strong vignetting": {"vignette_range": (0.75, 0.9)},  # the rim at 10-25 % of the centre's brightness, 8-bit
+    # A glossy print under a lamp: a spot where the light mirrored by the print is as bright as its
+    # white or brighter, so the print's contrast fades there and its whites clip.
+    "glare": {"p_glare": 1.0},
 }

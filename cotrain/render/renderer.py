@@ -57,6 +57,9 @@ class RenderConfig:
     black_range: tuple[float, float] = (0.02, 0.2)  # reflectance of the printed black
     white_range: tuple[float, float] = (0.6, 1.0)  # reflectance of the printed white (grey on a dull print)
     vignette_range: tuple[float, float] = (0.0, 0.6)  # darkening at the image circle's rim (share of the centre)
+    p_glare: float = 0.0  # probability of a specular highlight on the print (0: no draws, renders as before)
+    glare_strength: tuple[float, float] = (0.4, 1.5)  # its peak, added light in units of the white (over ~0.5 clips the whites)
+    glare_size: tuple[float, float] = (0.08, 0.3)  # its Gaussian sigma, share of the board's extent
     noise_range: tuple[float, float] = (0.0, 0.04)  # Gaussian read-noise sigma (intensity units)
     p_jpeg: float = 0.3  # probability of JPEG compression
     p_occluder: float = 0.3  # probability of 1-3 occluders in front of the board
@@ -93,6 +96,7 @@ class Scene:
 
 
 CPU = torch.device("cpu")
+GLARE_STREAM = 104_729  # offset of a sample's glare generator's seed from its own (see render_scene)
 
 
 def sample_generator(seed: int, index: int) -> torch.Generator:
@@ -438,6 +442,21 @@ def render_scene(
     by = (xy_safe[..., 1] - (ext[1] + ext[3]) / 2) / (ext[3] - ext[1])
     shade = (1 + lx * bx + ly * by).clamp(0.3, 1.6)
     board_img = (black + (white - black) * value) * shade
+    if cfg.p_glare > 0:
+        # Glare: light mirrored by a glossy print, the same on black and white, so the print's
+        # contrast fades under it and its whites clip; a Gaussian spot fixed on the board. Drawn
+        # from a stream of its own, so a sample renders as it does without glare but for the spot.
+        spots = []
+        for g in gens:
+            gg = torch.Generator().manual_seed((g.initial_seed() + GLARE_STREAM) % (2**63 - 1))
+            spot = (rr(gg), rr(gg, *cfg.glare_strength), rr(gg, -0.5, 0.5), rr(gg, -0.5, 0.5), rr(gg, *cfg.glare_size))
+            spots.append(spot[1:] if spot[0] < cfg.p_glare else (0.0, 0.0, 0.0, 1.0))
+        peak, sx, sy, size = (_scalars(x, dev) for x in zip(*spots))
+
+        def glare(x: Tensor, y: Tensor) -> Tensor:  # added light at board-extent coordinates (B, ...)
+            return peak * torch.exp(-((x - sx) ** 2 + (y - sy) ** 2) / (2 * size * size))
+
+        board_img = board_img + glare(bx, by)
 
     bg = _background(cfg, gens, H * ss, W * ss, dev)[:, 0]
     img = bg * (1 - cover) + board_img * cover
@@ -523,6 +542,19 @@ def render_scene(
     qi[..., 1] = qi[..., 1].clamp(0, H - 1)
     occluded = occ_d[torch.arange(B, device=dev)[:, None], qi[..., 1], qi[..., 0]] > 0.01
     visible = labels["visible"] & ~occluded & ~no_target[:, None]
+    if cfg.p_glare > 0:
+        # A corner the glare washes out (its print's contrast after exposure and clipping under
+        # 2 % of the range, 5 grey levels) is not visible: nothing is left of it to find.
+        p_board = board.points(torch.float32)[:, :2].to(dev)
+        cx = ((p_board[:, 0] - (ext[0] + ext[2]) / 2) / (ext[2] - ext[0]))[None].expand(B, -1)
+        cy = ((p_board[:, 1] - (ext[1] + ext[3]) / 2) / (ext[3] - ext[1]))[None].expand(B, -1)
+        lit = (1 + lx[:, 0] * cx + ly[:, 0] * cy).clamp(0.3, 1.6)
+        spot = glare(cx[..., None], cy[..., None])[..., 0]
+        r_rel = ((labels["corners_raw"].to(dev).float() - centres[:, None, :]).norm(dim=-1) / rad[:, 0]).clamp(0, 1)
+        e = exposure[:, 0, 0] * (1 - vig_strength[:, 0] * r_rel**3)  # the vignetting before the exposure
+        gm = gamma[:, 0, 0]
+        contrast = ((white[:, 0] * lit + spot) * e).clamp(0, 1) ** gm - ((black[:, 0] * lit + spot) * e).clamp(0, 1) ** gm
+        visible = visible & (contrast >= 0.02)
     blur_term = (1 - ((sig - 0.8) / 1.5).clamp(0, 1))[:, None]
     learn = labels["learn_geom"] * blur_term * visible.float()
     return {

@@ -255,3 +255,28 @@ def test_labels_follow_one_sided_motion_blur():
     assert np.abs(one_sided).max() < 0.25 and np.abs(even).max() < 0.25
     # ... although the one-sided blur moved the images by a px (the same scenes, blurred otherwise).
     assert float((img1 - img0).abs().max()) > 0.2
+
+
+def test_glare_fades_the_print_under_a_spot_and_nowhere_else():
+    """Glare (``p_glare``) adds light to the print only: it lifts the board's pixels (most where
+    they clip), changes nothing in a frame without the board, and moves no corner; corners it
+    washes out (contrast under 2 % after exposure and clipping) are not visible. With ``p_glare`` 0
+    nothing is drawn (frames are those of before the field existed:
+    test_appearance_ranges_reach_the_image)."""
+    import dataclasses
+
+    base = RenderConfig(height=180, width=320, p_occluder=0.0, p_jpeg=0.0, noise_range=(0.0, 0.0), p_no_target=0.0, p_distractor=0.0)
+    spot = dict(p_glare=1.0, glare_strength=(1.5, 1.5), glare_size=(0.3, 0.3))
+    ids, seed = list(range(8)), 21
+    plain = render_batch(base, ids, seed)
+    glare = render_batch(dataclasses.replace(base, **spot), ids, seed)
+    assert torch.equal(glare["corners_raw"], plain["corners_raw"]) and torch.equal(glare["board_mask"], plain["board_mask"])
+    diff = glare["image"] - plain["image"]
+    assert float(diff.min()) > -1e-6  # light is only added
+    assert float(diff[plain["board_mask"] > 0.99].mean()) > 0.05
+    assert bool((glare["visible"] <= plain["visible"]).all()) and int(glare["visible"].sum()) < int(plain["visible"].sum())
+    empty = dict(p_no_target=1.0)
+    assert torch.equal(
+        render_batch(dataclasses.replace(base, **empty, **spot), ids, seed)["image"],
+        render_batch(dataclasses.replace(base, **empty), ids, seed)["image"],
+    )
