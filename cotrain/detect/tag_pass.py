@@ -762,23 +762,104 @@ class TagLook:
 
 
 def _quadratic(u: np.ndarray) -> np.ndarray:
-    """(n, 2) -> (n, 6) monomials 1, u, v, uv, u^2, v^2."""
-    return np.stack([np.ones(len(u)), u[:, 0], u[:, 1], u[:, 0] * u[:, 1], u[:, 0] ** 2, u[:, 1] ** 2], 1)
+    """(..., 2) -> (..., 6) monomials 1, u, v, uv, u^2, v^2."""
+    x, y = u[..., 0], u[..., 1]
+    return np.stack([np.ones_like(x), x, y, x * y, x * x, y * y], -1)
+
+
+def _project(H: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Homographies H (T, 3, 3) applied to points p (T, n, 2) -> (T, n, 2), as
+    ``cv2.perspectiveTransform`` does (a point at infinity goes to 0)."""
+    x, y = p[..., 0], p[..., 1]
+    h = H[:, None]
+    w = h[..., 2, 0] * x + h[..., 2, 1] * y + h[..., 2, 2]
+    inv = np.where(np.abs(w) > np.finfo(np.float64).eps, 1.0 / np.where(w == 0, 1.0, w), 0.0)
+    px = (h[..., 0, 0] * x + h[..., 0, 1] * y + h[..., 0, 2]) * inv
+    py = (h[..., 1, 0] * x + h[..., 1, 1] * y + h[..., 1, 2]) * inv
+    return np.stack([px, py], -1)
 
 
 @dataclass
 class TagMap:
-    """A tag's unit square (u along a, v along b; corners at 0 and 1) -> image pixels (:func:`tag_map`)."""
+    """T tags' unit squares (u along a, v along b; corners at 0 and 1) -> image pixels (:func:`tag_maps`)."""
 
-    H: np.ndarray  # (3, 3) the homography of the tag's four corners
-    coef: np.ndarray | None  # (6, 2) the quadratic that bends the unit square first (:func:`_quadratic`); None: not bent
-    misfit: float  # the largest distance (tag widths) of a point found on a side from the fitted side; 0 without side points
+    H: np.ndarray  # (T, 3, 3) the homographies of the tags' four corners
+    coef: np.ndarray  # (T, 6, 2) the quadratics that bend the unit squares first (:func:`_quadratic`); zero: not bent
+    misfit: np.ndarray  # (T,) the largest distance (tag widths) of a point found on a side from the fitted side; 0 without side points
 
     def __call__(self, u: np.ndarray) -> np.ndarray:
-        """(k, 2) unit coordinates -> (k, 2) pixels."""
-        if self.coef is not None:
-            u = u + _quadratic(u) @ self.coef
-        return cv2.perspectiveTransform(u[None].astype(np.float64), self.H)[0]
+        """(k, 2) unit coordinates (the same for every tag) or (T, k, 2) -> (T, k, 2) pixels."""
+        u = np.broadcast_to(np.asarray(u, np.float64), (len(self.H), *np.shape(u)[-2:]))
+        return _project(self.H, u + _quadratic(u) @ self.coef)
+
+
+def tag_maps(
+    corners: np.ndarray,
+    unit_more: list[np.ndarray] | None = None,
+    more: list[np.ndarray] | None = None,
+    side_px: np.ndarray | None = None,
+    side_of: np.ndarray | None = None,
+    side_ok: np.ndarray | None = None,
+) -> TagMap:
+    """The maps from T tags' unit squares to the image: the homography of each tag's four corners
+    (``corners`` (T, 4, 2)), bent by a quadratic where more is known of how the fisheye bends the
+    tag: lattice corners around it (``more[t]`` (n_t, 2) pixels at unit coordinates
+    ``unit_more[t]`` (n_t, 2)), and points found on its sides (``side_px`` (T, m, 2) pixels on the
+    sides ``side_of`` (T, m) of :data:`SIDES`, where ``side_ok`` (T, m) says they were found; see
+    :func:`sides_seen`; such a point fixes only the coordinate across its side). Each coordinate's
+    quadratic is fitted where it has at least 6 constraints besides the corners, by weighted least
+    squares (the corners stay where they are, weight 10) with a little ridge: on two opposite
+    sides alone, u and u^2 (or v and v^2) are one column."""
+    corners = np.asarray(corners, np.float64)
+    T = len(corners)
+    unit = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float32)
+    H = np.stack([cv2.getPerspectiveTransform(unit, c.astype(np.float32)) for c in corners]) if T else np.zeros((0, 3, 3))
+    det = np.linalg.det(H)
+    good = np.isfinite(det) & (np.abs(det) >= 1e-12)  # elsewhere a degenerate quad: nothing to bend
+    Hi = np.zeros_like(H)
+    Hi[good] = np.linalg.inv(H[good])
+    n_more = [0 if more is None or more[t] is None else len(more[t]) for t in range(T)]
+    m = 0 if side_px is None else side_px.shape[1]
+    rows = 4 + max(n_more, default=0) + m
+    U = np.zeros((2, T, rows, 2))  # per coordinate k: unit points, offsets, weights
+    R = np.zeros((2, T, rows))
+    Wt = np.zeros((2, T, rows))
+    U[:, :, :4] = unit
+    Wt[:, :, :4] = 10.0
+    if rows > 4 + m:
+        nm = rows - 4 - m
+        um, pm = np.zeros((T, nm, 2)), np.zeros((T, nm, 2))
+        for t, n in enumerate(n_more):
+            if n:
+                um[t, :n], pm[t, :n] = unit_more[t], more[t]
+        there = np.arange(nm)[None] < np.array(n_more)[:, None]  # (T, nm)
+        seen = _project(Hi, pm)
+        U[:, :, 4 : 4 + nm] = um
+        R[:, :, 4 : 4 + nm] = np.where(there, (seen - um).transpose(2, 0, 1), 0.0)
+        Wt[:, :, 4 : 4 + nm] = there
+    if m:
+        seen = _project(Hi, side_px)
+        ok = np.ones(side_px.shape[:2], bool) if side_ok is None else side_ok
+        s0 = 4 + max(n_more, default=0)
+        for k in range(2):
+            on = (SIDES[side_of, 0] == k) & ok  # the sides on which coordinate k is fixed
+            u = seen.copy()
+            u[..., k] = SIDES[side_of, 1]
+            U[k, :, s0:] = u
+            R[k, :, s0:] = np.where(on, seen[..., k] - u[..., k], 0.0)
+            Wt[k, :, s0:] = on
+    A = _quadratic(U)  # (2, T, rows, 6)
+    Aw = A * Wt[..., None]
+    M = Aw.swapaxes(-1, -2) @ Aw + 1e-6 * np.eye(6)
+    coef = np.linalg.solve(M, (Aw.swapaxes(-1, -2) @ (R * Wt)[..., None]))[..., 0]  # (2, T, 6)
+    fit = ((Wt[:, :, 4:] > 0).sum(-1) >= 6) & good  # (2, T)
+    coef = np.where(fit[..., None], coef, 0.0)
+    misfit = np.zeros(T)
+    if m:
+        res = np.abs((A[:, :, s0:] @ coef[..., None])[..., 0] - R[:, :, s0:])  # (2, T, m)
+        res = np.where((Wt[:, :, s0:] > 0) & fit[..., None], res, 0.0)
+        misfit = res.max(axis=(0, 2))
+    return TagMap(H, coef.transpose(1, 2, 0), misfit)
 
 
 def tag_map(
@@ -788,53 +869,9 @@ def tag_map(
     side_px: np.ndarray | None = None,
     side_of: np.ndarray | None = None,
 ) -> TagMap:
-    """The map from a tag's unit square to the image: the homography of its four corners (4, 2),
-    bent by a quadratic where more is known of how the fisheye bends the tag: lattice corners
-    around it (``more`` (n, 2) pixels at unit coordinates ``unit_more`` (n, 2)), and points found on
-    its sides (``side_px`` (m, 2) pixels on the sides ``side_of`` (m,) of :data:`SIDES`, see
-    :func:`side_points`; such a point fixes only the coordinate across its side). Each coordinate's
-    quadratic is fitted where it has at least 6 constraints besides the corners."""
-    unit = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float32)
-    H = cv2.getPerspectiveTransform(unit, corners.astype(np.float32))
-    det = np.linalg.det(H)
-    if not np.isfinite(det) or abs(det) < 1e-12:
-        return TagMap(H, None, 0.0)  # a degenerate quad: nothing to bend
-    Hi = np.linalg.inv(H)
-
-    def seen_of(px: np.ndarray) -> np.ndarray:  # where the homography puts pixels (n, 2) in the unit square
-        return cv2.perspectiveTransform(px[None].astype(np.float64), Hi)[0]
-
-    # Each coordinate's fit: blocks of (unit points, that coordinate's offset there, weight). The
-    # tag's own corners stay where they are (weight 10).
-    blocks: list[list] = [[(unit, np.zeros(4), np.full(4, 10.0))] for _ in range(2)]
-    if more is not None and len(more):
-        seen = seen_of(more)
-        for k in range(2):
-            blocks[k].append((unit_more, seen[:, k] - unit_more[:, k], np.ones(len(more))))
-    n_side = [0, 0]  # side points in each coordinate's fit (its last block)
-    if side_px is not None and len(side_px):
-        seen = seen_of(side_px)
-        for k in range(2):
-            on = SIDES[side_of, 0] == k  # the sides on which coordinate k is fixed
-            u = seen[on].copy()
-            u[:, k] = SIDES[side_of[on], 1]
-            blocks[k].append((u, seen[on, k] - u[:, k], np.ones(int(on.sum()))))
-            n_side[k] = int(on.sum())
-    coef = np.zeros((6, 2))
-    fitted = False
-    misfit = 0.0
-    for k in range(2):
-        u, rhs, w = (np.concatenate(x) for x in zip(*blocks[k]))
-        if len(u) - 4 < 6:
-            continue
-        A = _quadratic(u)
-        # A little ridge: on two opposite sides alone, u and u^2 (or v and v^2) are one column.
-        Aw = np.concatenate([A * w[:, None], 1e-3 * np.eye(6)])
-        coef[:, k] = np.linalg.lstsq(Aw, np.concatenate([rhs * w, np.zeros(6)]), rcond=None)[0]
-        fitted = True
-        if n_side[k]:
-            misfit = max(misfit, float(np.abs(A[-n_side[k] :] @ coef[:, k] - rhs[-n_side[k] :]).max()))
-    return TagMap(H, coef if fitted else None, misfit)
+    """:func:`tag_maps` of one tag (``corners`` (4, 2); ``side_px`` (m, 2) on sides ``side_of`` (m,))."""
+    sides = {} if side_px is None or not len(side_px) else {"side_px": np.asarray(side_px)[None], "side_of": np.asarray(side_of)[None]}
+    return tag_maps(np.asarray(corners)[None], None if more is None else [unit_more], None if more is None else [more], **sides)
 
 
 # A tag's sides in its unit square: (the coordinate fixed on it, its value), in the order
@@ -845,7 +882,7 @@ _SIDE_INWARD = np.array([[0.0, 1.0], [-1.0, 0.0], [0.0, -1.0], [1.0, 0.0]])
 
 @functools.lru_cache(maxsize=4)
 def _side_samples(spacing: float, n: int) -> np.ndarray:
-    """(4, n, 15, 2) unit-square samples of :func:`side_points`: on each side of :data:`SIDES`, at
+    """(4, n, 15, 2) unit-square samples of :func:`sides_seen`: on each side of :data:`SIDES`, at
     ``n`` points between its corners, from the gap's middle outside to 1.8 border cells in."""
     t = (np.arange(n) + 1) / (n + 1)
     s = np.linspace(-spacing / 2, 1.8 / CELLS, 15)
@@ -856,25 +893,120 @@ def _side_samples(spacing: float, n: int) -> np.ndarray:
     return base[:, :, None, :] + s[None, None, :, None] * _SIDE_INWARD[:, None, None, :]
 
 
-def side_points(img: np.ndarray, to_image: TagMap, spacing: float, dark: float, light: float, n: int = 5) -> tuple[np.ndarray, np.ndarray]:
-    """Where the tag's sides are: on each side, at ``n`` points between its corners, the crossing of
-    ``(dark + light) / 2`` from the white gap into the black border, searched along the side's
-    normal from the gap's middle to 1.8 border cells in (``to_image``: the tag's current map,
-    :func:`tag_map`). Returns pixels (m, 2) and their sides (m,) (of :data:`SIDES`); sides cut by
-    an occluder or blur give fewer points."""
+def sides_seen(
+    img: np.ndarray, to_image: TagMap, spacing: float, dark: np.ndarray, light: np.ndarray, n: int = 5
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where T tags' sides are: on each side, at ``n`` points between its corners, the crossing of
+    ``(dark + light) / 2`` ((T,) each) from the white gap into the black border, searched along the
+    side's normal from the gap's middle to 1.8 border cells in (``to_image``: the tags' current
+    maps, :func:`tag_maps`). Returns pixels (T, 4 n, 2), their sides (4 n,) (of :data:`SIDES`) and
+    whether each was found (T, 4 n): sides cut by an occluder or blur give fewer points."""
     unit = _side_samples(float(spacing), n)  # (4, n, S, 2)
     S = unit.shape[2]
-    px = to_image(unit.reshape(-1, 2)).reshape(4 * n, S, 2)
+    T = len(to_image.H)
+    px = to_image(unit.reshape(-1, 2)).reshape(T, 4 * n, S, 2)
     vals = values_at(img, px)
-    mid = (dark + light) / 2
+    mid = ((np.asarray(dark, np.float64) + np.asarray(light, np.float64)) / 2)[:, None, None]
     below = vals < mid
     # One crossing only, white gap outside, black border inside (sides cut by an occluder or blur fail).
-    ok = np.isfinite(vals).all(1) & ~below[:, 0] & below[:, -3:].all(1) & ((below[:, 1:] != below[:, :-1]).sum(1) == 1)
-    r = np.nonzero(ok)[0]
-    j = below[r].argmax(1)  # the first sample below the midpoint
-    v0, v1 = vals[r, j - 1], vals[r, j]
-    f = ((v0 - mid) / np.maximum(v0 - v1, 1e-9))[:, None]
-    return px[r, j - 1] + f * (px[r, j] - px[r, j - 1]), r // n
+    ok = np.isfinite(vals).all(-1) & ~below[..., 0] & below[..., -3:].all(-1) & ((below[..., 1:] != below[..., :-1]).sum(-1) == 1)
+    j = np.maximum(below.argmax(-1), 1)[..., None]  # the first sample below the midpoint
+    v0, v1 = np.take_along_axis(vals, j - 1, -1)[..., 0], np.take_along_axis(vals, j, -1)[..., 0]
+    f = ((v0 - mid[..., 0]) / np.maximum(v0 - v1, 1e-9))[..., None]
+    p0, p1 = np.take_along_axis(px, j[..., None] - 1, -2)[..., 0, :], np.take_along_axis(px, j[..., None], -2)[..., 0, :]
+    return p0 + f * (p1 - p0), np.arange(4 * n) // n, ok
+
+
+def side_points(img: np.ndarray, to_image: TagMap, spacing: float, dark: float, light: float, n: int = 5) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`sides_seen` of one tag: the points found (m, 2) and their sides (m,)."""
+    px, side, ok = sides_seen(img, to_image, spacing, np.array([dark]), np.array([light]), n)
+    return px[0][ok[0]], side[ok[0]]
+
+
+def look_at_tags(
+    img: np.ndarray,
+    corners: np.ndarray,
+    spacing: float,
+    unit_more: list[np.ndarray] | None = None,
+    more: list[np.ndarray] | None = None,
+    *,
+    sharpen: float,
+    max_side_misfit: float | None = None,
+) -> list[TagLook | None]:
+    """Read the T tags whose corners, lattice (0, 0), (1, 0), (1, 1), (0, 1), are ``corners``
+    (T, 4, 2) from ``img`` (H, W; unblurred: cells of small tags are 1-2 px) through each tag's own
+    geometry (:func:`tag_maps`, with the lattice corners around it where given; never one
+    homography per board: the fisheye bends the board); with ``max_side_misfit``, a tag's map is
+    bent further to its sides found in the image (:func:`sides_seen`) where they fit it within
+    that many tag widths (else a corner slid and the sides would hide it); None for a tag whose
+    samples fall outside the image. The 10 x 10 cells are sharpened (a 4-neighbour Laplacian of
+    weight ``sharpen``: blur darkens a white cell among black ones), the data cells standardised
+    and split by Otsu's threshold, so a grey print, a dim corner or a blurred small tag reads as
+    well as a clean one. All tags are read at once (the arithmetic is batched)."""
+    corners = np.asarray(corners, np.float64)
+    T = len(corners)
+    if T == 0:
+        return []
+    data, bord, gaps = _unit_points(float(spacing))
+    u = np.concatenate([data, bord, gaps])
+    n = len(data)
+    to_image = tag_maps(corners, unit_more, more)
+    vals = values_at(img, to_image(u))  # (T, 400)
+    seen = np.isfinite(vals).all(1)
+    if max_side_misfit is not None:
+        bl, wh = np.median(vals[:, n : n + 64], 1), np.median(vals[:, n + 64 :], 1)
+        try_ = seen & (wh - bl > 0)
+        if try_.any():
+            # The sides as the image shows them bend the map further (a fisheye bends a tag's sides).
+            idx = np.nonzero(try_)[0]
+            sub = TagMap(to_image.H[idx], to_image.coef[idx], to_image.misfit[idx])
+            side_px, side_of, side_ok = sides_seen(img, sub, spacing, bl[idx], wh[idx])
+            bent = tag_maps(
+                corners[idx],
+                None if unit_more is None else [unit_more[t] for t in idx],
+                None if more is None else [more[t] for t in idx],
+                side_px,
+                np.broadcast_to(side_of, side_ok.shape),
+                side_ok,
+            )
+            use = bent.misfit <= max_side_misfit  # else the corners and the sides disagree: a corner slid
+            if use.any():
+                again = values_at(img, TagMap(bent.H[use], bent.coef[use], bent.misfit[use])(u))
+                vals[idx[use]] = again
+                seen[idx[use]] = np.isfinite(again).all(1)
+    out: list[TagLook | None] = [None] * T
+    ok = np.nonzero(seen)[0]
+    if not len(ok):
+        return out
+    v = vals[ok].astype(np.float64)
+    d, bv, gv = v[:, :n].reshape(len(ok), 36, -1).mean(-1), v[:, n : n + 64], v[:, n + 64 :]
+    bl, wh = np.median(bv, 1), np.median(gv, 1)
+    mid = (bl + wh) / 2
+    # Clean: the inner ring of the border (a cell and a half in from the sides) and the gaps; the
+    # outer ring lies within half a cell of the sides, which the fisheye bends at the rim.
+    clean = np.concatenate([bv[:, _inner_ring()] < mid[:, None], gv > mid[:, None]], 1).mean(1)
+    # Undo some of the blur: a white data cell among black ones reads darker than one among white
+    # ones (cells of small tags are 1-2 px). Sharpen the 10 x 10 cells (border cells from their
+    # centres) with a 4-neighbour Laplacian.
+    grid = np.empty((len(ok), CELLS, CELLS))
+    inner = slice(BORDER_BITS, CELLS - BORDER_BITS)
+    grid[:, _border_mask()] = bv
+    grid[:, inner, inner] = d.reshape(-1, DATA_BITS, DATA_BITS)  # [q, p]
+    lap = grid[:, :-2, 1:-1] + grid[:, 2:, 1:-1] + grid[:, 1:-1, :-2] + grid[:, 1:-1, 2:] - 4 * grid[:, 1:-1, 1:-1]
+    sharp = (grid[:, 1:-1, 1:-1] - sharpen * lap / 4)[:, 1:-1, 1:-1].reshape(len(ok), -1)
+    centred = sharp - sharp.mean(1, keepdims=True)
+    rms = np.maximum(np.sqrt((centred**2).mean(1, keepdims=True)), 1e-9)
+    soft = centred / rms
+    thr = otsu_splits(soft)
+    white = soft > thr[:, None]
+    n_white = white.sum(1)
+    mean_w = (sharp * white).sum(1) / np.maximum(n_white, 1)
+    mean_b = (sharp * ~white).sum(1) / np.maximum(36 - n_white, 1)
+    spread = np.where((n_white > 0) & (n_white < 36), mean_w - mean_b, 0.0)
+    for r, t in enumerate(ok.tolist()):
+        c = float(wh[r] - bl[r])
+        out[t] = TagLook(soft[r], float(thr[r]), c, float(spread[r]) / max(c, 1e-6), float(clean[r]))
+    return out
 
 
 def look_at_tag(
@@ -887,55 +1019,9 @@ def look_at_tag(
     sharpen: float,
     max_side_misfit: float | None = None,
 ) -> TagLook | None:
-    """Read the tag whose corners, lattice (0, 0), (1, 0), (1, 1), (0, 1), are ``corners`` (4, 2)
-    from ``img`` (H, W; unblurred: cells of small tags are 1-2 px) through the tag's own geometry
-    (:func:`tag_map`, with the lattice corners around it where given; never one homography per
-    board: the fisheye bends the board); with ``max_side_misfit``, the map is bent further to the
-    tag's sides found in the image (:func:`side_points`) where they fit it within that many tag
-    widths (else a corner slid and the sides would hide it); None where samples fall outside the
-    image. The 10 x 10
-    cells are sharpened (a 4-neighbour Laplacian of weight ``sharpen``: blur darkens a white cell
-    among black ones), the data cells standardised and split by Otsu's threshold, so a grey print,
-    a dim corner or a blurred small tag reads as well as a clean one."""
-    data, bord, gaps = _unit_points(float(spacing))
-    to_image = tag_map(corners, unit_more, more)
-    pts = to_image(np.concatenate([data, bord, gaps]))
-    vals = values_at(img, pts.astype(np.float64))
-    if not np.isfinite(vals).all():
-        return None
-    n = len(data)
-    bl, wh = float(np.median(vals[n : n + 64])), float(np.median(vals[n + 64 :]))
-    if max_side_misfit is not None and wh - bl > 0:
-        # The sides as the image shows them bend the map further (a fisheye bends a tag's sides).
-        side_px, side_of = side_points(img, to_image, spacing, bl, wh)
-        bent = tag_map(corners, unit_more, more, side_px, side_of)
-        if bent.misfit <= max_side_misfit:  # else the corners and the sides disagree: a corner slid
-            pts = bent(np.concatenate([data, bord, gaps]))
-            vals = values_at(img, pts.astype(np.float64))
-            if not np.isfinite(vals).all():
-                return None
-    d, bv, gv = vals[:n].reshape(36, -1).mean(1), vals[n : n + 64], vals[n + 64 :]
-    bl, wh = float(np.median(bv)), float(np.median(gv))
-    mid = (bl + wh) / 2
-    # Clean: the inner ring of the border (a cell and a half in from the sides) and the gaps; the
-    # outer ring lies within half a cell of the sides, which the fisheye bends at the rim.
-    clean = float(np.concatenate([bv[_inner_ring()] < mid, gv > mid]).mean())
-    # Undo some of the blur: a white data cell among black ones reads darker than one among white
-    # ones (cells of small tags are 1-2 px). Sharpen the 10 x 10 cells (border cells from their
-    # centres) with a 4-neighbour Laplacian.
-    grid = np.empty((CELLS, CELLS))
-    inner = slice(BORDER_BITS, CELLS - BORDER_BITS)
-    grid[_border_mask()] = bv
-    grid[inner, inner] = d.reshape(DATA_BITS, DATA_BITS)  # [q, p]
-    lap = grid[:-2, 1:-1] + grid[2:, 1:-1] + grid[1:-1, :-2] + grid[1:-1, 2:] - 4 * grid[1:-1, 1:-1]
-    sharp = (grid[1:-1, 1:-1] - sharpen * lap / 4)[1:-1, 1:-1].ravel()
-    centred = sharp - sharp.mean()
-    rms = max(float(np.sqrt((centred**2).mean())), 1e-9)
-    soft = centred / rms
-    thr = otsu_split(soft)
-    white = soft > thr
-    spread = float(sharp[white].mean() - sharp[~white].mean()) if 0 < white.sum() < 36 else 0.0
-    return TagLook(soft, thr, wh - bl, spread / max(wh - bl, 1e-6), clean)
+    """:func:`look_at_tags` of one tag (``corners`` (4, 2), ``unit_more`` and ``more`` (n, 2))."""
+    ring = {} if more is None else {"unit_more": [unit_more], "more": [more]}
+    return look_at_tags(img, np.asarray(corners)[None], spacing, **ring, sharpen=sharpen, max_side_misfit=max_side_misfit)[0]
 
 
 @functools.lru_cache(maxsize=1)
@@ -955,6 +1041,19 @@ def _inner_ring() -> np.ndarray:
     return inner_ring[_border_mask()]
 
 
+def otsu_splits(x: np.ndarray) -> np.ndarray:
+    """:func:`otsu_split` of each row of x (T, n) -> (T,)."""
+    s = np.sort(x, 1)
+    n = s.shape[1]
+    k = np.arange(1, n)
+    c1 = np.cumsum(s, 1)[:, :-1]
+    c2 = np.cumsum(s**2, 1)[:, :-1]
+    t1, t2 = s.sum(1, keepdims=True), (s**2).sum(1, keepdims=True)
+    within = (c2 - c1**2 / k) + ((t2 - c2) - (t1 - c1) ** 2 / (n - k))
+    i = np.argmin(within, 1)[:, None]
+    return ((np.take_along_axis(s, i, 1) + np.take_along_axis(s, i + 1, 1)) / 2)[:, 0]
+
+
 def otsu_split(x: np.ndarray) -> float:
     """The threshold that splits values x (n,) into two classes of least summed variance (Otsu):
     the midpoint between the two values it falls between."""
@@ -969,17 +1068,23 @@ def otsu_split(x: np.ndarray) -> float:
     return float((s[i] + s[i + 1]) / 2)
 
 
+def decode_many(white: np.ndarray) -> list[tuple[int, int, int]]:
+    """The tag36h11 code nearest to each row of lattice-order data cells (T, 36) bool (True:
+    white) over the four turns: [(id, turn index, Hamming distance)] (the first turn, then the
+    lowest id, where several are as near)."""
+    bits = np.where(white, 1.0, -1.0)
+    # Hamming distance = (36 - bits . code) / 2 for +-1 vectors: (T, turns, codes).
+    dot = np.stack([page_order(bits, m) @ _codes().T for m in range(len(TURNS))], 1)
+    dist = np.rint((36 - dot) / 2).astype(int)
+    flat = dist.reshape(len(bits), -1).argmin(1)  # turn-major: the first turn's nearest code first
+    turn, tag = np.divmod(flat, dist.shape[2])
+    return [(int(t), int(m), int(dist[r, m, t])) for r, (m, t) in enumerate(zip(turn.tolist(), tag.tolist()))]
+
+
 def decode_bits(white: np.ndarray) -> tuple[int, int, int]:
     """The tag36h11 code nearest to lattice-order data cells (36,) bool (True: white) over the
     four turns: (id, turn index, Hamming distance)."""
-    codes, bits = _codes(), np.where(white, 1.0, -1.0)
-    best = (-1, -1, 99)
-    for m in range(len(TURNS)):
-        dist = (codes != page_order(bits, m)[None]).sum(1)
-        t = int(dist.argmin())
-        if dist[t] < best[2]:
-            best = (t, m, int(dist[t]))
-    return best
+    return decode_many(np.asarray(white)[None])[0]
 
 
 @functools.lru_cache(maxsize=1)
@@ -1019,7 +1124,9 @@ def read_cells(lat: Lattice, img: np.ndarray, spacing: float, cfg: TagConfig) ->
     ``cfg.min_cell_px`` and all samples in the image, read; ``clean`` says whether it looks like a
     tag (``cfg.min_bit_contrast``, ``cfg.min_clean``)."""
     where = lat.where
-    out = []
+    pos = {-1: -spacing, 0: 0.0, 1: 1.0, 2: 1.0 + spacing}
+    found: list[tuple[tuple[int, int], np.ndarray, float]] = []  # (cell, corners, shortest side)
+    unit_more, more = [], []
     for a, b in where:
         if a % 2 or b % 2:
             continue
@@ -1032,14 +1139,21 @@ def read_cells(lat: Lattice, img: np.ndarray, spacing: float, cfg: TagConfig) ->
             continue
         # The lattice corners around the tag (a 4 x 4 patch of the lattice without the tag's own).
         ring = [(i, j) for i in (-1, 0, 1, 2) for j in (-1, 0, 1, 2) if not (0 <= i <= 1 and 0 <= j <= 1) and (a + i, b + j) in where]
-        pos = {-1: -spacing, 0: 0.0, 1: 1.0, 2: 1.0 + spacing}
-        unit_more = np.array([(pos[i], pos[j]) for i, j in ring]).reshape(-1, 2)
-        more = lat.xy[[where[(a + i, b + j)] for i, j in ring]].reshape(-1, 2)
-        look = look_at_tag(img, c, spacing, unit_more, more, sharpen=cfg.sharpen, max_side_misfit=cfg.max_side_misfit)
-        if look is None:
-            continue
+        found.append(((a, b), c, side))
+        unit_more.append(np.array([(pos[i], pos[j]) for i, j in ring]).reshape(-1, 2))
+        more.append(lat.xy[[where[(a + i, b + j)] for i, j in ring]].reshape(-1, 2))
+    if not found:
+        return []
+    corners = np.stack([c for _, c, _ in found])
+    looks = look_at_tags(img, corners, spacing, unit_more, more, sharpen=cfg.sharpen, max_side_misfit=cfg.max_side_misfit)
+    read = [k for k, look in enumerate(looks) if look is not None]
+    codes = decode_many(np.array([looks[k].white for k in read]).reshape(-1, 36)) if read else []
+    out = []
+    for k, (tag, turn, ham) in zip(read, codes):
+        cell, c, side = found[k]
+        look = looks[k]
         ok = look.contrast >= cfg.min_bit_contrast and look.clean >= cfg.min_clean
-        out.append(TagCell((a, b), look, *decode_bits(look.white), ok, side, tuple(c.mean(0).tolist())))
+        out.append(TagCell(cell, look, tag, turn, ham, ok, side, tuple(c.mean(0).tolist())))
     return out
 
 

@@ -19,10 +19,12 @@ from cotrain.detect.tag_pass import (
     consistent_boards,
     corner_rays,
     decode_bits,
+    decode_many,
     edges_along,
     join_lattices,
     lattice_link,
     look_at_tag,
+    look_at_tags,
     otsu_split,
     page_order,
     ray_step,
@@ -38,7 +40,7 @@ from cotrain.detect.tag_pass import (
 from cotrain.geometry import cameras, poses
 from cotrain.render.renderer import RenderConfig, Scene, render_scene, sample_generator
 from cotrain.targets import TargetConfig, make_target
-from cotrain.targets.aprilgrid import BORDER_BITS, CELLS, printed_bits
+from cotrain.targets.aprilgrid import BORDER_BITS, CELLS, N_CODES, printed_bits
 
 CLEAN = dict(p_occluder=0.0, p_no_target=0.0, p_motion=0.0, max_blur_sigma=0.3, p_distractor=0.0, p_jpeg=0.0)
 
@@ -707,3 +709,57 @@ def test_a_dead_worker_process_is_a_one_line_error(tmp_path):
         cv2.imwrite(str(files[-1]), np.full((64, 64), 128, np.uint8))
     with pytest.raises(ChildProcessError, match="--workers 1"):
         detect_files(files, _Unpicklable(make_target(TargetConfig(kind="aprilgrid"))), progress=False, workers=2)
+
+
+def test_tags_read_together_read_as_each_alone():
+    """The batched read (:func:`look_at_tags`, one pass over all tags of a lattice) gives every tag
+    what it gets read alone: the same cells, threshold, contrast and cleanliness, with lattice
+    corners around the tags (of varying number) and their sides bending the maps; a tag whose
+    samples leave the image is None in both. Tags of a board seen obliquely through a fisheye."""
+    g = make_target(TargetConfig(kind="aprilgrid", margin=0.3))
+    c = np.array(centre(g))
+    img, q, vis, _ = render(g, "ds", 200, (c + [0.1, -0.05, 0.3]).tolist(), (c + [-0.3, 0.1, 0.0]).tolist())
+    grey = img.astype(np.float32) / 255
+    corners, unit_more, more = [], [], []
+    for t in range(g.n_tags):
+        k = g.tag_corners(t)
+        if not vis[k].all():
+            continue
+        corners.append(q[k])
+        # A varying number of "ring" points: the neighbouring tag's corners where seen.
+        nb = g.tag_corners(t + 1) if t + 1 < g.n_tags and (t + 1) % g.cfg.tag_cols else np.zeros(0, int)
+        nb = nb[vis[nb]][: t % 4 + 1]
+        unit_more.append(np.array([[1 + 0.3, 0.0], [2 + 0.3, 0.0], [2 + 0.3, 1.0], [1 + 0.3, 1.0]])[: len(nb)])
+        more.append(q[nb].reshape(-1, 2))
+    corners.append(np.array([[-20.0, 5.0], [10.0, 5.0], [10.0, 30.0], [-20.0, 30.0]]))  # off the image
+    unit_more.append(np.zeros((0, 2)))
+    more.append(np.zeros((0, 2)))
+    assert len(corners) > 12
+    cfg = TagConfig()
+    together = look_at_tags(grey, np.array(corners), 0.3, unit_more, more, sharpen=cfg.sharpen, max_side_misfit=cfg.max_side_misfit)
+    for k, got in enumerate(together):
+        alone = look_at_tag(grey, corners[k], 0.3, unit_more[k], more[k], sharpen=cfg.sharpen, max_side_misfit=cfg.max_side_misfit)
+        assert (got is None) == (alone is None)
+        if got is not None:
+            np.testing.assert_allclose(got.soft, alone.soft, atol=1e-9)
+            assert abs(got.threshold - alone.threshold) < 1e-9 and abs(got.contrast - alone.contrast) < 1e-9 and got.clean == alone.clean
+    assert together[-1] is None and sum(x is not None for x in together) > 12
+
+
+def test_decode_many_finds_the_nearest_code_in_any_turn():
+    """Against a brute-force search: random data cells and codes with 0-5 flipped bits in each of
+    the four turns; the nearest code, its turn and its distance (ties: first turn, lowest id)."""
+    rng = np.random.default_rng(3)
+    codes = printed_bits(N_CODES).reshape(N_CODES, -1).astype(bool)  # page order, True white
+    rows = [rng.random(36) < 0.5 for _ in range(20)]
+    for k in range(20):
+        white = codes[rng.integers(N_CODES)].copy()
+        white[rng.choice(36, k % 6, replace=False)] ^= True
+        m = k % 4
+        rows.append(white[_turn_index()[m]])  # page -> lattice order under turn m
+    got = decode_many(np.array(rows))
+    for white, (tag, turn, ham) in zip(rows, got):
+        page = [page_order(np.where(white, 1, -1), m) > 0 for m in range(4)]
+        best = min((int((codes[t] != page[m]).sum()), m, t) for m in range(4) for t in range(N_CODES))
+        assert (ham, turn, tag) == best
+        assert decode_bits(white) == (tag, turn, ham)
