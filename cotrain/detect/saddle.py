@@ -302,7 +302,7 @@ def window_half(spacing_px: float | np.ndarray, max_half: int = 5) -> int | np.n
 def smooth_for(grey: np.ndarray, half: int) -> np.ndarray:
     """The (H, W) image blurred for a fit window of half-size ``half`` (sigma = half / 2.5, at
     least 0.7); ``half = -1``: sigma 1 px, for sampling colours. -> (H, W) float32."""
-    return cv2.GaussianBlur(grey.astype(np.float32), (0, 0), 1.0 if half < 0 else max(0.7, half / 2.5))
+    return cv2.GaussianBlur(np.asarray(grey, np.float32), (0, 0), 1.0 if half < 0 else max(0.7, half / 2.5))
 
 
 def smooth_cached(smoothed: dict[int, np.ndarray], grey: np.ndarray, half: int) -> np.ndarray:
@@ -319,7 +319,7 @@ def smooth_cached(smoothed: dict[int, np.ndarray], grey: np.ndarray, half: int) 
 def saddle_response(grey: np.ndarray, sigma: float = 1.5) -> np.ndarray:
     """(H, W) scale-normalised negative Hessian determinant -(Ixx Iyy - Ixy^2) sigma^4: large at
     X-junctions, near zero along edges."""
-    g = cv2.GaussianBlur(grey.astype(np.float32), (0, 0), sigma)
+    g = cv2.GaussianBlur(np.asarray(grey, np.float32), (0, 0), sigma)
     ixx = cv2.Sobel(g, cv2.CV_32F, 2, 0, ksize=3)
     iyy = cv2.Sobel(g, cv2.CV_32F, 0, 2, ksize=3)
     ixy = cv2.Sobel(g, cv2.CV_32F, 1, 1, ksize=3)
