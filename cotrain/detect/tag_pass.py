@@ -225,12 +225,19 @@ def corner_rays(img: np.ndarray, xy: np.ndarray, radius: np.ndarray) -> np.ndarr
     return out
 
 
-def axis_neighbours(xy: np.ndarray, rays: np.ndarray, tree: cKDTree, img: np.ndarray, cfg: TagConfig) -> np.ndarray:
+class RayNeighbours(NamedTuple):
+    """Every candidate's nearest candidates along its edge rays (:func:`axis_neighbours`)."""
+
+    step: np.ndarray  # (K, axis, way (+, -), option, 2) step vectors to them, NaN where there are fewer
+    index: np.ndarray  # (K, axis, way, option) their indices, -1 where there are fewer
+
+
+def axis_neighbours(xy: np.ndarray, rays: np.ndarray, tree: cKDTree, img: np.ndarray, cfg: TagConfig) -> RayNeighbours:
     """The nearest candidate along each of a candidate's four edge rays (see :func:`corner_rays`),
     within ``cfg.seed_axis_angle``, reached along an edge (:func:`edges_along`: a tag's own data
     junctions lie in the cone of its side, but not on it), as lattice axes: rays 0 and 2 are axis
-    0 (+, -), rays 1 and 3 axis 1. Returns (K, axis, way (+, -), option, 2) step vectors to the
-    first ``cfg.ray_options`` such candidates, nearest first, NaN where there are fewer."""
+    0 (+, -), rays 1 and 3 axis 1. Returns the step vectors to the first ``cfg.ray_options`` such
+    candidates, nearest first, and their indices."""
     K = len(xy)
     d, nb = tree.query(xy, k=min(cfg.ray_search, K))
     d, nb = d.reshape(K, -1), nb.reshape(K, -1)
@@ -239,6 +246,7 @@ def axis_neighbours(xy: np.ndarray, rays: np.ndarray, tree: cKDTree, img: np.nda
     cos = np.einsum("knd,krd->knr", v, np.nan_to_num(rays)) / np.where(ok, d, 1.0)[..., None]
     cos_max = np.cos(np.radians(cfg.seed_axis_angle))
     out = np.full((K, 2, 2, cfg.ray_options, 2), np.nan)
+    idx = np.full((K, 2, 2, cfg.ray_options), -1)
     rows = np.arange(K)
     for r in range(4):
         hit = ok & (cos[..., r] > cos_max)
@@ -249,12 +257,14 @@ def axis_neighbours(xy: np.ndarray, rays: np.ndarray, tree: cKDTree, img: np.nda
             has = at.any(1) & (found < cfg.ray_options)
             if not has.any():
                 break
-            step = v[rows[has], at.argmax(1)[has]]
+            col = at.argmax(1)[has]
+            step = v[rows[has], col]
             edge = edges_along(img, xy[has], step, cfg.min_edge_contrast, cfg.ray_edge_depth * d[has, 1])
             k = np.nonzero(has)[0][edge]
             out[k, r % 2, r // 2, found[k]] = step[edge]
+            idx[k, r % 2, r // 2, found[k]] = nb[k, col[edge]]
             found[k] += 1
-    return out
+    return RayNeighbours(out, idx)
 
 
 def edges_along(
@@ -325,7 +335,7 @@ def edge_contrast(img: np.ndarray, p: np.ndarray, q: np.ndarray, normal: np.ndar
 
 
 def fourth_corner(
-    xy: np.ndarray, nbr: np.ndarray, tree: cKDTree, p0: np.ndarray, A: np.ndarray, B: np.ndarray, cfg: TagConfig
+    xy: np.ndarray, nbr: RayNeighbours, tree: cKDTree, p0: np.ndarray, A: np.ndarray, B: np.ndarray, cfg: TagConfig
 ) -> int | None:
     """The candidate (index into xy (K, 2)) that closes the quad p0, p0 + A, ?, p0 + B (2,): the
     one the ray neighbours of p0 + A (toward B) and of p0 + B (toward A) lead to (see
@@ -336,7 +346,7 @@ def fourth_corner(
     pred = p0 + A + B
     r = cfg.fourth_radius * min(math.hypot(*A), math.hypot(*B))
     ja, jb = tree.query(np.array([p0 + A, p0 + B]))[1].tolist()
-    via = {ray_step(xy[ja], nbr[ja], B, xy, tree, set(), cfg), ray_step(xy[jb], nbr[jb], A, xy, tree, set(), cfg)} - {None}
+    via = {ray_step(xy[j], nbr.step[j], w, xy, tree, set(), cfg, nbr.index[j]) for j, w in ((ja, B), (jb, A))} - {None}
     if len(via) == 1:
         j = via.pop()
         return j if math.hypot(*(xy[j] - pred)) < r else None
@@ -347,10 +357,10 @@ def fourth_corner(
 
 
 def seed_tag(
-    xy: np.ndarray, nbr: np.ndarray, seed: int, img: np.ndarray, spacing: float, cfg: TagConfig, tree: cKDTree
+    xy: np.ndarray, nbr: RayNeighbours, seed: int, img: np.ndarray, spacing: float, cfg: TagConfig, tree: cKDTree
 ) -> tuple[np.ndarray, list[int]] | None:
-    """A seed for the growth: candidate ``seed`` (of xy (K, 2), neighbours along its edges ``nbr``
-    (K, 2, 2, options, 2), see :func:`axis_neighbours`) is a tag corner whose tag, lattice cell
+    """A seed for the growth: candidate ``seed`` (of xy (K, 2), neighbours along its edges ``nbr``,
+    see :func:`axis_neighbours`) is a tag corner whose tag, lattice cell
     (0, 0), has its three other corners among the candidates and looks like a tag in ``img``
     (H, W): a black border ring inside white gaps, black and white data cells (see
     :func:`look_at_tag`). Returns the seed's step frame (axis, kind (long, short), 2) and the
@@ -358,7 +368,7 @@ def seed_tag(
     keeps the growth off the X-junctions between a tag's own data cells, and off the black squares
     at the gap crossings."""
     p0 = xy[seed]
-    for frame in _seed_frames(nbr[seed], spacing, cfg):
+    for frame in _seed_frames(nbr.step[seed], spacing, cfg):
         j = fourth_corner(xy, nbr, tree, p0, frame[0, 0], frame[1, 0], cfg)
         if j is None:
             continue
@@ -432,26 +442,39 @@ def _junction_on_step(p: np.ndarray, q: np.ndarray, xy: np.ndarray, tree: cKDTre
 
 
 def ray_step(
-    p: np.ndarray, options: np.ndarray, v: np.ndarray, xy: np.ndarray, tree: cKDTree, used: set[int], cfg: TagConfig
+    p: np.ndarray,
+    options: np.ndarray,
+    v: np.ndarray,
+    xy: np.ndarray,
+    tree: cKDTree,
+    used: set[int],
+    cfg: TagConfig,
+    targets: np.ndarray | None = None,
 ) -> int | None:
     """The candidate (index into xy (K, 2)) that the nearest ray neighbour ``options`` of the corner
     at p (2,) along one of its rays (axis, way, option, 2 step vectors; see :func:`axis_neighbours`) reaches in the
     direction of the predicted step v (2,), within ``cfg.ray_step_angle`` and the growth's
     step-length ratios, nearest in direction first; None where there is none that is not a lattice
-    corner yet (``used``)."""
+    corner yet (``used``). ``targets`` (axis, way, option): the candidates the options lead to where
+    p is the candidate they were found from (:func:`axis_neighbours`), else looked up."""
     vx, vy = float(v[0]), float(v[1])
     nv = math.hypot(vx, vy)
     cos_min = math.cos(math.radians(cfg.ray_step_angle))
     px, py = float(p[0]), float(p[1])
-    reach = []  # (-cos, order, step): scalar arithmetic, it runs for every prediction that finds nothing
-    for sx, sy in options[:, :, 0].reshape(-1, 2).tolist():  # the nearest along each ray: a farther one may skip a corner
+    reach = []  # (-cos, order, step, target): scalar arithmetic, it runs for every prediction that finds nothing
+    known = [-1] * 4 if targets is None else targets[:, :, 0].reshape(-1).tolist()
+    for (sx, sy), t in zip(options[:, :, 0].reshape(-1, 2).tolist(), known):  # the nearest along each ray: a farther one may skip a corner
         if sx != sx:  # NaN: no neighbour along this ray
             continue
         n = math.hypot(sx, sy)
         cos = (sx * vx + sy * vy) / max(n * nv, 1e-9)
         if cos >= cos_min and cfg.min_step_ratio * nv <= n <= cfg.max_step_ratio * nv:
-            reach.append((-cos, len(reach), sx, sy))
-    for _, _, sx, sy in sorted(reach):
+            reach.append((-cos, len(reach), sx, sy, t))
+    for _, _, sx, sy, t in sorted(reach):
+        if t >= 0:  # the candidate the step was found to (p + step is its position)
+            if t not in used:
+                return t
+            continue
         d, j = tree.query((px + sx, py + sy))
         if d < 0.5 and int(j) not in used:
             return int(j)
@@ -470,16 +493,16 @@ class _Step(NamedTuple):
 
 
 def step_taken(
-    s: _Step, q: np.ndarray, pts: list, xy: np.ndarray, tree: cKDTree, sm: np.ndarray, rim_dist: np.ndarray, cfg: TagConfig
+    s: _Step, q: np.ndarray, placed: np.ndarray, xy: np.ndarray, tree: cKDTree, sm: np.ndarray, rim_dist: np.ndarray, cfg: TagConfig
 ) -> bool:
     """Whether the growth takes the step ``s`` to point q (2,): its length within
     ``cfg.min_step_ratio`` .. ``cfg.max_step_ratio`` of the prediction, not crowding a lattice
-    corner ``pts``, passing over no candidate of xy (a tag side and a gap taken as one step), and
+    corner (``placed`` (n, 2)), passing over no candidate of xy (a tag side and a gap taken as one step), and
     an edge with the dark cell on the side the lattice's parity says (on ``sm``, smoothed)."""
     n_q = math.hypot(q[0] - s.p[0], q[1] - s.p[1])
     if not cfg.min_step_ratio * s.length <= n_q <= cfg.max_step_ratio * s.length:
         return False
-    if min(np.linalg.norm(np.array(pts) - q, axis=1)) < cfg.crowd_radius * s.gap:
+    if np.linalg.norm(placed - q, axis=1).min() < cfg.crowd_radius * s.gap:
         return False
     if _junction_on_step(s.p, q, xy, tree, cfg.max_step_junction, s.across):
         return False
@@ -489,7 +512,7 @@ def step_taken(
 
 def grow_tag_lattice(
     xy: np.ndarray,
-    nbr: np.ndarray,
+    nbr: RayNeighbours,
     seed: int,
     frame0: np.ndarray,
     grey: np.ndarray,
@@ -509,6 +532,8 @@ def grow_tag_lattice(
     sm = smooth_cached(smoothed, grey, 2)
     H, W = grey.shape
     pts = [xy[seed].copy()]
+    placed = np.empty((len(xy) + 16, 2))  # pts as one array (its first len(pts) rows), for the crowding test
+    placed[0] = pts[0]
     index = [seed]  # candidate index of each lattice corner, -1 where a saddle was fitted
     lab = [(0, 0)]
     filled = [False]
@@ -520,6 +545,7 @@ def grow_tag_lattice(
         if j in used:
             continue
         where[ab] = len(pts)
+        placed[len(pts)] = xy[j]
         pts.append(xy[j].copy())
         index.append(j)
         lab.append(ab)
@@ -566,19 +592,19 @@ def grow_tag_lattice(
             near = sorted((math.hypot(*(xy[j] - pred)), j) for j in tree.query_ball_point(pred, r) if j not in used)
             found, j_found = None, -1  # the corner, and its candidate index (-1: a saddle fitted at the prediction)
             for _, j in near[: cfg.match_tries]:
-                if step_taken(want, xy[j], pts, xy, tree, sm, rim_dist, cfg):
+                if step_taken(want, xy[j], placed[: len(pts)], xy, tree, sm, rim_dist, cfg):
                     found, j_found = xy[j], int(j)
                     break
             if found is None:
                 q, ok, _ = fit_saddles(grey, smoothed, pred[None], window_half(gap), cfg.grid, rim_dist)
-                if ok[0] and math.hypot(*(q[0] - pred)) < r and step_taken(want, q[0], pts, xy, tree, sm, rim_dist, cfg):
+                if ok[0] and math.hypot(*(q[0] - pred)) < r and step_taken(want, q[0], placed[: len(pts)], xy, tree, sm, rim_dist, cfg):
                     found = q[0]
             if found is None and index[k] >= 0:
                 # Where the fisheye bends the lattice away from the prediction: the candidates the
                 # corner's own edge rays lead to, in the step's direction, near the prediction.
-                j = ray_step(pts[k], nbr[index[k]], v, xy, tree, used, cfg)
+                j = ray_step(pts[k], nbr.step[index[k]], v, xy, tree, used, cfg, nbr.index[index[k]])
                 near_enough = j is not None and math.hypot(*(xy[j] - pred)) < cfg.ray_step_reach * r
-                if near_enough and step_taken(want, xy[j], pts, xy, tree, sm, rim_dist, cfg):
+                if near_enough and step_taken(want, xy[j], placed[: len(pts)], xy, tree, sm, rim_dist, cfg):
                     found, j_found = xy[j], j
             if found is None:
                 continue
@@ -596,6 +622,9 @@ def grow_tag_lattice(
             nf[axis, 1 - kind] = unit * _norm(fr[axis, 1 - kind]) * scale
             frames[t] = nf
             where[t] = len(pts)
+            if len(pts) == len(placed):
+                placed = np.concatenate([placed, np.empty_like(placed)])
+            placed[len(pts)] = found
             pts.append(np.asarray(found, np.float64))
             lab.append(t)
             filled.append(was_filled)
