@@ -874,7 +874,7 @@ def tag_maps(
             on = (SIDES[side_of, 0] == k) & ok  # the sides on which coordinate k is fixed
             u = seen.copy()
             u[..., k] = SIDES[side_of, 1]
-            U[k, :, s0:] = u
+            U[k, :, s0:] = np.where(on[..., None], u, 0.0)  # rows not used: zero (a point not found may be NaN)
             R[k, :, s0:] = np.where(on, seen[..., k] - u[..., k], 0.0)
             Wt[k, :, s0:] = on
     A = _quadratic(U)  # (2, T, rows, 6)
@@ -935,13 +935,13 @@ def sides_seen(
     T = len(to_image.H)
     px = to_image(unit.reshape(-1, 2)).reshape(T, 4 * n, S, 2)
     vals = values_at(img, px)
-    mid = ((np.asarray(dark, np.float64) + np.asarray(light, np.float64)) / 2)[:, None, None]
+    mid = ((np.asarray(dark, np.float64) + np.asarray(light, np.float64)) / 2).astype(vals.dtype)[:, None, None]
     below = vals < mid
     # One crossing only, white gap outside, black border inside (sides cut by an occluder or blur fail).
     ok = np.isfinite(vals).all(-1) & ~below[..., 0] & below[..., -3:].all(-1) & ((below[..., 1:] != below[..., :-1]).sum(-1) == 1)
     j = np.maximum(below.argmax(-1), 1)[..., None]  # the first sample below the midpoint
     v0, v1 = np.take_along_axis(vals, j - 1, -1)[..., 0], np.take_along_axis(vals, j, -1)[..., 0]
-    f = ((v0 - mid[..., 0]) / np.maximum(v0 - v1, 1e-9))[..., None]
+    f = ((v0 - mid[..., 0]) / np.maximum(v0 - v1, vals.dtype.type(1e-9)))[..., None]
     p0, p1 = np.take_along_axis(px, j[..., None] - 1, -2)[..., 0, :], np.take_along_axis(px, j[..., None], -2)[..., 0, :]
     return p0 + f * (p1 - p0), np.arange(4 * n) // n, ok
 
@@ -1007,13 +1007,13 @@ def look_at_tags(
     ok = np.nonzero(seen)[0]
     if not len(ok):
         return out
-    v = vals[ok].astype(np.float64)
+    v = vals[ok]  # the samples' own type (float32): means, medians and the level compared in it
     d, bv, gv = v[:, :n].reshape(len(ok), 36, -1).mean(-1), v[:, n : n + 64], v[:, n + 64 :]
-    bl, wh = np.median(bv, 1), np.median(gv, 1)
-    mid = (bl + wh) / 2
+    bl, wh = np.median(bv, 1).astype(np.float64), np.median(gv, 1).astype(np.float64)
+    mid = ((bl + wh) / 2).astype(v.dtype)[:, None]
     # Clean: the inner ring of the border (a cell and a half in from the sides) and the gaps; the
     # outer ring lies within half a cell of the sides, which the fisheye bends at the rim.
-    clean = np.concatenate([bv[:, _inner_ring()] < mid[:, None], gv > mid[:, None]], 1).mean(1)
+    clean = np.concatenate([bv[:, _inner_ring()] < mid, gv > mid], 1).mean(1)
     # Undo some of the blur: a white data cell among black ones reads darker than one among white
     # ones (cells of small tags are 1-2 px). Sharpen the 10 x 10 cells (border cells from their
     # centres) with a 4-neighbour Laplacian.
@@ -1101,6 +1101,8 @@ def decode_many(white: np.ndarray) -> list[tuple[int, int, int]]:
     """The tag36h11 code nearest to each row of lattice-order data cells (T, 36) bool (True:
     white) over the four turns: [(id, turn index, Hamming distance)] (the first turn, then the
     lowest id, where several are as near)."""
+    if not len(white):
+        return []
     bits = np.where(white, 1.0, -1.0)
     # Hamming distance = (36 - bits . code) / 2 for +-1 vectors: (T, turns, codes).
     dot = np.stack([page_order(bits, m) @ _codes().T for m in range(len(TURNS))], 1)

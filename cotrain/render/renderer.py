@@ -58,8 +58,8 @@ class RenderConfig:
     white_range: tuple[float, float] = (0.6, 1.0)  # reflectance of the printed white (grey on a dull print)
     vignette_range: tuple[float, float] = (0.0, 0.6)  # darkening at the image circle's rim (share of the centre)
     p_glare: float = 0.0  # probability of a specular highlight on the print (0: no draws, renders as before)
-    glare_strength: tuple[float, float] = (0.4, 1.5)  # its peak, added light in units of the white (over ~0.5 clips the whites)
-    glare_size: tuple[float, float] = (0.08, 0.3)  # its Gaussian sigma, share of the board's extent
+    glare_strength: tuple[float, float] = (0.4, 1.5)  # its peak, added reflectance (the print's white is white_range)
+    glare_size: tuple[float, float] = (0.08, 0.3)  # its Gaussian sigma, share of the board's extent along each axis
     noise_range: tuple[float, float] = (0.0, 0.04)  # Gaussian read-noise sigma (intensity units)
     p_jpeg: float = 0.3  # probability of JPEG compression
     p_occluder: float = 0.3  # probability of 1-3 occluders in front of the board
@@ -358,8 +358,9 @@ def _scalars(values: list[float] | tuple[float, ...], device: torch.device) -> T
 
 
 # Version of the labels' conventions (rendered sets cached with another one are rendered again,
-# the same images): 2 = a corner's label moves with its image where motion blur moves it.
-LABEL_VERSION = 2
+# the same images): 2 = a corner's label moves with its image where motion blur moves it; 3 = a
+# corner a glare spot washes out is not visible.
+LABEL_VERSION = 3
 
 
 def motion_blur_shift(kernel_size: int, angle: float, direction: float) -> torch.Tensor:
@@ -543,18 +544,22 @@ def render_scene(
     occluded = occ_d[torch.arange(B, device=dev)[:, None], qi[..., 1], qi[..., 0]] > 0.01
     visible = labels["visible"] & ~occluded & ~no_target[:, None]
     if cfg.p_glare > 0:
-        # A corner the glare washes out (its print's contrast after exposure and clipping under
-        # 2 % of the range, 5 grey levels) is not visible: nothing is left of it to find.
+        # A corner the spot washes out (its print's contrast after exposure, vignetting and
+        # clipping under 2 % of the range, 5 grey levels) is not visible: nothing is left of it to find.
         p_board = board.points(torch.float32)[:, :2].to(dev)
         cx = ((p_board[:, 0] - (ext[0] + ext[2]) / 2) / (ext[2] - ext[0]))[None].expand(B, -1)
         cy = ((p_board[:, 1] - (ext[1] + ext[3]) / 2) / (ext[3] - ext[1]))[None].expand(B, -1)
         lit = (1 + lx[:, 0] * cx + ly[:, 0] * cy).clamp(0.3, 1.6)
-        spot = glare(cx[..., None], cy[..., None])[..., 0]
         r_rel = ((labels["corners_raw"].to(dev).float() - centres[:, None, :]).norm(dim=-1) / rad[:, 0]).clamp(0, 1)
         e = exposure[:, 0, 0] * (1 - vig_strength[:, 0] * r_rel**3)  # the vignetting before the exposure
         gm = gamma[:, 0, 0]
-        contrast = ((white[:, 0] * lit + spot) * e).clamp(0, 1) ** gm - ((black[:, 0] * lit + spot) * e).clamp(0, 1) ** gm
-        visible = visible & (contrast >= 0.02)
+
+        def contrast(spot: Tensor) -> Tensor:  # (B, N) of the print at the corners, as the image path computes it
+            return ((white[:, 0] * lit + spot) * e).clamp(0, 1) ** gm - ((black[:, 0] * lit + spot) * e).clamp(0, 1) ** gm
+
+        # Only corners the spot washes out: the labels of a sample without one stay as they were.
+        washed = (contrast(glare(cx[..., None], cy[..., None])[..., 0]) < 0.02) & (contrast(torch.zeros_like(cx)) >= 0.02)
+        visible = visible & ~washed
     blur_term = (1 - ((sig - 0.8) / 1.5).clamp(0, 1))[:, None]
     learn = labels["learn_geom"] * blur_term * visible.float()
     return {

@@ -343,6 +343,15 @@ def test_ray_step_takes_the_candidate_along_a_ray_in_the_steps_direction():
     assert ray_step(p, options, np.array([15.0, -26.0]), xy, tree, set(), cfg) is None  # 68 deg off ray 0, 150 off ray 1
     assert ray_step(p, options, np.array([15.0, 2.0]), xy, tree, set(), cfg) is None  # twice the predicted length
     assert ray_step(p, options, np.array([0.0, 30.0]), xy, tree, set(), cfg) == 2
+    # With the options' candidates given (as axis_neighbours finds them), the same answers without
+    # looking them up; the targets, not the tree, are what is returned.
+    targets = np.full((2, 2, cfg.ray_options), -1)
+    targets[0, 0, 0], targets[0, 0, 1], targets[1, 0, 0], targets[0, 1, 0] = 1, 4, 2, 3
+    for v, used in (([28.0, -4.0], set()), ([28.0, -4.0], {1}), ([20.0, 20.0], set()), ([15.0, -26.0], set()), ([0.0, 30.0], set())):
+        assert ray_step(p, options, np.array(v), xy, tree, used, cfg, targets) == ray_step(p, options, np.array(v), xy, tree, used, cfg)
+    relabelled = targets.copy()
+    relabelled[0, 0, 0] = 3
+    assert ray_step(p, options, np.array([28.0, -4.0]), xy, tree, set(), cfg, relabelled) == 3
 
 
 def test_edges_along_a_narrow_border_needs_a_shallow_look():

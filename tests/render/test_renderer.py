@@ -275,6 +275,11 @@ def test_glare_fades_the_print_under_a_spot_and_nowhere_else():
     assert float(diff.min()) > -1e-6  # light is only added
     assert float(diff[plain["board_mask"] > 0.99].mean()) > 0.05
     assert bool((glare["visible"] <= plain["visible"]).all()) and int(glare["visible"].sum()) < int(plain["visible"].sum())
+    # Drawn in some samples only: those without a spot render, and are labelled, as without glare.
+    some = render_batch(dataclasses.replace(base, **{**spot, "p_glare": 0.5}), ids, seed)
+    alike = [i for i in range(len(ids)) if torch.equal(some["image"][i], plain["image"][i])]
+    assert 0 < len(alike) < len(ids)
+    assert all(torch.equal(some["visible"][i], plain["visible"][i]) for i in alike)
     empty = dict(p_no_target=1.0)
     assert torch.equal(
         render_batch(dataclasses.replace(base, **empty, **spot), ids, seed)["image"],
