@@ -1,9 +1,9 @@
 """The detection evaluation's hard conditions: each a row of its own (``calib-eval detection``).
 
 Real recordings have them and our FoV rows mostly do not: a board filling a circular image at its
-rim, frames over- or under-exposed, a dull print, motion blur, strong vignetting, glare on the print. Each condition
-is a set of :class:`cotrain.render.renderer.RenderConfig` fields changed from the FoV set's; its
-frames draw their FoV in 180-240 deg. (A plain dict, so the command line can list them without
+rim, frames over- or under-exposed, a dull print, motion blur, strong vignetting, glare on the
+print. Each condition is a set of :class:`cotrain.render.renderer.RenderConfig` fields changed from
+the FoV set's; its frames draw their FoV in 180-240 deg. (A plain dict, so the command line can list them without
 loading the renderer.)
 """
 

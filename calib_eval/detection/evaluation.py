@@ -3,7 +3,7 @@
 1. Render a fixed, versioned benchmark set (seeded; 1280x720 unless ``--size``) per FoV: half with the
    paper's f-theta model, half with the other families (ucm, eucm, ds), plus images without a target,
    plus one row per hard condition (:data:`CONDITIONS`: large squares at the rim, over- and
-   under-exposure, a low-contrast print, motion blur, strong vignetting; FoV 180-240).
+   under-exposure, a low-contrast print, motion blur, strong vignetting, glare; FoV 180-240).
 2. Run the learned detector and the geometry-based detectors (OpenCV ``findChessboardCornersSB``
    and ``findChessboardCorners`` + ``cornerSubPix``) on the same images; save their predictions.
 3. Score in a second pass from the saved predictions.

@@ -10,7 +10,7 @@
 3. Score per FoV, per 10-degree bin of the corner's off-axis angle and per bin of tag size, and
    on rows of hard frames of their own (``--per-condition``): the checkerboard evaluation's
    conditions (:data:`calib_eval.detection.conditions.CONDITIONS`: large tags at the rim, over- and
-   under-exposure, a dull print, motion blur, strong vignetting), FoV drawn in 180-240 deg.
+   under-exposure, a dull print, motion blur, strong vignetting, glare), FoV drawn in 180-240 deg.
 
 Detectable corners: visible, and the tag at least ``min_tag_px`` across (the smaller singular
 value of the image of one tag side). A peer's tag gives its four corners the ids of that tag's
