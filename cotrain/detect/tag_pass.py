@@ -1071,7 +1071,8 @@ def _inner_ring() -> np.ndarray:
 
 
 def otsu_splits(x: np.ndarray) -> np.ndarray:
-    """:func:`otsu_split` of each row of x (T, n) -> (T,)."""
+    """The threshold that splits each row of values x (T, n) into two classes of least summed
+    variance (Otsu): the midpoint between the two values it falls between. -> (T,)"""
     s = np.sort(x, 1)
     n = s.shape[1]
     k = np.arange(1, n)
@@ -1084,17 +1085,8 @@ def otsu_splits(x: np.ndarray) -> np.ndarray:
 
 
 def otsu_split(x: np.ndarray) -> float:
-    """The threshold that splits values x (n,) into two classes of least summed variance (Otsu):
-    the midpoint between the two values it falls between."""
-    s = np.sort(x)
-    n = len(s)
-    k = np.arange(1, n)
-    c1 = np.cumsum(s)[:-1]
-    c2 = np.cumsum(s**2)[:-1]
-    t1, t2 = s.sum(), (s**2).sum()
-    within = (c2 - c1**2 / k) + ((t2 - c2) - (t1 - c1) ** 2 / (n - k))
-    i = int(np.argmin(within))
-    return float((s[i] + s[i + 1]) / 2)
+    """:func:`otsu_splits` of one set of values x (n,)."""
+    return float(otsu_splits(np.asarray(x)[None])[0])
 
 
 def decode_many(white: np.ndarray) -> list[tuple[int, int, int]]:
@@ -1178,7 +1170,7 @@ def read_cells(lat: Lattice, img: np.ndarray, spacing: float, cfg: TagConfig) ->
     corners = np.stack([c for _, c, _ in found])
     looks = look_at_tags(img, corners, spacing, unit_more, more, sharpen=cfg.sharpen, max_side_misfit=cfg.max_side_misfit)
     read = [k for k, look in enumerate(looks) if look is not None]
-    codes = decode_many(np.array([looks[k].white for k in read]).reshape(-1, 36)) if read else []
+    codes = decode_many(np.array([looks[k].white for k in read]).reshape(-1, 36))
     out = []
     for k, (tag, turn, ham) in zip(read, codes):
         cell, c, side = found[k]

@@ -439,10 +439,15 @@ def render_scene(
     lx = _scalars([rr(g, -0.5, 0.5) for g in gens], dev)
     ly = _scalars([rr(g, -0.5, 0.5) for g in gens], dev)
     ext = board.extent()
-    bx = (xy_safe[..., 0] - (ext[0] + ext[2]) / 2) / (ext[2] - ext[0])
-    by = (xy_safe[..., 1] - (ext[1] + ext[3]) / 2) / (ext[3] - ext[1])
-    shade = (1 + lx * bx + ly * by).clamp(0.3, 1.6)
-    board_img = (black + (white - black) * value) * shade
+
+    def on_sheet(x: Tensor, y: Tensor) -> tuple[Tensor, Tensor]:  # board metres -> the sheet's extent, -0.5 .. 0.5
+        return (x - (ext[0] + ext[2]) / 2) / (ext[2] - ext[0]), (y - (ext[1] + ext[3]) / 2) / (ext[3] - ext[1])
+
+    def shading(x: Tensor, y: Tensor) -> Tensor:  # the light's gradient over the sheet (B, ...)
+        return (1 + lx * x + ly * y).clamp(0.3, 1.6)
+
+    bx, by = on_sheet(xy_safe[..., 0], xy_safe[..., 1])
+    board_img = (black + (white - black) * value) * shading(bx, by)
     if cfg.p_glare > 0:
         # Glare: light mirrored by a glossy print, the same on black and white, so the print's
         # contrast fades under it and its whites clip; a Gaussian spot fixed on the board. Drawn
@@ -547,9 +552,8 @@ def render_scene(
         # A corner the spot washes out (its print's contrast after exposure, vignetting and
         # clipping under 2 % of the range, 5 grey levels) is not visible: nothing is left of it to find.
         p_board = board.points(torch.float32)[:, :2].to(dev)
-        cx = ((p_board[:, 0] - (ext[0] + ext[2]) / 2) / (ext[2] - ext[0]))[None].expand(B, -1)
-        cy = ((p_board[:, 1] - (ext[1] + ext[3]) / 2) / (ext[3] - ext[1]))[None].expand(B, -1)
-        lit = (1 + lx[:, 0] * cx + ly[:, 0] * cy).clamp(0.3, 1.6)
+        cx, cy = (c[None].expand(B, -1) for c in on_sheet(p_board[:, 0], p_board[:, 1]))
+        lit = shading(cx[..., None], cy[..., None])[..., 0]  # (B, N)
         r_rel = ((labels["corners_raw"].to(dev).float() - centres[:, None, :]).norm(dim=-1) / rad[:, 0]).clamp(0, 1)
         e = exposure[:, 0, 0] * (1 - vig_strength[:, 0] * r_rel**3)  # the vignetting before the exposure
         gm = gamma[:, 0, 0]
