@@ -210,9 +210,11 @@ def bench_detect(model: str | None = None, runs: int = 5, sets: tuple[DetectSet,
     Each figure is the median over ``runs`` runs of (total time / images)."""
     import cv2
 
+    from cotrain.detect.buffers import keep_image_buffers
     from cotrain.detect.images import load_image
     from cotrain.io.detections import detect_files
 
+    keep_image_buffers()  # as cotrain detect runs (cotrain.detect.buffers), for every path timed here
     det = Detector(model)
     pattern = (det.target.nx, det.target.ny)
     flags = cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY

@@ -323,7 +323,11 @@ def saddle_response(grey: np.ndarray, sigma: float = 1.5) -> np.ndarray:
     ixx = cv2.Sobel(g, cv2.CV_32F, 2, 0, ksize=3)
     iyy = cv2.Sobel(g, cv2.CV_32F, 0, 2, ksize=3)
     ixy = cv2.Sobel(g, cv2.CV_32F, 1, 1, ksize=3)
-    return -(ixx * iyy - ixy * ixy) * sigma**4
+    np.multiply(ixx, iyy, out=ixx)  # in place: fresh full-size buffers cost page faults (several ms per frame)
+    np.multiply(ixy, ixy, out=ixy)
+    np.subtract(ixy, ixx, out=ixx)
+    ixx *= np.float32(sigma**4)
+    return ixx
 
 
 def saddle_candidates(

@@ -17,6 +17,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from cotrain.detect.buffers import keep_image_buffers
 from cotrain.detect.detector import AprilGridDetector, Detector, draw_detection
 from cotrain.detect.images import ImageError, load_image
 
@@ -44,6 +45,7 @@ def detect_files(
 
     if draw_dir is not None:
         draw_dir.mkdir(parents=True, exist_ok=True)
+    keep_image_buffers()  # many images in this process (or its workers): their buffers are reused
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)  # a container's share
     n_proc = min(cores, MAX_WORKERS) if workers == 0 else workers
     n_proc = min(n_proc, len(paths) // detector.files_per_worker)
@@ -107,6 +109,7 @@ def _start_worker(detector: Detector | AprilGridDetector, threads: int) -> None:
     """A worker process's start in :func:`detect_files`: keep its copy of the detector (sent once
     per process, not per file), its network at ``threads`` onnxruntime threads."""
     global _worker_detector
+    keep_image_buffers()
     if isinstance(detector, Detector):
         detector.net.threads = threads
     _worker_detector = detector

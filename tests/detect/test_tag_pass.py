@@ -772,3 +772,29 @@ def test_decode_many_finds_the_nearest_code_in_any_turn():
         best = min((int((codes[t] != page[m]).sum()), m, t) for m in range(4) for t in range(N_CODES))
         assert (ham, turn, tag) == best
         assert decode_bits(white) == (tag, turn, ham)
+
+
+def test_the_pass_on_the_image_circle_finds_what_it_finds_on_the_whole_frame():
+    """tag_pass works on the image circle's bounding box (grown by CIRCLE_PAD_PX): the same
+    corners and ids as on the whole frame, at the same positions (to float rounding), in frame
+    pixels. The board lies at the circle's left rim, where the crop's edge is nearest."""
+    from cotrain.detect.images import to_grey_float
+    from cotrain.detect.saddle import outside_circle
+    from cotrain.detect.tag_pass import CIRCLE_PAD_PX, TagConfig, _tag_pass_in, tag_pass
+
+    g = make_target(TargetConfig(kind="aprilgrid", margin=0.3))
+    c = np.array(centre(g))
+    img, q, vis, _ = render(g, "kb4", 200, (c + [0.0, 0.0, 0.28]).tolist(), (c + [0.5, 0.05, 0.0]).tolist())
+    grey = to_grey_float(img)
+    allowed = ~outside_circle(grey)
+    allowed[[0, -1], :] = False
+    allowed[:, [0, -1]] = False
+    xs = np.nonzero(allowed.any(0))[0]
+    assert xs[0] > CIRCLE_PAD_PX and xs[-1] < img.shape[1] - 1 - CIRCLE_PAD_PX  # the crop cuts the frame
+    cropped = tag_pass(grey, g)
+    whole = _tag_pass_in(grey, allowed, g, TagConfig())
+    assert len(whole.ids) > 20
+    np.testing.assert_array_equal(cropped.ids, whole.ids)
+    np.testing.assert_allclose(cropped.xy, whole.xy, atol=2e-3)
+    assert sorted(cropped.tags.tolist()) == sorted(whole.tags.tolist())
+    check_ids(cropped, q, vis)
