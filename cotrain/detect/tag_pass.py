@@ -1556,5 +1556,11 @@ def _tag_pass_in(grey: np.ndarray, allowed: np.ndarray, board: AprilGrid, cfg: T
     ids_a = np.array(ids, int)
     order = np.argsort(ids_a)
     return TagResult(
-        ids_a[order], np.array(xy_out)[order], np.array(conf)[order], np.array(tags, int), np.array(ham, int), len(dropped), len(foreign)
+        ids_a[order],
+        np.array(xy_out).reshape(-1, 2)[order],
+        np.array(conf)[order],
+        np.array(tags, int),
+        np.array(ham, int),
+        len(dropped),
+        len(foreign),
     )

@@ -798,3 +798,18 @@ def test_the_pass_on_the_image_circle_finds_what_it_finds_on_the_whole_frame():
     np.testing.assert_allclose(cropped.xy, whole.xy, atol=2e-3)
     assert sorted(cropped.tags.tolist()) == sorted(whole.tags.tolist())
     check_ids(cropped, q, vis)
+
+
+def test_a_board_whose_corners_all_fail_their_final_fit_gives_an_empty_result(monkeypatch):
+    """The board is placed, but no corner passes its final fit (a frame blurred beyond the fit
+    windows): no corners, with positions of shape (0, 2) in frame pixels (the crop's offset adds)."""
+    import cotrain.detect.tag_pass as tp
+
+    g = make_target(TargetConfig(kind="aprilgrid", margin=0.3))
+    c = centre(g)
+    img, *_ = render(g, "kb4", 200, [c[0] + 0.02, c[1] - 0.03, 0.45], c)
+    monkeypatch.setattr(tp, "final_fits", lambda sub, *a, **k: (sub.xy, np.zeros(len(sub.xy), bool)))
+    monkeypatch.setattr(tp.TagConfig, "keep_unfitted_px", 0.0)
+    r = tp.tag_pass(img.astype(np.float32) / 255, g)
+    assert len(r.tags) > 0  # the board was read
+    assert r.ids.shape == (0,) and r.xy.shape == (0, 2)
