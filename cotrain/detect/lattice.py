@@ -219,6 +219,23 @@ def edge_neighbour(
     return xy[best[1]]
 
 
+def _bent_neighbour(
+    p0: np.ndarray, u: np.ndarray, dist: np.ndarray, idx: np.ndarray, xy: np.ndarray, cfg: GridConfig
+) -> tuple[float, np.ndarray] | None:
+    """A seed's neighbour along its edge direction u (2,) where none lies within
+    ``cfg.seed_axis_angle`` of it: the nearest candidate of xy (K, 2) (``idx``, at ``dist``, nearest
+    first) at least ``cfg.seed_bend_px`` away and within ``cfg.seed_bend_angle`` of +-u. Near a
+    fisheye's rim the sides of a square of 40-120 px bend by tens of degrees between its corners;
+    the growth's colour and edge tests judge the step as any other. Returns (distance, step) or None."""
+    if cfg.seed_bend_angle <= 0:
+        return None
+    cos_bend = math.cos(math.radians(cfg.seed_bend_angle))
+    for n, j in zip(dist, idx):
+        if np.isfinite(n) and n >= cfg.seed_bend_px and abs(float((xy[j] - p0) @ u)) >= cos_bend * n:
+            return float(n), xy[j] - p0
+    return None
+
+
 def grow_lattice(
     xy: np.ndarray,
     axes: np.ndarray,
@@ -250,6 +267,8 @@ def grow_lattice(
                 v = xy[j] - p0
                 if np.dot(v, sgn * u) / dist > cos_seed and (best is None or dist < best[0]):
                     best = (dist, sgn * v)
+        if best is None:
+            best = _bent_neighbour(p0, u, d[1:], nb[1:], xy, cfg)
         if best is None:
             return None
         steps.append(best[1])

@@ -277,3 +277,34 @@ def test_growth_remeasures_steps_where_the_lattice_bends():
         assert any(np.array_equal(ab @ np.array(R), d) for R in turns)  # each at its own place
         found[remeasure] = len(at)
     assert found[True] >= ok.sum() and found[True] > found[False]
+
+
+def test_a_seed_finds_its_neighbour_along_a_bent_side_of_a_large_square():
+    """_bent_neighbour: where nothing lies within seed_axis_angle of the seed's edge direction, the
+    nearest candidate at least seed_bend_px away within seed_bend_angle of it (either way) is the
+    neighbour; nearer ones and ones farther off the direction are not."""
+    import math
+
+    from cotrain.detect.grid_config import GridConfig
+    from cotrain.detect.lattice import _bent_neighbour
+
+    cfg = GridConfig()
+    u = np.array([1.0, 0.0])  # the seed's edge direction; the seed at the origin
+
+    def at(dist: float, deg: float) -> np.ndarray:
+        return dist * np.array([math.cos(math.radians(deg)), math.sin(math.radians(deg))])
+
+    def neighbour(*points: np.ndarray, cfg: GridConfig = cfg):
+        xy = np.array([np.zeros(2), *points])
+        d = np.linalg.norm(xy[1:], axis=1)
+        order = np.argsort(d)  # nearest first, as the KD-tree gives them
+        return _bent_neighbour(xy[0], u, d[order], order + 1, xy, cfg)
+
+    bent = at(60.0, 30.0)  # 30 deg off: outside seed_axis_angle (20), inside seed_bend_angle (35)
+    got = neighbour(bent)
+    assert got is not None and got[0] == pytest.approx(60.0) and np.allclose(got[1], bent)
+    got = neighbour(at(90.0, 180 + 25.0), at(70.0, 180 - 30.0))  # the other way along u, nearest first
+    assert got is not None and got[0] == pytest.approx(70.0)
+    assert neighbour(at(0.9 * cfg.seed_bend_px, 30.0)) is None  # squares under seed_bend_px: the strict angle only
+    assert neighbour(at(60.0, 40.0)) is None  # beyond seed_bend_angle
+    assert neighbour(bent, cfg=GridConfig(seed_bend_angle=0.0)) is None  # off
