@@ -35,6 +35,7 @@ import numpy as np
 from calib_eval.detection import DEFAULT_DETECTORS, DETECTORS
 from calib_eval.detection.conditions import CONDITIONS
 from calib_eval.detection.opencv_baseline import find_chessboard
+from cotrain.detect.buffers import keep_image_buffers
 from cotrain.detect.detector import Detector
 from cotrain.detect.images import ImageError, load_image
 from cotrain.geometry import cameras
@@ -421,6 +422,7 @@ def evaluate_detection(model: str | None, cfg: EvalConfig, out: Path, progress: 
     images = [out / "images" / lab["image"] for lab in meta["labels"]]
     detectors = detectors or DEFAULT_DETECTORS
     board = make_target(cfg.target)
+    keep_image_buffers()  # as cotrain detect runs (cotrain.detect.buffers), for every detector timed here
     # Detectors not run this time keep their saved predictions on this set in the table.
     kept = [n for n in DETECTORS if n not in detectors and (out / f"predictions_{n}.json").is_file()]
     preds = {}

@@ -29,9 +29,9 @@ class GridConfig:
     min_symmetric_share: float = 0.3  # share of window pixels seen on both sides of the 180 deg turn the symmetry test needs
     min_rim_px: float = 3.0  # corners closer than this to the image circle's dark rim or the image border are not reported
     # --- lattice growth (lattice.grow_lattice) ---
-    seed_axis_angle: float = 20.0  # deg: a seed's first neighbours lie within this of its fitted edge directions
-    seed_bend_angle: float = 35.0  # deg: where none does, the nearest this far (seed_bend_px) within this: the sides of large
-    seed_bend_px: float = 40.0  # squares near a fisheye's rim bend by tens of degrees between corners (0 angle: off)
+    seed_axis_angle: float = 20.0  # deg: a seed's first neighbours lie within this of its fitted edge directions (else seed_bend_*)
+    seed_bend_angle: float = 35.0  # deg: where none does, the nearest at seed_bend_px or farther within this (0: off)
+    seed_bend_px: float = 40.0  # px: ... (the sides of large squares near a fisheye's rim bend by tens of degrees between corners)
     min_seed_axes_sin: float = 0.2  # |sin| of the angle between the seed's two steps (nearly parallel ones are no lattice)
     diag_offset: float = 0.3  # colour test samples the four quadrants this fraction of (step a +- step b) from the corner
     min_seed_contrast: float = 0.05  # |quadrant contrast| (intensity) the seed needs (see lattice._diag_contrast)

@@ -325,7 +325,8 @@ def saddle_response(grey: np.ndarray, sigma: float = 1.5) -> np.ndarray:
     ixy = cv2.Sobel(g, cv2.CV_32F, 1, 1, ksize=3)
     np.multiply(ixx, iyy, out=ixx)  # in place: fresh full-size buffers cost page faults (several ms per frame)
     np.multiply(ixy, ixy, out=ixy)
-    np.subtract(ixy, ixx, out=ixx)
+    np.subtract(ixx, ixy, out=ixx)
+    np.negative(ixx, out=ixx)  # -(a - b), not b - a: the same signed zeros
     ixx *= np.float32(sigma**4)
     return ixx
 

@@ -1442,7 +1442,9 @@ def consistent_boards(found: list[_Board], tol_px: float = 2.0) -> tuple[list[_B
     return kept, dropped
 
 
-CIRCLE_PAD_PX = 48  # the tag pass works on the image circle's bounding box grown by this (samples beyond the rim read black)
+# The tag pass works on the image circle's bounding box grown by this (px): samples up to this far beyond the
+# rim read the black frame as on the whole image (farther ones read NaN; the rays, tag reads and fits reach less far).
+CIRCLE_PAD_PX = 48
 
 
 def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -> TagResult:

@@ -795,7 +795,7 @@ def test_the_pass_on_the_image_circle_finds_what_it_finds_on_the_whole_frame():
     whole = _tag_pass_in(grey, allowed, g, TagConfig())
     assert len(whole.ids) > 20
     np.testing.assert_array_equal(cropped.ids, whole.ids)
-    np.testing.assert_allclose(cropped.xy, whole.xy, atol=2e-3)
+    np.testing.assert_allclose(cropped.xy, whole.xy, atol=1e-3)  # float32 sampling at other coordinates
     assert sorted(cropped.tags.tolist()) == sorted(whole.tags.tolist())
     check_ids(cropped, q, vis)
 
@@ -809,7 +809,6 @@ def test_a_board_whose_corners_all_fail_their_final_fit_gives_an_empty_result(mo
     c = centre(g)
     img, *_ = render(g, "kb4", 200, [c[0] + 0.02, c[1] - 0.03, 0.45], c)
     monkeypatch.setattr(tp, "final_fits", lambda sub, *a, **k: (sub.xy, np.zeros(len(sub.xy), bool)))
-    monkeypatch.setattr(tp.TagConfig, "keep_unfitted_px", 0.0)
-    r = tp.tag_pass(img.astype(np.float32) / 255, g)
+    r = tp.tag_pass(img.astype(np.float32) / 255, g, tp.TagConfig(keep_unfitted_px=0.0))
     assert len(r.tags) > 0  # the board was read
     assert r.ids.shape == (0,) and r.xy.shape == (0, 2)
