@@ -120,6 +120,9 @@ class TagConfig:
     rim_strict_px: float = 8.0  # corners this close to the rim are reported only in a complete lattice cell
     max_side_gap_ratio: float = 2.0  # a corner's tag side / gap on a lattice line may differ from the target's by this factor
     keep_unfitted_px: float = 6.0  # px: shortest lattice step under which a failed final fit keeps the lattice position
+    # --- small frames ---
+    min_side_px: int = 720  # frames whose shorter side is under this are read enlarged to it (bilinear; 0: never) ...
+    max_enlarge: float = 1.5  # ... by at most this factor; the thresholds above that judge a tag's size in px scale with it
     # --- boards ---
     min_corners: int = 4  # smallest lattice that is reported
     grid: GridConfig = field(default_factory=GridConfig)  # saddle fit and final positions (the grid pass's)
@@ -134,6 +137,7 @@ class TagResult:
     hamming: np.ndarray  # (T,) their bit errors
     dropped_tags: int = 0  # tags that decode alone to another place than the board's (not used), and second boards' tags
     foreign_tags: int = 0  # decoded tag36h11 tags that are not on the target (wild tags, other boards)
+    scale: float = 1.0  # the factor the frame was read enlarged by (TagConfig.min_side_px); xy are in the frame's pixels
 
 
 # --------------------------------------------------------------------------------------------
@@ -1452,18 +1456,41 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
 
     The work happens on the bounding box of the fisheye's image circle, grown by
     :data:`CIRCLE_PAD_PX` of the black frame beyond it (a circle 720 px across in a 1280 px wide
-    frame: 64 % of the pixels to filter); a frame without a black border is read whole."""
+    frame: 64 % of the pixels to filter); a frame without a black border is read whole.
+
+    A frame whose shorter side is under ``cfg.min_side_px`` is read enlarged to it (bilinear, by at
+    most ``cfg.max_enlarge``): the pass's smallest fit windows, sampling circles and crossing
+    tests are fixed in pixels, and tags of 8-12 px in a 640x480 frame resolve only enlarged; the
+    thresholds that judge a tag's size in pixels (``small_tag_px``, ``small_gap_px``,
+    ``keep_unfitted_px``, ``rim_strict_px``) scale with the factor, so the identity rules see
+    the tags as they are. Positions are given in the frame's pixels either way."""
+    cfg = cfg or TagConfig()
+    f = enlargement(grey.shape, cfg)
+    if f > 1:
+        big = cv2.resize(grey, None, fx=f, fy=f, interpolation=cv2.INTER_LINEAR)
+        sized = {k: getattr(cfg, k) * f for k in ("small_tag_px", "small_gap_px", "keep_unfitted_px", "rim_strict_px")}
+        r = tag_pass(big, board, replace(cfg, min_side_px=0, **sized))
+        return replace(r, xy=(r.xy + 0.5) / f - 0.5, scale=f)  # pixel centres: x' = (x + 0.5) f - 0.5
     allowed = ~outside_circle(grey)
     allowed[[0, -1], :] = False
     allowed[:, [0, -1]] = False
     ys, xs = np.nonzero(allowed.any(1))[0], np.nonzero(allowed.any(0))[0]
     if not len(ys):
-        return _tag_pass_in(grey, allowed, board, cfg or TagConfig())
+        return _tag_pass_in(grey, allowed, board, cfg)
     H, W = grey.shape
     y0, y1 = max(0, ys[0] - CIRCLE_PAD_PX), min(H, ys[-1] + 1 + CIRCLE_PAD_PX)
     x0, x1 = max(0, xs[0] - CIRCLE_PAD_PX), min(W, xs[-1] + 1 + CIRCLE_PAD_PX)
-    r = _tag_pass_in(grey[y0:y1, x0:x1], allowed[y0:y1, x0:x1], board, cfg or TagConfig())
+    r = _tag_pass_in(grey[y0:y1, x0:x1], allowed[y0:y1, x0:x1], board, cfg)
     return replace(r, xy=r.xy + np.array([x0, y0], np.float64)) if (x0, y0) != (0, 0) else r
+
+
+def enlargement(shape: tuple[int, int], cfg: TagConfig) -> float:
+    """The factor :func:`tag_pass` enlarges a frame of ``shape`` (H, W) by: 1 where its shorter side
+    reaches ``cfg.min_side_px`` (or that is 0), else up to it, at most ``cfg.max_enlarge``."""
+    short = min(shape)
+    if cfg.min_side_px <= 0 or short >= cfg.min_side_px:
+        return 1.0
+    return min(cfg.min_side_px / short, cfg.max_enlarge)
 
 
 def _tag_pass_in(grey: np.ndarray, allowed: np.ndarray, board: AprilGrid, cfg: TagConfig) -> TagResult:

@@ -812,3 +812,26 @@ def test_a_board_whose_corners_all_fail_their_final_fit_gives_an_empty_result(mo
     r = tp.tag_pass(img.astype(np.float32) / 255, g, tp.TagConfig(keep_unfitted_px=0.0))
     assert len(r.tags) > 0  # the board was read
     assert r.ids.shape == (0,) and r.xy.shape == (0, 2)
+
+
+def test_small_frames_are_read_enlarged_with_positions_in_frame_pixels():
+    """A frame whose shorter side is under min_side_px is read enlarged (bilinear, at most
+    max_enlarge): a 640x480 fisheye view of tags 10-11 px across is read at 1.5x, every corner it
+    reports keeps its own id and lies within 0.3 px of its label in the frame's own pixels."""
+    from cotrain.detect.tag_pass import TagConfig, enlargement, tag_pass
+
+    cfg = TagConfig()
+    assert enlargement((480, 640), cfg) == 1.5
+    assert enlargement((512, 512), cfg) == pytest.approx(720 / 512)
+    assert enlargement((720, 1280), cfg) == 1.0 and enlargement((800, 848), cfg) == 1.0
+    assert enlargement((240, 320), cfg) == cfg.max_enlarge  # capped
+    assert enlargement((480, 640), TagConfig(min_side_px=0)) == 1.0
+
+    g = make_target(TargetConfig(kind="aprilgrid", margin=0.3))
+    c = np.array(centre(g))
+    img, q, vis, _ = render(g, "kb4", 200, (c + [0.0, 0.0, 1.1]).tolist(), (c + [0.0, 0.05, 0.0]).tolist(), size=(640, 480))
+    assert np.linalg.norm(q[1] - q[0]) < 12  # small tags
+    r = tag_pass(img.astype(np.float32) / 255, g)
+    assert r.scale == 1.5
+    check_ids(r, q, vis, tol=0.3)
+    assert len(r.ids) >= 0.95 * vis.sum()
