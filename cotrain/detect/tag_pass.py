@@ -1467,21 +1467,20 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
     cfg = cfg or TagConfig()
     f = enlargement(grey.shape, cfg)
     if f > 1:
-        big = cv2.resize(grey, None, fx=f, fy=f, interpolation=cv2.INTER_LINEAR)
-        sized = {k: getattr(cfg, k) * f for k in ("small_tag_px", "small_gap_px", "keep_unfitted_px", "rim_strict_px")}
-        r = tag_pass(big, board, replace(cfg, min_side_px=0, **sized))
-        return replace(r, xy=(r.xy + 0.5) / f - 0.5, scale=f)  # pixel centres: x' = (x + 0.5) f - 0.5
+        grey = cv2.resize(grey, None, fx=f, fy=f, interpolation=cv2.INTER_LINEAR)
+        cfg = replace(cfg, **{k: getattr(cfg, k) * f for k in ("small_tag_px", "small_gap_px", "keep_unfitted_px", "rim_strict_px")})
     allowed = ~outside_circle(grey)
     allowed[[0, -1], :] = False
     allowed[:, [0, -1]] = False
     ys, xs = np.nonzero(allowed.any(1))[0], np.nonzero(allowed.any(0))[0]
-    if not len(ys):
-        return _tag_pass_in(grey, allowed, board, cfg)
     H, W = grey.shape
-    y0, y1 = max(0, ys[0] - CIRCLE_PAD_PX), min(H, ys[-1] + 1 + CIRCLE_PAD_PX)
-    x0, x1 = max(0, xs[0] - CIRCLE_PAD_PX), min(W, xs[-1] + 1 + CIRCLE_PAD_PX)
+    y0, y1 = (max(0, ys[0] - CIRCLE_PAD_PX), min(H, ys[-1] + 1 + CIRCLE_PAD_PX)) if len(ys) else (0, H)
+    x0, x1 = (max(0, xs[0] - CIRCLE_PAD_PX), min(W, xs[-1] + 1 + CIRCLE_PAD_PX)) if len(xs) else (0, W)
     r = _tag_pass_in(grey[y0:y1, x0:x1], allowed[y0:y1, x0:x1], board, cfg)
-    return replace(r, xy=r.xy + np.array([x0, y0], np.float64)) if (x0, y0) != (0, 0) else r
+    xy = r.xy + np.array([x0, y0], np.float64)
+    if f > 1:
+        xy = (xy + 0.5) / f - 0.5  # pixel centres: x' = (x + 0.5) f - 0.5
+    return replace(r, xy=xy, scale=f)
 
 
 def enlargement(shape: tuple[int, int], cfg: TagConfig) -> float:
