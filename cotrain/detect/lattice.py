@@ -73,6 +73,35 @@ def values_at(img: np.ndarray, pts: np.ndarray) -> np.ndarray:
     return v.reshape(-1)[:n].reshape(pts.shape[:-1])
 
 
+RAY_SAMPLES = 48  # samples on the circle around a candidate that finds its four edge rays
+RAY_RADIUS_PX = (1.5, 8.0)  # the circle's radius is kept within these (px): enough samples per edge, inside the X
+
+
+def corner_rays(img: np.ndarray, xy: np.ndarray, radius: np.ndarray) -> np.ndarray:
+    """The four edge rays of X-junctions xy (K, 2) in ``img`` (H, W, lightly smoothed): where the
+    intensity on a circle of ``radius`` (K,) px (kept within :data:`RAY_RADIUS_PX`) around each crosses the level halfway between its
+    dark and light samples (10th and 90th percentiles), in order of angle (x right, y down). The
+    rays need not be opposite pairs: perspective and the fisheye shear a tag corner. Returns
+    (K, 4, 2) unit vectors, NaN where the circle does not cross that level exactly four times (not
+    an X-junction at this scale)."""
+    K = len(xy)
+    ang = np.arange(RAY_SAMPLES) * (2 * np.pi / RAY_SAMPLES)
+    ring = np.stack([np.cos(ang), np.sin(ang)], 1)  # (n, 2)
+    radius = np.clip(radius, *RAY_RADIUS_PX)
+    vals = values_at(img, xy[:, None] + radius[:, None, None] * ring[None])  # (K, n)
+    lo, hi = np.percentile(np.where(np.isfinite(vals), vals, 0.0), [10, 90], axis=1)  # rows with NaN are dropped below
+    d = vals - ((lo + hi) / 2)[:, None]  # the level halfway between dark and light (not the mean: sectors differ in width)
+    nxt = np.roll(d, -1, 1)
+    cross = (d > 0) != (nxt > 0)
+    out = np.full((K, 4, 2), np.nan)
+    good = np.nonzero((cross.sum(1) == 4) & np.isfinite(vals).all(1))[0]
+    i = np.nonzero(cross[good])[1].reshape(-1, 4)  # each good row's four crossings, in order of angle
+    dk, nk = np.take_along_axis(d[good], i, 1), np.take_along_axis(nxt[good], i, 1)
+    a = (i + dk / (dk - nk)) * (2 * np.pi / RAY_SAMPLES)  # linear zero crossing between samples i and i + 1
+    out[good] = np.stack([np.cos(a), np.sin(a)], -1)
+    return out
+
+
 def _diag_contrast(img: np.ndarray, p: np.ndarray, ea: np.ndarray, eb: np.ndarray, offset: float) -> float:
     """Brightness of the (+a, -b) / (-a, +b) quadrants minus the (+a, +b) / (-a, -b) ones around
     corner ``p`` (2,) (steps ``ea``, ``eb`` (2,), sampled ``offset`` of the way along the

@@ -58,8 +58,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from cotrain.detect.grid_config import GridConfig
-from cotrain.detect.lattice import STEPS, Lattice, beside_points, final_fits, shortest_steps, values_at
+from cotrain.detect.lattice import STEPS, Lattice, beside_points, corner_rays, final_fits, shortest_steps, values_at
 from cotrain.detect.saddle import fit_saddles, outside_circle, saddle_response, smooth_cached, window_half
+from cotrain.detect.tag_completion import CompletionConfig, complete_board
 from cotrain.targets.aprilgrid import BORDER_BITS, CELLS, DATA_BITS, N_CODES, AprilGrid, printed_bits
 
 
@@ -125,6 +126,7 @@ class TagConfig:
     max_enlarge: float = 1.5  # ... by at most this factor; the thresholds above that judge a tag's size in px scale with it
     # --- boards ---
     min_corners: int = 4  # smallest lattice that is reported
+    complete: CompletionConfig = field(default_factory=CompletionConfig)  # corners the growth missed, predicted from the placed board
     grid: GridConfig = field(default_factory=GridConfig)  # saddle fit and final positions (the grid pass's)
 
 
@@ -198,35 +200,6 @@ def cell_dark(a: int, b: int) -> bool:
     """Whether lattice cell (a, b) (corners a .. a+1, b .. b+1) is dark: a tag (both even) or a gap
     crossing square (both odd)."""
     return (a + b) % 2 == 0
-
-
-RAY_SAMPLES = 48  # samples on the circle around a candidate that finds its four edge rays
-RAY_RADIUS_PX = (1.5, 8.0)  # the circle's radius is kept within these (px): enough samples per edge, inside the X
-
-
-def corner_rays(img: np.ndarray, xy: np.ndarray, radius: np.ndarray) -> np.ndarray:
-    """The four edge rays of X-junctions xy (K, 2) in ``img`` (H, W, lightly smoothed): where the
-    intensity on a circle of ``radius`` (K,) px (kept within :data:`RAY_RADIUS_PX`) around each crosses the level halfway between its
-    dark and light samples (10th and 90th percentiles), in order of angle (x right, y down). The
-    rays need not be opposite pairs: perspective and the fisheye shear a tag corner. Returns
-    (K, 4, 2) unit vectors, NaN where the circle does not cross that level exactly four times (not
-    an X-junction at this scale)."""
-    K = len(xy)
-    ang = np.arange(RAY_SAMPLES) * (2 * np.pi / RAY_SAMPLES)
-    ring = np.stack([np.cos(ang), np.sin(ang)], 1)  # (n, 2)
-    radius = np.clip(radius, *RAY_RADIUS_PX)
-    vals = values_at(img, xy[:, None] + radius[:, None, None] * ring[None])  # (K, n)
-    lo, hi = np.percentile(np.where(np.isfinite(vals), vals, 0.0), [10, 90], axis=1)  # rows with NaN are dropped below
-    d = vals - ((lo + hi) / 2)[:, None]  # the level halfway between dark and light (not the mean: sectors differ in width)
-    nxt = np.roll(d, -1, 1)
-    cross = (d > 0) != (nxt > 0)
-    out = np.full((K, 4, 2), np.nan)
-    good = np.nonzero((cross.sum(1) == 4) & np.isfinite(vals).all(1))[0]
-    i = np.nonzero(cross[good])[1].reshape(-1, 4)  # each good row's four crossings, in order of angle
-    dk, nk = np.take_along_axis(d[good], i, 1), np.take_along_axis(nxt[good], i, 1)
-    a = (i + dk / (dk - nk)) * (2 * np.pi / RAY_SAMPLES)  # linear zero crossing between samples i and i + 1
-    out[good] = np.stack([np.cos(a), np.sin(a)], -1)
-    return out
 
 
 class RayNeighbours(NamedTuple):
@@ -1581,12 +1554,18 @@ def _tag_pass_in(grey: np.ndarray, allowed: np.ndarray, board: AprilGrid, cfg: T
             if c.tag not in tags:
                 tags.append(c.tag)
                 ham.append(c.hamming)
-    ids_a = np.array(ids, int)
+    ids_a, xy_a, conf_a = np.array(ids, int), np.array(xy_out).reshape(-1, 2), np.array(conf)
+    if cfg.complete.rounds:
+        # Corners the growth missed, predicted from the identified ones and checked against the
+        # print; their confidence is that check's correlation.
+        given = dict(zip(ids, conf))
+        ids_a, xy_a, corr = complete_board(grey, smoothed, rim_dist, xy, board, ids_a, xy_a, cfg.complete, cfg.grid)
+        conf_a = np.array([given.get(i, c) for i, c in zip(ids_a.tolist(), corr.tolist())])
     order = np.argsort(ids_a)
     return TagResult(
         ids_a[order],
-        np.array(xy_out).reshape(-1, 2)[order],
-        np.array(conf)[order],
+        xy_a[order],
+        conf_a[order],
         np.array(tags, int),
         np.array(ham, int),
         len(dropped),

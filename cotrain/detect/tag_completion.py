@@ -1,0 +1,244 @@
+"""Completion of a placed AprilGrid: the corners the lattice growth did not reach.
+
+Once the tag pass (:mod:`cotrain.detect.tag_pass`) has identified a board's corners, every other
+corner of the board has a known place on the page. Round by round, each corner beside an
+identified one (a grid step away) is
+
+1. predicted through a homography fitted to the identified corners nearest to it on the board
+   (:func:`local_homography`; a few tags across, so the fisheye's bend is small), which must fit
+   them within ``max_residual`` of the local gap;
+2. found: a saddle fitted at the prediction, or, where that fails or lands too far, the tag pass's
+   candidates within ``search`` of the local gap (a growth stopped where the prediction from the
+   lattice's last steps missed by more than its reach; here every identified corner around
+   predicts);
+3. verified against the print (:func:`print_correlation`): the image around the corner, sampled
+   through the homography moved onto it, must correlate with the board's printed pattern around
+   that corner (tag border, crossing square, the tag's own data cells) by ``min_corr``, and better
+   by ``min_corr_margin`` than with the pattern around each of its eight grid neighbours: a saddle
+   of the crossing square's other corner or of a data junction matches another pattern.
+
+Corners added in a round predict in the next one. Pure functions over numpy arrays; pixels follow
+docs/conventions.md.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass, replace
+from typing import NamedTuple
+
+import cv2
+import numpy as np
+from scipy.spatial import cKDTree
+
+from cotrain.detect.grid_config import GridConfig
+from cotrain.detect.lattice import corner_rays, values_at
+from cotrain.detect.saddle import fit_saddles, smooth_cached, window_half
+from cotrain.targets.aprilgrid import AprilGrid
+
+
+@dataclass
+class CompletionConfig:
+    rounds: int = 8  # rounds of prediction; 0: no completion
+    neighbours: int = 7  # identified corners nearest on the board that a prediction's homography is fitted to
+    max_residual: float = 0.5  # ... which must fit them within this fraction of the local gap
+    min_gap_px: float = 1.6  # no prediction where the local gap (crossing square's side) is narrower (px)
+    min_rim_px: float = 3.0  # ... or nearer to the image circle's rim (px); and no corner found nearer
+    reach: float = 0.3  # a saddle fitted at the prediction counts within this fraction of the local gap ...
+    search: float = 0.6  # ... else candidates within this fraction of it are tried
+    min_symmetry: float = 0.5  # point symmetry of that saddle fit (as the candidates'; the print check follows)
+    crowd: float = 0.5  # a corner this close to an identified one (fraction of the local gap) is refused
+    patch: float = 0.45  # half-size of the patch compared with the print, in tag sizes
+    patch_samples: int = 11  # samples across it
+    min_corr: float = 0.5  # correlation of the image with the print around the corner ...
+    min_corr_margin: float = 0.1  # ... better by this than with the print around each grid neighbour
+    ray_radius: float = 0.5  # a corner's edge rays are read on a circle of this fraction of the local gap ...
+    max_ray_angle: float = 30.0  # ... and the board's axes must leave along them within this (deg) ...
+    sure_corr: float = 0.7  # ... unless the print correlation reaches this
+
+
+@functools.lru_cache(maxsize=8)
+def _print_patches(tag_cols: int, tag_rows: int, tag_size: float, tag_spacing: float, half: float, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Offsets U (n^2, 2) in metres over a square of half-size ``half`` tag sizes, and the printed
+    intensity (N, n^2) around every corner of the board at them."""
+    import torch
+
+    from cotrain.targets import TargetConfig
+
+    board = AprilGrid(TargetConfig(kind="aprilgrid", tag_cols=tag_cols, tag_rows=tag_rows, tag_size=tag_size, tag_spacing=tag_spacing))
+    g = np.linspace(-half, half, n) * tag_size
+    U = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    P = board.points().numpy()[:, :2]
+    v = board.intensity(torch.from_numpy(P[:, None] + U[None]))[0].numpy()
+    return U, v
+
+
+def print_patches(board: AprilGrid, cfg: CompletionConfig) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_print_patches` for ``board``: offsets U (M, 2) metres, intensities (N, M)."""
+    c = board.cfg
+    return _print_patches(c.tag_cols, c.tag_rows, float(c.tag_size), float(c.tag_spacing), cfg.patch, cfg.patch_samples)
+
+
+def _project(H: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Homography H (3, 3) applied to points p (..., 2); NaN behind its horizon."""
+    h = p @ H[:, :2].T + H[:, 2]
+    w = h[..., 2:]
+    return np.where(w > 1e-12, h[..., :2] / np.where(w > 1e-12, w, 1.0), np.nan)
+
+
+def _value(img: np.ndarray, q: np.ndarray) -> float:
+    """img (H, W) at the pixel nearest q (2,), clipped to the image."""
+    H, W = img.shape
+    return float(img[min(max(int(round(q[1])), 0), H - 1), min(max(int(round(q[0])), 0), W - 1)])
+
+
+def local_homography(P: np.ndarray, q: np.ndarray) -> np.ndarray | None:
+    """Least-squares homography (3, 3) from board points P (K, 2) (metres) to pixels q (K, 2); None
+    where the points do not span both board axes."""
+    if len(P) < 4 or np.ptp(P[:, 0]) <= 0 or np.ptp(P[:, 1]) <= 0:
+        return None
+    H, _ = cv2.findHomography(P, q, 0)
+    if H is None:
+        return None
+    return H if (P.mean(0) @ H[2, :2] + H[2, 2]) > 0 else -H  # points in front: positive scale
+
+
+class PrintMatch(NamedTuple):
+    """How the image around a corner matches the print (:func:`print_correlation`)."""
+
+    corr: float  # correlation with the print around the corner
+    other: float  # the best correlation with the print around any of its eight grid neighbours
+
+
+def print_correlation(
+    sm: np.ndarray, rim_dist: np.ndarray, board: AprilGrid, H: np.ndarray, shift: np.ndarray, t: int, cfg: CompletionConfig
+) -> PrintMatch:
+    """The image ``sm`` (H, W) around corner ``t`` against the print there, sampled through
+    homography H (board metres -> pixels) moved by ``shift`` (2,) px over the patch of
+    :func:`print_patches` (see :class:`PrintMatch`). (-1, 1) where fewer than a fifth of the
+    samples lie inside the image circle (``rim_dist`` (H, W) over 1.5 px)."""
+    U, printed = print_patches(board, cfg)
+    P = board.points().numpy()[:, :2]
+    q = _project(H, P[t] + U) + shift
+    inside = np.isfinite(q).all(1)
+    inside[inside] = values_at(rim_dist, q[inside]) > 1.5  # NaN outside the image
+    if inside.sum() < len(U) / 5:
+        return PrintMatch(-1.0, 1.0)
+    seen = values_at(sm, q[inside]).astype(np.float64)
+    seen -= seen.mean()
+    c0, r0 = t % board.nx, t // board.nx
+    beside = [(c0 + a, r0 + b) for b in (-1, 0, 1) for a in (-1, 0, 1) if a or b]
+    others = [r * board.nx + c for c, r in beside if 0 <= c < board.nx and 0 <= r < board.ny]
+    pat = printed[[t, *others]][:, inside]  # (1 + n, m)
+    pat = pat - pat.mean(1, keepdims=True)
+    den = np.sqrt((pat * pat).sum(1) * (seen @ seen))
+    corr = np.where(den > 1e-12, pat @ seen / np.maximum(den, 1e-12), -1.0)
+    return PrintMatch(float(corr[0]), float(corr[1:].max()) if others else -1.0)
+
+
+def rays_along(sm: np.ndarray, q: np.ndarray, H: np.ndarray, p: np.ndarray, gap: float, gap_px: float, cfg: CompletionConfig) -> bool:
+    """Whether the X-junction at q (2,) in ``sm`` has four edge rays (read on a circle of
+    ``cfg.ray_radius`` of the local gap ``gap_px``) and each of the board's four axis directions
+    at board point p (2,) (through homography H; ``gap`` metres long) leaves along one of them
+    within ``cfg.max_ray_angle``: a corner half under an occluder or cut by a glare spot has an
+    edge of that instead."""
+    rays = corner_rays(sm, q[None], np.array([cfg.ray_radius * gap_px]))[0]  # (4, 2)
+    if np.isnan(rays).any():
+        return False
+    d = np.stack([_project(H, p + s) - _project(H, p) for s in ([gap, 0], [0, gap], [-gap, 0], [0, -gap])])
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return bool((d @ rays.T).max(1).min() >= np.cos(np.radians(cfg.max_ray_angle)))
+
+
+def complete_board(
+    grey: np.ndarray,
+    smoothed: dict[int, np.ndarray],
+    rim_dist: np.ndarray,
+    candidates: np.ndarray,
+    board: AprilGrid,
+    ids: np.ndarray,
+    xy: np.ndarray,
+    cfg: CompletionConfig,
+    grid: GridConfig,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Add the board's corners that its identified corners predict (see the module's docstring).
+
+    Args:
+        grey: (H, W) float32 image; smoothed: its blur cache (:func:`smooth_cached`); rim_dist: (H, W)
+            distance to the image circle's rim; candidates: (C, 2) the tag pass's fitted saddles.
+        ids: (K,) identified corner ids with positions xy (K, 2).
+    Returns:
+        ids (K',), xy (K', 2), and the print correlation (K',) of the added corners (NaN for the
+        corners given), sorted by id.
+    """
+    P = board.points().numpy()[:, :2]
+    gap = board.cfg.tag_spacing * board.cfg.tag_size
+    known = {int(i): np.asarray(p, np.float64) for i, p in zip(ids, xy)}
+    score = {int(i): np.nan for i in ids}
+    failed: dict[int, int] = {}  # corner -> identified neighbours when it failed: tried again when it has more
+    sm = smooth_cached(smoothed, grey, 1)
+    fit_cfg = replace(grid, min_symmetry=cfg.min_symmetry)
+    tree = cKDTree(candidates) if len(candidates) else None
+    Hh, Ww = grey.shape
+    nx = board.nx
+    for _ in range(cfg.rounds if len(known) >= 4 else 0):
+        kid = np.array(sorted(known))
+        kP, kq = P[kid], np.array([known[i] for i in kid])
+        have = {(i % nx, i // nx) for i in known}
+        todo = []  # (t, prediction, local gap px, homography, identified neighbours)
+        for t in range(board.n_corners):
+            if t in known:
+                continue
+            c, r = t % nx, t // nx
+            beside = sum((c + a, r + b) in have for a, b in ((1, 0), (-1, 0), (0, 1), (0, -1)))
+            if not beside or failed.get(t, 0) >= beside:
+                continue
+            near = np.argsort(np.linalg.norm(kP - P[t], axis=1))[: cfg.neighbours]
+            H = local_homography(kP[near], kq[near])
+            if H is None:
+                failed[t] = beside
+                continue
+            q0 = _project(H, P[t])
+            g_px = min(np.linalg.norm(_project(H, P[t] + [gap, 0]) - q0), np.linalg.norm(_project(H, P[t] + [0, gap]) - q0))
+            res = np.linalg.norm(_project(H, kP[near]) - kq[near], axis=1).max()
+            if (
+                not np.isfinite(g_px)
+                or g_px < cfg.min_gap_px
+                or res > cfg.max_residual * g_px
+                or not (0 <= q0[0] <= Ww - 1 and 0 <= q0[1] <= Hh - 1)
+                or _value(rim_dist, q0) < cfg.min_rim_px
+            ):
+                failed[t] = beside
+                continue
+            todo.append((t, q0, g_px, H, beside))
+        if not todo:
+            break
+        added = 0
+        halves = np.array([window_half(x[2]) for x in todo])
+        for h in np.unique(halves):
+            sel = np.nonzero(halves == h)[0]
+            fitted, ok, _ = fit_saddles(grey, smoothed, np.array([todo[k][1] for k in sel]), int(h), fit_cfg, rim_dist)
+            for k, q_fit, ok_k in zip(sel, fitted, ok):
+                t, q0, g_px, H, beside = todo[k]
+                options = [q_fit] if ok_k and np.linalg.norm(q_fit - q0) < cfg.reach * g_px else []
+                if tree is not None and not options:
+                    options = [candidates[j] for j in tree.query_ball_point(q0, cfg.search * g_px)]
+                allq = np.array(list(known.values()))
+                best, best_corr = None, -np.inf
+                for q in options:
+                    if np.linalg.norm(allq - q, axis=1).min() < cfg.crowd * g_px or _value(rim_dist, q) < cfg.min_rim_px:
+                        continue
+                    m = print_correlation(sm, rim_dist, board, H, q - q0, t, cfg)
+                    if m.corr < cfg.sure_corr and not rays_along(sm, q, H, P[t], gap, g_px, cfg):
+                        continue
+                    if m.corr >= max(cfg.min_corr, best_corr) and m.corr - m.other >= cfg.min_corr_margin:
+                        best, best_corr = q, m.corr
+                if best is None:
+                    failed[t] = beside
+                    continue
+                known[t], score[t] = np.asarray(best, np.float64), best_corr
+                added += 1
+        if not added:
+            break
+    out = np.array(sorted(known), int)
+    return out, np.array([known[i] for i in out]).reshape(-1, 2), np.array([score[i] for i in out])

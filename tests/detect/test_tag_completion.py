@@ -1,0 +1,141 @@
+"""Completion of a placed AprilGrid (cotrain.detect.tag_completion): local homographies, the check
+against the print, and corners recovered from a few identified ones."""
+
+import cv2
+import numpy as np
+import torch
+
+from cotrain.detect.grid_config import GridConfig
+from cotrain.detect.saddle import outside_circle
+from cotrain.detect.tag_completion import CompletionConfig, complete_board, local_homography, print_correlation
+from cotrain.detect.tag_pass import TagConfig, tag_candidates, tag_pass
+from cotrain.targets import TargetConfig, make_target
+from tests.detect.test_tag_pass import centre, render
+
+
+def test_local_homography_recovers_a_known_map_and_refuses_a_line():
+    rng = np.random.default_rng(0)
+    H = np.array([[900.0, 40.0, 300.0], [-30.0, 850.0, 200.0], [0.2, -0.1, 1.0]])
+    P = rng.uniform(0, 0.3, (8, 2))
+    h = np.c_[P, np.ones(8)] @ H.T
+    q = h[:, :2] / h[:, 2:]
+    H_fit = local_homography(P, q)
+    assert np.allclose(H_fit / H_fit[2, 2], H / H[2, 2], rtol=1e-5)
+    other = rng.uniform(-0.1, 0.4, (20, 2))  # extrapolated too
+    h1, h2 = np.c_[other, np.ones(20)] @ H.T, np.c_[other, np.ones(20)] @ H_fit.T
+    assert np.abs(h1[:, :2] / h1[:, 2:] - h2[:, :2] / h2[:, 2:]).max() < 1e-3
+    line = np.stack([np.linspace(0, 0.3, 6), np.full(6, 0.1)], 1)
+    assert local_homography(line, q[:6]) is None
+
+
+def flat_view(board, H, size=(900, 700), blur=0.7):
+    """The print seen through homography H (board metres -> pixels), point-sampled per pixel (no
+    renderer involved), slightly blurred: float32 image in [0.1, 0.8]."""
+    w, h = size
+    Hinv = np.linalg.inv(H)
+    pix = np.stack(np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64)), -1).reshape(-1, 2)
+    b = np.c_[pix, np.ones(len(pix))] @ Hinv.T
+    xy = b[:, :2] / b[:, 2:]
+    v = board.intensity(torch.from_numpy(xy))[0].numpy().reshape(h, w).astype(np.float32)
+    return cv2.GaussianBlur(0.1 + 0.7 * v, (0, 0), blur)
+
+
+def test_print_correlation_is_highest_for_the_corners_own_pattern():
+    """Through the true homography every inner corner matches its own print far better than any
+    grid neighbour's; moved by a gap onto the crossing square's next corner, the neighbour wins."""
+    g = make_target(TargetConfig(kind="aprilgrid"))
+    H = np.array([[1000.0, 60.0, 120.0], [-40.0, -1000.0, 640.0], [0.15, 0.1, 1.0]])
+    sm = flat_view(g, H)
+    rim = np.full(sm.shape, 100.0, np.float32)
+    cfg = CompletionConfig()
+    P = g.points().numpy()[:, :2]
+    for t in (26, 27, 38, 39, 64, 77, 90, 101):
+        corr, other = print_correlation(sm, rim, g, H, np.zeros(2), t, cfg)
+        assert corr > 0.85 and corr - other > 0.2, (t, corr, other)
+    # Corner 27 (page column 3, row 2) and 28 (column 4) are the two sides of a crossing square.
+    h = np.c_[P[[27, 28]], np.ones(2)] @ H.T
+    q = h[:, :2] / h[:, 2:]
+    corr, other = print_correlation(sm, rim, g, H, q[1] - q[0], 27, cfg)
+    assert other > corr + 0.3
+
+
+def _anchor(g, block: list[int]) -> np.ndarray:
+    """The corner ids of the tags in ``block``."""
+    return np.unique(g.tag_corners(np.array(block)).ravel())
+
+
+def test_complete_board_recovers_a_rim_view_from_four_tags():
+    """A board seen 60-95 deg off-axis through a 200-degree Kannala-Brandt lens; given only the
+    four tags of a 2 x 2 block at their labels, completion finds most other visible corners, each
+    at its own label, and nothing outside the view."""
+    g = make_target(TargetConfig(kind="aprilgrid", margin=0.3))
+    c = np.array(centre(g))
+    img, q, vis, angle = render(g, "kb4", 200, (c + [0.0, 0.0, 0.28]).tolist(), (c + [-0.5, 0.05, 0.0]).tolist())
+    grey = img.astype(np.float32) / 255
+    allowed = ~outside_circle(grey)
+    rim = cv2.distanceTransform(allowed.astype(np.uint8), cv2.DIST_L2, 3)
+    smoothed: dict[int, np.ndarray] = {}
+    cand, _ = tag_candidates(grey, allowed, TagConfig(), smoothed, rim)
+    given = _anchor(g, [14, 15, 20, 21])
+    assert vis[given].all()
+    ids, xy, corr = complete_board(grey, smoothed, rim, cand, g, given, q[given], CompletionConfig(), GridConfig())
+    added = ~np.isin(ids, given)
+    assert vis[ids].all()
+    err = np.linalg.norm(xy - q[ids], axis=1)
+    assert err[added].max() < 0.5, f"corner {ids[added][err[added].argmax()]} is {err[added].max():.2f} px off"
+    assert np.isnan(corr[~added]).all() and (corr[added] >= CompletionConfig().min_corr).all()
+    found = np.isin(np.nonzero(vis)[0], ids).mean()
+    assert found > 0.8, f"{found:.2f} of the visible corners"
+    assert np.isin(np.nonzero(vis & (angle > 80))[0], ids).mean() > 0.6
+
+
+def test_complete_board_adds_nothing_where_the_board_is_covered():
+    """A flat view (point-sampled print, no renderer) with half the board under a grey sheet:
+    corners under it are not added, those in view are, and none are off their labels."""
+    g = make_target(TargetConfig(kind="aprilgrid"))
+    H = np.array([[1000.0, 60.0, 120.0], [-40.0, -1000.0, 640.0], [0.15, 0.1, 1.0]])
+    grey = flat_view(g, H)
+    P = g.points().numpy()[:, :2]
+    h = np.c_[P, np.ones(len(P))] @ H.T
+    q = h[:, :2] / h[:, 2:]
+    x_cut = np.median(q[:, 0])
+    grey[:, int(x_cut) :] = 0.5  # the sheet
+    rim = np.full(grey.shape, 100.0, np.float32)
+    smoothed: dict[int, np.ndarray] = {}
+    cand, _ = tag_candidates(grey, np.ones(grey.shape, bool), TagConfig(), smoothed, rim)
+    given = _anchor(g, [0, 1, 6, 7])
+    ids, xy, _ = complete_board(grey, smoothed, rim, cand, g, given, q[given], CompletionConfig(), GridConfig())
+    in_view = q[:, 0] < x_cut - 8
+    assert np.isin(np.nonzero(in_view)[0], ids).mean() > 0.9
+    assert (q[ids, 0] < x_cut + 1).all(), "a corner under the sheet was added"
+    err = np.linalg.norm(xy - q[ids], axis=1)
+    assert err.max() < 1.0 and err[in_view[ids]].max() < 0.4  # beside the sheet's edge the junction is cut
+
+
+def test_no_rounds_means_no_completion():
+    g = make_target(TargetConfig(kind="aprilgrid"))
+    H = np.array([[1000.0, 60.0, 120.0], [-40.0, -1000.0, 640.0], [0.15, 0.1, 1.0]])
+    grey = flat_view(g, H)
+    P = g.points().numpy()[:, :2]
+    h = np.c_[P, np.ones(len(P))] @ H.T
+    q = h[:, :2] / h[:, 2:]
+    given = _anchor(g, [0, 1, 6, 7])
+    rim = np.full(grey.shape, 100.0, np.float32)
+    ids, xy, _ = complete_board(grey, {}, rim, np.zeros((0, 2)), g, given, q[given], CompletionConfig(rounds=0), GridConfig())
+    assert np.array_equal(ids, np.sort(given)) and np.allclose(xy, q[np.sort(given)])
+
+
+def test_the_tag_pass_completes_rim_views():
+    """Two 220-degree views (Double Sphere, UCM), the board up to 109 deg off-axis: the tag pass
+    with completion reports every corner it reports without and the few the growth missed, all
+    at their own labels."""
+    g = make_target(TargetConfig(kind="aprilgrid", margin=0.3))
+    c = np.array(centre(g))
+    for model, z in (("ds", 0.28), ("ucm", 0.2)):
+        img, q, vis, _ = render(g, model, 220, (c + [0.0, 0.0, z]).tolist(), (c + [-0.6, 0.4, 0.0]).tolist())
+        grey = img.astype(np.float32) / 255
+        grown = tag_pass(grey, g, TagConfig(complete=CompletionConfig(rounds=0)))
+        full = tag_pass(grey, g, TagConfig())
+        assert set(grown.ids.tolist()) < set(full.ids.tolist())
+        assert vis[full.ids].all() and np.isin(np.nonzero(vis)[0], full.ids).mean() > 0.98
+        assert np.linalg.norm(full.xy - q[full.ids], axis=1).max() < 0.5
