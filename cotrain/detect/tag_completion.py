@@ -5,25 +5,27 @@ corner of the board has a known place on the page. Round by round, each corner b
 identified one (a grid step away) is
 
 1. predicted through a homography fitted to the identified corners nearest to it on the board
-   (:func:`local_homography`; a few tags across, so the fisheye's bend is small), which must fit
-   them within ``max_residual`` of the local gap;
+   (:func:`local_homography`; two tags across or so, where the fisheye bends little), which must
+   fit them within ``max_residual`` of the local gap;
 2. found: a saddle fitted at the prediction, or, where that fails or lands too far, the tag pass's
-   candidates within ``search`` of the local gap (a growth stopped where the prediction from the
-   lattice's last steps missed by more than its reach; here every identified corner around
+   candidates within ``search`` of the local gap (the growth stops where the prediction from a
+   lattice's last steps misses by more than its reach; here every identified corner around
    predicts);
 3. verified against the print (:func:`print_correlation`): the image around the corner, sampled
    through the homography moved onto it, must correlate with the board's printed pattern around
-   that corner (tag border, crossing square, the tag's own data cells) by ``min_corr``, and better
-   by ``min_corr_margin`` than with the pattern around each of its eight grid neighbours: a saddle
-   of the crossing square's other corner or of a data junction matches another pattern.
+   that corner (tag border, crossing square, the tags' data cells) by ``min_corr``, and better by
+   ``min_corr_margin`` than with the pattern around each of its eight grid neighbours: a saddle at
+   the crossing square's other corner or at a data junction matches another pattern. Under
+   ``sure_corr`` its four edge rays must also follow the board's axes (:func:`rays_along`): a
+   corner half under an occluder has the occluder's edge for one of them.
 
-Corners added in a round predict in the next one. Pure functions over numpy arrays; pixels follow
-docs/conventions.md.
+Corners added in a round predict in the next one; a corner that failed is tried again once more
+of its neighbours are identified. The corners added are fitted once more in the tag pass's small
+final window. Pure functions over numpy arrays; pixels follow docs/conventions.md.
 """
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass, replace
 from typing import NamedTuple
 
@@ -57,26 +59,23 @@ class CompletionConfig:
     sure_corr: float = 0.7  # ... unless the print correlation reaches this
 
 
-@functools.lru_cache(maxsize=8)
-def _print_patches(tag_cols: int, tag_rows: int, tag_size: float, tag_spacing: float, half: float, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Offsets U (n^2, 2) in metres over a square of half-size ``half`` tag sizes, and the printed
-    intensity (N, n^2) around every corner of the board at them."""
-    import torch
-
-    from cotrain.targets import TargetConfig
-
-    board = AprilGrid(TargetConfig(kind="aprilgrid", tag_cols=tag_cols, tag_rows=tag_rows, tag_size=tag_size, tag_spacing=tag_spacing))
-    g = np.linspace(-half, half, n) * tag_size
-    U = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
-    P = board.points().numpy()[:, :2]
-    v = board.intensity(torch.from_numpy(P[:, None] + U[None]))[0].numpy()
-    return U, v
+_PATCHES: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}  # print_patches' results per board and patch
 
 
 def print_patches(board: AprilGrid, cfg: CompletionConfig) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_print_patches` for ``board``: offsets U (M, 2) metres, intensities (N, M)."""
+    """Offsets U (M, 2) in metres over a square of half-size ``cfg.patch`` tag sizes
+    (``cfg.patch_samples`` across), and the board's printed intensity (N, M) around every one of
+    its N corners at them (point samples: 0 black, 1 white). Kept per board and patch."""
     c = board.cfg
-    return _print_patches(c.tag_cols, c.tag_rows, float(c.tag_size), float(c.tag_spacing), cfg.patch, cfg.patch_samples)
+    key = (c.tag_cols, c.tag_rows, c.tag_size, c.tag_spacing, board.printed.tobytes(), cfg.patch, cfg.patch_samples)
+    if key not in _PATCHES:
+        import torch
+
+        g = np.linspace(-cfg.patch, cfg.patch, cfg.patch_samples) * board.cfg.tag_size
+        U = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+        P = board.points().numpy()[:, :2]
+        _PATCHES[key] = U, board.intensity(torch.from_numpy(P[:, None] + U[None]))[0].numpy()
+    return _PATCHES[key]
 
 
 def _project(H: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -175,6 +174,7 @@ def complete_board(
     gap = board.cfg.tag_spacing * board.cfg.tag_size
     known = {int(i): np.asarray(p, np.float64) for i, p in zip(ids, xy)}
     score = {int(i): np.nan for i in ids}
+    gaps: dict[int, float] = {}  # added corner -> its local gap (px)
     failed: dict[int, int] = {}  # corner -> identified neighbours when it failed: tried again when it has more
     sm = smooth_cached(smoothed, grey, 1)
     fit_cfg = replace(grid, min_symmetry=cfg.min_symmetry)
@@ -236,9 +236,23 @@ def complete_board(
                 if best is None:
                     failed[t] = beside
                     continue
-                known[t], score[t] = np.asarray(best, np.float64), best_corr
+                known[t], score[t], gaps[t] = np.asarray(best, np.float64), best_corr, g_px
                 added += 1
         if not added:
             break
+    if gaps:
+        # Final positions as the tag pass's (lattice.final_fits): fitted once more in a small
+        # window; where that fails the corner keeps the position it was found at.
+        add = np.array(sorted(gaps))
+        g = np.array([gaps[t] for t in add])
+        halves = window_half(g, grid.final_max_half)
+        for h in np.unique(halves):
+            sel = np.nonzero(halves == h)[0]
+            q_old = np.array([known[t] for t in add[sel]])
+            q, ok, _ = fit_saddles(grey, smoothed, q_old, int(h), grid, rim_dist)
+            good = ok & (np.linalg.norm(q - q_old, axis=1) < grid.max_final_shift * g[sel])
+            for k, t in enumerate(add[sel]):
+                if good[k]:
+                    known[t] = q[k]
     out = np.array(sorted(known), int)
     return out, np.array([known[i] for i in out]).reshape(-1, 2), np.array([score[i] for i in out])
