@@ -6,11 +6,12 @@ identified one (a grid step away) is
 
 1. predicted through a homography fitted to the identified corners nearest to it on the board
    (:func:`local_homography`; two tags across or so, where the fisheye bends little), which must
-   fit them within ``max_residual`` of the local gap;
-2. found: a saddle fitted at the prediction, or, where that fails or lands too far, the tag pass's
-   candidates within ``search`` of the local gap (the growth stops where the prediction from a
-   lattice's last steps misses by more than its reach; here every identified corner around
-   predicts);
+   fit them within ``max_residual`` of the local gap (with only four identified corners the fit
+   is exact and the print check below carries the decision);
+2. found: a saddle fitted at the prediction (within ``reach`` of the local gap), or, only where
+   that fit fails or lands farther, the best of the tag pass's candidates within ``search`` of it
+   (the growth stops where the prediction from a lattice's last steps misses by more than its
+   reach; here every identified corner around predicts);
 3. verified against the print (:func:`print_correlation`): the image around the corner, sampled
    through the homography moved onto it, must correlate with the board's printed pattern around
    that corner (tag border, crossing square, the tags' data cells) by ``min_corr``, and better by
@@ -21,7 +22,8 @@ identified one (a grid step away) is
 
 Corners added in a round predict in the next one; a corner that failed is tried again once more
 of its neighbours are identified. The corners added are fitted once more in the tag pass's small
-final window. Pure functions over numpy arrays; pixels follow docs/conventions.md.
+final window. Functions over numpy arrays (the print patches are kept per board); pixels follow
+docs/conventions.md. The pixel thresholds are not scaled when the tag pass enlarges a small frame.
 """
 
 from __future__ import annotations
@@ -204,7 +206,7 @@ def complete_board(
             if (
                 not np.isfinite(g_px)
                 or g_px < cfg.min_gap_px
-                or res > cfg.max_residual * g_px
+                or not res <= cfg.max_residual * g_px  # NaN: a fitted corner behind the horizon
                 or not (0 <= q0[0] <= Ww - 1 and 0 <= q0[1] <= Hh - 1)
                 or _value(rim_dist, q0) < cfg.min_rim_px
             ):

@@ -40,7 +40,9 @@ checkerboard's: tags and crossing squares are dark, the gap strips between them 
 7. positions: every corner fitted once more in a small window
    (:func:`cotrain.detect.lattice.final_fits`); one whose fit fails is dropped, except in gaps
    narrower than ``keep_unfitted_px``, where the window reaches across the crossing square and
-   its failure says nothing (the corner keeps its lattice position).
+   its failure says nothing (the corner keeps its lattice position);
+8. completion (:mod:`cotrain.detect.tag_completion`): the placed board's corners the growth did
+   not reach, predicted from the identified ones and checked against the print around them.
 
 Pure functions over numpy arrays; pixels follow docs/conventions.md (centre of the top-left pixel at (0, 0)).
 """
@@ -134,7 +136,7 @@ class TagConfig:
 class TagResult:
     ids: np.ndarray  # (K,) corner ids (Kalibr's)
     xy: np.ndarray  # (K, 2) input-image pixels
-    confidence: np.ndarray  # (K,) 1 for corners of decoded tags, lower for corners identified through the lattice
+    confidence: np.ndarray  # (K,) 1 for corners of decoded tags, lower through the lattice; completed corners: their print correlation
     tags: np.ndarray  # (T,) ids of the tags that decode alone to where the board's placement puts them
     hamming: np.ndarray  # (T,) their bit errors
     dropped_tags: int = 0  # tags that decode alone to another place than the board's (not used), and second boards' tags

@@ -112,19 +112,6 @@ def test_complete_board_adds_nothing_where_the_board_is_covered():
     assert err.max() < 1.0 and err[in_view[ids]].max() < 0.4  # beside the sheet's edge the junction is cut
 
 
-def test_no_rounds_means_no_completion():
-    g = make_target(TargetConfig(kind="aprilgrid"))
-    H = np.array([[1000.0, 60.0, 120.0], [-40.0, -1000.0, 640.0], [0.15, 0.1, 1.0]])
-    grey = flat_view(g, H)
-    P = g.points().numpy()[:, :2]
-    h = np.c_[P, np.ones(len(P))] @ H.T
-    q = h[:, :2] / h[:, 2:]
-    given = _anchor(g, [0, 1, 6, 7])
-    rim = np.full(grey.shape, 100.0, np.float32)
-    ids, xy, _ = complete_board(grey, {}, rim, np.zeros((0, 2)), g, given, q[given], CompletionConfig(rounds=0), GridConfig())
-    assert np.array_equal(ids, np.sort(given)) and np.allclose(xy, q[np.sort(given)])
-
-
 def test_the_tag_pass_completes_rim_views():
     """Two 220-degree views (Double Sphere, UCM), the board up to 109 deg off-axis: the tag pass
     with completion reports every corner it reports without and the few the growth missed, all
