@@ -37,7 +37,7 @@ from scipy.spatial import cKDTree
 
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.lattice import corner_rays, values_at
-from cotrain.detect.saddle import fit_saddles, smooth_cached, window_half
+from cotrain.detect.saddle import fit_saddles, pixel_index, smooth_cached, window_half
 from cotrain.targets.aprilgrid import AprilGrid
 
 
@@ -88,9 +88,9 @@ def _project(H: np.ndarray, p: np.ndarray) -> np.ndarray:
 
 
 def _value(img: np.ndarray, q: np.ndarray) -> float:
-    """img (H, W) at the pixel nearest q (2,), clipped to the image."""
-    H, W = img.shape
-    return float(img[min(max(int(round(q[1])), 0), H - 1), min(max(int(round(q[0])), 0), W - 1)])
+    """img (H, W) at the pixel nearest q (2,), clamped into the image."""
+    x, y = pixel_index(q[None], img.shape[1], img.shape[0])[0]
+    return float(img[y, x])
 
 
 def local_homography(P: np.ndarray, q: np.ndarray) -> np.ndarray | None:
