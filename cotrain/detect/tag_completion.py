@@ -59,6 +59,10 @@ class CompletionConfig:
     ray_radius: float = 0.5  # a corner's edge rays are read on a circle of this fraction of the local gap ...
     max_ray_angle: float = 30.0  # ... and the board's axes must leave along them within this (deg) ...
     sure_corr: float = 0.7  # ... unless the print correlation reaches this
+    check: bool = True  # first, the growth's corners are checked against the print (:func:`print_check`) ...
+    check_margin: float = 0.0  # ... and one is dropped where a grid neighbour's print matches it better by more than this ...
+    check_large_px: float = 20.0  # ... or, in tags at least this wide (px) ...
+    check_margin_large: float = 0.35  # ... by more than this (a local homography fits a large tag's bend less well)
 
 
 _PATCHES: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}  # print_patches' results per board and patch
@@ -135,6 +139,117 @@ def print_correlation(
     den = np.sqrt((pat * pat).sum(1) * (seen @ seen))
     corr = np.where(den > 1e-12, pat @ seen / np.maximum(den, 1e-12), -1.0)
     return PrintMatch(float(corr[0]), float(corr[1:].max()) if others else -1.0)
+
+
+def local_homographies(P: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`local_homography` of N point sets at once: board points P (N, K, 2) (metres) to
+    pixels q (N, K, 2), by the normalised direct linear transform (each set centred and scaled to
+    unit mean distance, the smallest singular vector; the least-squares algebraic fit, which
+    ``cv2.findHomography(P, q, 0)`` refines further). Returns H (N, 3, 3), oriented with the points
+    in front, and whether each is posed (N,): both board axes spanned, and not degenerate."""
+    P, q = np.asarray(P, np.float64), np.asarray(q, np.float64)
+    N, K = P.shape[:2]
+
+    def normaliser(x: np.ndarray) -> np.ndarray:  # (N, 3, 3): centre at 0, mean distance sqrt(2)
+        m = x.mean(1)
+        d = np.linalg.norm(x - m[:, None], axis=2).mean(1)
+        f = np.sqrt(2) / np.maximum(d, 1e-12)
+        T = np.zeros((N, 3, 3))
+        T[:, 0, 0] = T[:, 1, 1] = f
+        T[:, :2, 2] = -f[:, None] * m
+        T[:, 2, 2] = 1
+        return T
+
+    Tp, Tq = normaliser(P), normaliser(q)
+    a = P * Tp[:, None, 0, 0, None] + Tp[:, None, :2, 2]
+    b = q * Tq[:, None, 0, 0, None] + Tq[:, None, :2, 2]
+    one, zero = np.ones((N, K, 1)), np.zeros((N, K, 3))
+    ah = np.concatenate([a, one], 2)  # (N, K, 3)
+    rows_x = np.concatenate([ah, zero, -b[..., :1] * ah], 2)
+    rows_y = np.concatenate([zero, ah, -b[..., 1:] * ah], 2)
+    A = np.concatenate([rows_x, rows_y], 1)  # (N, 2K, 9)
+    _, sv, vt = np.linalg.svd(A)
+    Hn = vt[:, -1].reshape(N, 3, 3)
+    H = np.linalg.solve(Tq, Hn @ Tp)  # Tq^-1 Hn Tp
+    span = (np.ptp(P[..., 0], 1) > 0) & (np.ptp(P[..., 1], 1) > 0) & (K >= 4)
+    posed = span & np.isfinite(H).all((1, 2)) & (sv[:, -2] > 1e-9 * sv[:, 0])
+    w = np.einsum("nk,nk->n", P.mean(1), H[:, 2, :2]) + H[:, 2, 2]
+    return H * np.where(w < 0, -1.0, 1.0)[:, None, None], posed
+
+
+def _project_each(H: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Homographies H (K, 3, 3) applied to points p (K, M, 2) -> (K, M, 2); NaN behind each horizon."""
+    h = p @ H[:, :2, :2].transpose(0, 2, 1) + H[:, None, :2, 2]
+    w = p @ H[:, 2, :2, None] + H[:, None, 2, 2:]
+    return np.where(w > 1e-12, h / np.where(w > 1e-12, w, 1.0), np.nan)
+
+
+def print_check(
+    sm: np.ndarray, rim_dist: np.ndarray, board: AprilGrid, ids: np.ndarray, xy: np.ndarray, cfg: CompletionConfig
+) -> np.ndarray:
+    """(K,) bool: which identified corners ``ids`` (K,) at ``xy`` (K, 2) the print does not
+    contradict. Each corner's surroundings in ``sm`` (H, W; blurred as for :func:`print_correlation`)
+    are sampled through the homography of the ``cfg.neighbours`` other identified corners nearest
+    it on the board, moved onto it, and correlated with the print around it and around each of its
+    eight grid neighbours (the patch of :func:`print_patches`). A corner is contradicted where a
+    neighbour's print matches by more than ``cfg.check_margin`` over its own (``cfg.check_margin_large``
+    in tags ``cfg.check_large_px`` wide or more): a corner the lattice put one crossing square over
+    (the square's other corner, where a gap of 2-3 px collapses or glare washes it out), or a tag
+    corner read at the wrong end of its gap. A wrong corner bends the homographies of the corners
+    around it, so the corners are checked twice, the second time with homographies of the corners
+    the first check kept. Corners with fewer than four others around, or with under a fifth of the
+    patch inside the image circle, are kept."""
+    K = len(ids)
+    if min(cfg.neighbours, K - 1) < 4:
+        return np.ones(K, bool)
+    keep = _uncontradicted(sm, rim_dist, board, ids, xy, np.ones(K, bool), cfg)
+    if keep.all() or min(cfg.neighbours, int(keep.sum()) - 1) < 4:
+        return keep
+    return _uncontradicted(sm, rim_dist, board, ids, xy, keep, cfg)
+
+
+def _uncontradicted(
+    sm: np.ndarray, rim_dist: np.ndarray, board: AprilGrid, ids: np.ndarray, xy: np.ndarray, support: np.ndarray, cfg: CompletionConfig
+) -> np.ndarray:
+    """One pass of :func:`print_check`, each corner's homography fitted to the nearest corners of
+    ``support`` (K,) bool other than itself."""
+    K = len(ids)
+    n = min(cfg.neighbours, int(support.sum()) - 1)
+    U, printed = print_patches(board, cfg)
+    P = board.points().numpy()[:, :2]
+    kP = P[ids]
+    sup = np.nonzero(support)[0]
+    _, near = cKDTree(kP[sup]).query(kP, k=n + 1)
+    near = sup[near.reshape(K, -1)]
+    own = near == np.arange(K)[:, None]  # a corner of the support finds itself first (distinct ids: distinct points)
+    near = np.where(own.any(1)[:, None], np.roll(near, -1, 1), near)[:, :n]
+    H, posed = local_homographies(kP[near], xy[near])
+    # The patch through each corner's homography, moved so that the corner lands on its position.
+    q0 = _project_each(H, kP[:, None])  # (K, 1, 2)
+    q = _project_each(H, kP[:, None] + U[None]) - q0 + xy[:, None]
+    q = np.where(np.isfinite(q), q, -1e6)  # behind the horizon: outside the image
+    vals = values_at(sm, q)  # (K, M), NaN outside the image
+    inside = np.isfinite(vals) & (values_at(rim_dist, q) > 1.5)
+    enough = posed & np.isfinite(q0[:, 0, 0]) & (inside.sum(1) >= len(U) / 5)
+    c0, r0 = ids % board.nx, ids // board.nx
+    steps = [(a, b) for b in (-1, 0, 1) for a in (-1, 0, 1) if a or b]
+    cn, rn = c0[:, None] + np.array([a for a, _ in steps]), r0[:, None] + np.array([b for _, b in steps])
+    on = (cn >= 0) & (cn < board.nx) & (rn >= 0) & (rn < board.ny)
+    nb = np.where(on, rn * board.nx + cn, 0)
+    pat = printed[np.concatenate([ids[:, None], nb], 1)]  # (K, 9, M)
+    m = inside.astype(np.float64)[:, None]  # (K, 1, M)
+    cnt = np.maximum(m.sum(2, keepdims=True), 1)
+    seen = np.where(inside, vals, 0.0)[:, None]
+    seen = (seen - (seen * m).sum(2, keepdims=True) / cnt) * m
+    pat = (pat - (pat * m).sum(2, keepdims=True) / cnt) * m
+    den = np.sqrt((pat * pat).sum(2) * (seen * seen).sum(2))
+    corr = np.where(den > 1e-12, (pat * seen).sum(2) / np.maximum(den, 1e-12), -1.0)  # (K, 9)
+    other = np.where(on, corr[:, 1:], -np.inf).max(1)
+    # The tag's width there (px): the shorter image of a tag side along the board's axes (NaN: large).
+    ends = _project_each(H, kP[:, None] + np.array([[board.cfg.tag_size, 0.0], [0.0, board.cfg.tag_size]]))
+    side = np.linalg.norm(ends - q0, axis=2).min(1)
+    margin = np.where(~(side < cfg.check_large_px), cfg.check_margin_large, cfg.check_margin)
+    return ~enough | ~(other > corr[:, 0] + margin)
 
 
 def rays_along(sm: np.ndarray, q: np.ndarray, H: np.ndarray, p: np.ndarray, gap: float, gap_px: float, cfg: CompletionConfig) -> bool:

@@ -62,7 +62,7 @@ from scipy.spatial import cKDTree
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.lattice import STEPS, Lattice, beside_points, corner_rays, final_fits, shortest_steps, values_at
 from cotrain.detect.saddle import fit_saddles, outside_circle, saddle_response, smooth_cached, window_half
-from cotrain.detect.tag_completion import CompletionConfig, complete_board
+from cotrain.detect.tag_completion import CompletionConfig, complete_board, print_check
 from cotrain.targets.aprilgrid import BORDER_BITS, CELLS, DATA_BITS, N_CODES, AprilGrid, printed_bits
 
 
@@ -1557,10 +1557,15 @@ def _tag_pass_in(grey: np.ndarray, allowed: np.ndarray, board: AprilGrid, cfg: T
                 tags.append(c.tag)
                 ham.append(c.hamming)
     ids_a, xy_a, conf_a = np.array(ids, int), np.array(xy_out).reshape(-1, 2), np.array(conf)
+    if cfg.complete.check:
+        # A corner the print around it contradicts (a neighbour's pattern matches better) is dropped;
+        # completion may find it where it is.
+        ok = print_check(smooth_cached(smoothed, grey, 1), rim_dist, board, ids_a, xy_a, cfg.complete)
+        ids_a, xy_a, conf_a = ids_a[ok], xy_a[ok], conf_a[ok]
     if cfg.complete.rounds:
         # Corners the growth missed, predicted from the identified ones and checked against the
         # print; their confidence is that check's correlation.
-        given = dict(zip(ids, conf))
+        given = dict(zip(ids_a.tolist(), conf_a.tolist()))
         ids_a, xy_a, corr = complete_board(grey, smoothed, rim_dist, xy, board, ids_a, xy_a, cfg.complete, cfg.grid)
         conf_a = np.array([given.get(i, c) for i, c in zip(ids_a.tolist(), corr.tolist())])
     order = np.argsort(ids_a)

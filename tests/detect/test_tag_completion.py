@@ -7,7 +7,14 @@ import torch
 
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.saddle import outside_circle
-from cotrain.detect.tag_completion import CompletionConfig, complete_board, local_homography, print_correlation
+from cotrain.detect.tag_completion import (
+    CompletionConfig,
+    complete_board,
+    local_homographies,
+    local_homography,
+    print_check,
+    print_correlation,
+)
 from cotrain.detect.tag_pass import TagConfig, tag_candidates, tag_pass
 from cotrain.targets import TargetConfig, make_target
 from tests.detect.test_tag_pass import centre, render
@@ -26,6 +33,32 @@ def test_local_homography_recovers_a_known_map_and_refuses_a_line():
     assert np.abs(h1[:, :2] / h1[:, 2:] - h2[:, :2] / h2[:, 2:]).max() < 1e-3
     line = np.stack([np.linspace(0, 0.3, 6), np.full(6, 0.1)], 1)
     assert local_homography(line, q[:6]) is None
+
+
+def test_local_homographies_match_opencv_per_set_and_refuse_degenerate_sets():
+    """The batched normalised DLT agrees with cv2.findHomography on each of 40 noisy point sets
+    (projections of the fitted points within 0.02 px of OpenCV's), keeps the points in front,
+    and refuses a set on one line and a set with every point the same."""
+    rng = np.random.default_rng(1)
+    N, K = 40, 7
+    P = rng.uniform(0.0, 0.4, (N, K, 2))
+    H_true = np.array([[900.0, 40.0, 300.0], [-30.0, 850.0, 200.0], [0.2, -0.1, 1.0]]) + rng.normal(0, 1, (N, 3, 3)) * [
+        [40, 20, 30],
+        [20, 40, 30],
+        [0.1, 0.1, 0],
+    ]
+    h = np.concatenate([P, np.ones((N, K, 1))], 2) @ H_true.transpose(0, 2, 1)
+    q = h[..., :2] / h[..., 2:] + rng.normal(0, 0.1, (N, K, 2))
+    P[-2] = np.stack([np.linspace(0, 0.3, K), np.full(K, 0.1)], 1)  # one line
+    P[-1] = 0.2  # one point
+    H, posed = local_homographies(P, q)
+    assert posed[:-2].all() and not posed[-2:].any()
+    for n in range(N - 2):
+        H_cv, _ = cv2.findHomography(P[n], q[n], 0)
+        a = np.c_[P[n], np.ones(K)] @ H[n].T
+        b = np.c_[P[n], np.ones(K)] @ H_cv.T
+        assert (a[:, 2] > 0).all()  # oriented: the points in front
+        assert np.abs(a[:, :2] / a[:, 2:] - b[:, :2] / b[:, 2:]).max() < 0.02
 
 
 def flat_view(board, H, size=(900, 700), blur=0.7):
@@ -57,6 +90,29 @@ def test_print_correlation_is_highest_for_the_corners_own_pattern():
     q = h[:, :2] / h[:, 2:]
     corr, other = print_correlation(sm, rim, g, H, q[1] - q[0], 27, cfg)
     assert other > corr + 0.3
+
+
+def test_print_check_drops_a_corner_moved_across_its_gap_and_keeps_the_rest():
+    """A flat view with every inner corner at its true place but two: one moved onto the other
+    corner of its crossing square (as a lattice does where a gap of 2-3 px collapses), and one
+    moved a whole tag side along its row. The check drops exactly those two."""
+    g = make_target(TargetConfig(kind="aprilgrid"))
+    H = np.array([[1000.0, 60.0, 120.0], [-40.0, -1000.0, 640.0], [0.15, 0.1, 1.0]])
+    sm = flat_view(g, H)
+    rim = np.full(sm.shape, 100.0, np.float32)
+    P = g.points().numpy()[:, :2]
+    h = np.c_[P, np.ones(len(P))] @ H.T
+    q = h[:, :2] / h[:, 2:]
+    c, r = np.arange(g.n_corners) % g.nx, np.arange(g.n_corners) // g.nx
+    ids = np.nonzero((c > 0) & (c < g.nx - 1) & (r > 0) & (r < g.ny - 1))[0]
+    xy = q[ids].copy()
+    # Corner 27 (column 3) onto 28 (column 4: the crossing square's other side); corner 64
+    # (column 4) onto 65 (column 5: the far end of its tag's side).
+    xy[ids == 27] = q[28]
+    xy[ids == 64] = q[65]
+    ids_k, xy_k = ids[~np.isin(ids, [28, 65])], xy[~np.isin(ids, [28, 65])]
+    keep = print_check(sm, rim, g, ids_k, xy_k, CompletionConfig())
+    assert set(ids_k[~keep].tolist()) == {27, 64}
 
 
 def _anchor(g, block: list[int]) -> np.ndarray:
