@@ -1,4 +1,6 @@
-"""Completion of a placed AprilGrid: the corners the lattice growth did not reach.
+"""Completion of a placed AprilGrid: the corners the lattice growth did not reach, and the check
+of every identified corner against the print (:func:`print_check`, run first: a corner that a
+grid neighbour's print matches better is dropped, and completion may find it where it is).
 
 Once the tag pass (:mod:`cotrain.detect.tag_pass`) has identified a board's corners, every other
 corner of the board has a known place on the page. Round by round, each corner beside an
@@ -185,7 +187,13 @@ def _project_each(H: np.ndarray, p: np.ndarray) -> np.ndarray:
 
 
 def print_check(
-    sm: np.ndarray, rim_dist: np.ndarray, board: AprilGrid, ids: np.ndarray, xy: np.ndarray, cfg: CompletionConfig
+    sm: np.ndarray,
+    rim_dist: np.ndarray,
+    board: AprilGrid,
+    ids: np.ndarray,
+    xy: np.ndarray,
+    cfg: CompletionConfig,
+    strict: np.ndarray | None = None,
 ) -> np.ndarray:
     """(K,) bool: which identified corners ``ids`` (K,) at ``xy`` (K, 2) the print does not
     contradict. Each corner's surroundings in ``sm`` (H, W; blurred as for :func:`print_correlation`)
@@ -202,14 +210,22 @@ def print_check(
     K = len(ids)
     if min(cfg.neighbours, K - 1) < 4:
         return np.ones(K, bool)
-    keep = _uncontradicted(sm, rim_dist, board, ids, xy, np.ones(K, bool), cfg)
+    strict = np.zeros(K, bool) if strict is None else np.asarray(strict, bool)
+    keep = _uncontradicted(sm, rim_dist, board, ids, xy, np.ones(K, bool), strict, cfg)
     if keep.all() or min(cfg.neighbours, int(keep.sum()) - 1) < 4:
         return keep
-    return _uncontradicted(sm, rim_dist, board, ids, xy, keep, cfg)
+    return _uncontradicted(sm, rim_dist, board, ids, xy, keep, strict, cfg)
 
 
 def _uncontradicted(
-    sm: np.ndarray, rim_dist: np.ndarray, board: AprilGrid, ids: np.ndarray, xy: np.ndarray, support: np.ndarray, cfg: CompletionConfig
+    sm: np.ndarray,
+    rim_dist: np.ndarray,
+    board: AprilGrid,
+    ids: np.ndarray,
+    xy: np.ndarray,
+    support: np.ndarray,
+    strict: np.ndarray,
+    cfg: CompletionConfig,
 ) -> np.ndarray:
     """One pass of :func:`print_check`, each corner's homography fitted to the nearest corners of
     ``support`` (K,) bool other than itself."""
@@ -248,7 +264,7 @@ def _uncontradicted(
     # The tag's width there (px): the shorter image of a tag side along the board's axes (NaN: large).
     ends = _project_each(H, kP[:, None] + np.array([[board.cfg.tag_size, 0.0], [0.0, board.cfg.tag_size]]))
     side = np.linalg.norm(ends - q0, axis=2).min(1)
-    margin = np.where(~(side < cfg.check_large_px), cfg.check_margin_large, cfg.check_margin)
+    margin = np.where(~(side < cfg.check_large_px) & ~strict, cfg.check_margin_large, cfg.check_margin)
     return ~enough | ~(other > corr[:, 0] + margin)
 
 

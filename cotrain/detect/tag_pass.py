@@ -41,8 +41,12 @@ checkerboard's: tags and crossing squares are dark, the gap strips between them 
    (:func:`cotrain.detect.lattice.final_fits`); one whose fit fails is dropped, except in gaps
    narrower than ``keep_unfitted_px``, where the window reaches across the crossing square and
    its failure says nothing (the corner keeps its lattice position);
-8. completion (:mod:`cotrain.detect.tag_completion`): the placed board's corners the growth did
-   not reach, predicted from the identified ones and checked against the print around them.
+8. completion (:mod:`cotrain.detect.tag_completion`): first every corner is checked against the
+   print around it (one that a grid neighbour's print matches better is dropped), then the placed
+   board's corners the growth did not reach are predicted from the identified ones and checked
+   against the print around them;
+9. half resolution: where few corners are found, the frame is read again at half resolution and
+   what only that finds is added where the print check keeps it (:func:`tag_pass`).
 
 Pure functions over numpy arrays; pixels follow docs/conventions.md (centre of the top-left pixel at (0, 0)).
 """
@@ -126,6 +130,11 @@ class TagConfig:
     # --- small frames ---
     min_side_px: int = 720  # frames whose shorter side is under this are read enlarged to it (bilinear; 0: never) ...
     max_enlarge: float = 1.5  # ... by at most this factor; the thresholds above that judge a tag's size in px scale with it
+    # --- blurred and large tags ---
+    half_below: int = 70  # a frame where fewer corners are found is read at half resolution too (0: never) ...
+    half_min_side: int = (
+        700  # ... where its shorter side has at least this many px; what only that finds is added where the print check keeps it
+    )
     # --- boards ---
     min_corners: int = 4  # smallest lattice that is reported
     complete: CompletionConfig = field(default_factory=CompletionConfig)  # corners the growth missed, predicted from the placed board
@@ -1438,8 +1447,54 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
     tests are fixed in pixels, and tags of 8-12 px in a 640x480 frame resolve only enlarged; the
     thresholds that judge a tag's size in pixels (``small_tag_px``, ``small_gap_px``,
     ``keep_unfitted_px``, ``rim_strict_px``) scale with the factor, so the identity rules see
-    the tags as they are. Positions are given in the frame's pixels either way."""
+    the tags as they are. Positions are given in the frame's pixels either way.
+
+    A frame not enlarged, with a shorter side of ``cfg.half_min_side`` px or more, where fewer
+    than ``cfg.half_below`` corners are found, is read again at half resolution (blurred tags,
+    large tags), and the corners only that finds are added where the print check keeps them
+    (:func:`cotrain.detect.tag_completion.print_check`)."""
     cfg = cfg or TagConfig()
+    r = _tag_pass_circle(grey, board, cfg)
+    if len(r.ids) >= cfg.half_below or r.scale > 1 or min(grey.shape) < cfg.half_min_side:
+        return r
+    # Blurred and large tags: at half resolution the fixed windows and circles of the pass see a
+    # blur of 5 px as one of 2.5 and a tag of 120 px as one of 60. Corners found only there are
+    # fitted again at full resolution (kept at twice their half-resolution position where that
+    # fit fails or moves them by a pixel or more) and kept where the print around them does not
+    # contradict them (held to the small tags' margin whatever their size).
+    half = cv2.resize(grey, (grey.shape[1] // 2, grey.shape[0] // 2), interpolation=cv2.INTER_AREA)
+    r2 = _tag_pass_circle(half, board, replace(cfg, min_side_px=0))
+    new = ~np.isin(r2.ids, r.ids)
+    if not new.any():
+        return r
+    q = (r2.xy[new] + 0.5) * 2 - 0.5
+    allowed = ~outside_circle(grey)
+    rim_dist = cv2.distanceTransform(allowed.astype(np.uint8), cv2.DIST_L2, 3)
+    smoothed: dict[int, np.ndarray] = {}
+    q_fit, fitted, _ = fit_saddles(grey, smoothed, q, cfg.grid.final_max_half, cfg.grid, rim_dist)
+    q = np.where((fitted & (np.linalg.norm(q_fit - q, axis=1) < 1.0))[:, None], q_fit, q)
+    ids = np.concatenate([r.ids, r2.ids[new]])
+    xy = np.concatenate([r.xy, q])
+    conf = np.concatenate([r.confidence, r2.confidence[new]])
+    added = np.arange(len(ids)) >= len(r.ids)
+    ok = print_check(smooth_cached(smoothed, grey, 1), rim_dist, board, ids, xy, cfg.complete, strict=added)
+    ok[~added] = True  # the full-resolution pass's corners passed its own check
+    order = np.argsort(ids[ok])
+    more = ~np.isin(r2.tags, r.tags)
+    return replace(
+        r,
+        ids=ids[ok][order],
+        xy=xy[ok][order],
+        confidence=conf[ok][order],
+        tags=np.concatenate([r.tags, r2.tags[more]]),
+        hamming=np.concatenate([r.hamming, r2.hamming[more]]),
+        dropped_tags=max(r.dropped_tags, r2.dropped_tags),
+        foreign_tags=max(r.foreign_tags, r2.foreign_tags),
+    )
+
+
+def _tag_pass_circle(grey: np.ndarray, board: AprilGrid, cfg: TagConfig) -> TagResult:
+    """:func:`tag_pass` at one resolution: on the image circle's bounding box, a small frame enlarged."""
     f = enlargement(grey.shape, cfg)
     if f > 1:
         grey = cv2.resize(grey, None, fx=f, fy=f, interpolation=cv2.INTER_LINEAR)

@@ -840,3 +840,20 @@ def test_small_frames_are_read_enlarged_with_positions_in_frame_pixels():
     assert r.scale == 1.5
     check_ids(r, q, vis, tol=0.3)
     assert len(r.ids) >= 0.95 * vis.sum()
+
+
+def test_a_blurred_view_is_read_at_half_resolution_too():
+    """A 200-degree view blurred by a Gaussian of 2.5 px, where the full-resolution pass alone
+    finds under half the corners: with the half-resolution pass the result is a superset holding
+    most visible corners, each at its own label (fitted again at full resolution)."""
+    g = make_target(TargetConfig(kind="aprilgrid", margin=0.3))
+    c = np.array(centre(g))
+    img, q, vis, _ = render(g, "kb4", 200, (c + [0.0, 0.0, 0.5]).tolist(), c.tolist())
+    grey = cv2.GaussianBlur(img.astype(np.float32) / 255, (0, 0), 2.5)
+    alone = tag_pass(grey, g, TagConfig(half_below=0))
+    both = tag_pass(grey, g)
+    assert len(alone.ids) < TagConfig().half_below
+    assert set(alone.ids.tolist()) <= set(both.ids.tolist())
+    assert len(both.ids) > 0.8 * vis.sum()
+    err = check_ids(both, q, vis, tol=1.5)
+    assert np.median(err) < 0.3
