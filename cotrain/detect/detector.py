@@ -37,7 +37,8 @@ from cotrain.targets import AprilGrid, Checkerboard, Target
 # Raised when a change of the code (not of the settings or the model) changes what the detectors
 # report: detections cached under an older version are made again (see Detector.cache_key).
 # 2: AprilGrid frames brightened; the grid pass's contrast thresholds scale with the board's contrast.
-OUTPUT_VERSION = 2
+# 3: AprilGrid corners checked against the print; AprilGrid frames with few corners read at half resolution too.
+OUTPUT_VERSION = 3
 
 
 @dataclass

@@ -40,6 +40,7 @@ from scipy.spatial import cKDTree
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.lattice import corner_rays, values_at
 from cotrain.detect.saddle import fit_saddles, pixel_index, smooth_cached, window_half
+from cotrain.targets import Target
 from cotrain.targets.aprilgrid import AprilGrid
 
 
@@ -70,16 +71,17 @@ class CompletionConfig:
 _PATCHES: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}  # print_patches' results per board and patch
 
 
-def print_patches(board: AprilGrid, cfg: CompletionConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Offsets U (M, 2) in metres over a square of half-size ``cfg.patch`` tag sizes
-    (``cfg.patch_samples`` across), and the board's printed intensity (N, M) around every one of
-    its N corners at them (point samples: 0 black, 1 white). Kept per board and patch."""
-    c = board.cfg
-    key = (c.tag_cols, c.tag_rows, c.tag_size, c.tag_spacing, board.printed.tobytes(), cfg.patch, cfg.patch_samples)
+def print_patches(board: Target, cfg: CompletionConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Offsets U (M, 2) in metres over a square of half-size ``cfg.patch`` of the board's spacing
+    (an AprilGrid's tag side, a checkerboard's square; ``cfg.patch_samples`` across), and the
+    board's printed intensity (N, M) around every one of its N corners at them (point samples: 0
+    black, 1 white). Kept per board and patch."""
+    printed = getattr(board, "printed", None)
+    key = (repr(board.cfg), b"" if printed is None else printed.tobytes(), cfg.patch, cfg.patch_samples)
     if key not in _PATCHES:
         import torch
 
-        g = np.linspace(-cfg.patch, cfg.patch, cfg.patch_samples) * board.cfg.tag_size
+        g = np.linspace(-cfg.patch, cfg.patch, cfg.patch_samples) * board.spacing
         U = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
         P = board.points().numpy()[:, :2]
         _PATCHES[key] = U, board.intensity(torch.from_numpy(P[:, None] + U[None]))[0].numpy()
@@ -189,7 +191,7 @@ def _project_each(H: np.ndarray, p: np.ndarray) -> np.ndarray:
 def print_check(
     sm: np.ndarray,
     rim_dist: np.ndarray,
-    board: AprilGrid,
+    board: Target,
     ids: np.ndarray,
     xy: np.ndarray,
     cfg: CompletionConfig,
@@ -220,7 +222,7 @@ def print_check(
 def _uncontradicted(
     sm: np.ndarray,
     rim_dist: np.ndarray,
-    board: AprilGrid,
+    board: Target,
     ids: np.ndarray,
     xy: np.ndarray,
     support: np.ndarray,
@@ -262,7 +264,7 @@ def _uncontradicted(
     corr = np.where(den > 1e-12, (pat * seen).sum(2) / np.maximum(den, 1e-12), -1.0)  # (K, 9)
     other = np.where(on, corr[:, 1:], -np.inf).max(1)
     # The tag's width there (px): the shorter image of a tag side along the board's axes (NaN: large).
-    ends = _project_each(H, kP[:, None] + np.array([[board.cfg.tag_size, 0.0], [0.0, board.cfg.tag_size]]))
+    ends = _project_each(H, kP[:, None] + np.array([[board.spacing, 0.0], [0.0, board.spacing]]))
     side = np.linalg.norm(ends - q0, axis=2).min(1)
     margin = np.where(~(side < cfg.check_large_px) & ~strict, cfg.check_margin_large, cfg.check_margin)
     return ~enough | ~(other > corr[:, 0] + margin)
