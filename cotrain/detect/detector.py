@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from cotrain.detect.grid_config import GridConfig
-from cotrain.detect.grid_pass import GridResult, grid_pass
+from cotrain.detect.grid_pass import GridResult, grid_pass, merge_half_resolution
 from cotrain.detect.images import MIN_SIDE, ImageError, brighten, to_grey_float
 from cotrain.detect.onnx_model import OnnxModel
 from cotrain.detect.saddle import saddle_fit, smooth_for, window_half
@@ -37,7 +37,7 @@ from cotrain.targets import AprilGrid, Checkerboard, Target
 # Raised when a change of the code (not of the settings or the model) changes what the detectors
 # report: detections cached under an older version are made again (see Detector.cache_key).
 # 2: AprilGrid frames brightened; the grid pass's contrast thresholds scale with the board's contrast.
-# 3: AprilGrid corners checked against the print; AprilGrid frames with few corners read at half resolution too.
+# 3: AprilGrid corners checked against the print; frames with few corners read at half resolution too.
 OUTPUT_VERSION = 3
 
 
@@ -142,11 +142,21 @@ class Detector:
         return brighten(grey)
 
     def _grid(self, grey: np.ndarray, box: Letterbox, out: dict[str, np.ndarray], cfg: GridConfig) -> GridResult:
+        """The grid pass on ``grey`` (its letterbox ``box``, the network's outputs ``out``); where
+        it finds fewer than ``cfg.half_below`` corners, also at half resolution with the same
+        network outputs (:func:`cotrain.detect.grid_pass.merge_half_resolution`)."""
         logp_col, logp_row = out["col_logp"][0], out["row_logp"][0]
         if not self.board_votes:
             logp_col = np.zeros((self.nx + 2, *logp_col.shape[1:]), np.float32)
             logp_row = np.zeros((self.ny + 2, *logp_row.shape[1:]), np.float32)
-        return grid_pass(grey, box, out["corner_prob"][0, 0], out["mask_prob"][0, 0], logp_col, logp_row, self.target, cfg)
+        maps = (out["corner_prob"][0, 0], out["mask_prob"][0, 0], logp_col, logp_row)
+        g = grid_pass(grey, box, *maps, self.target, cfg)
+        h, w = grey.shape
+        if len(g.ids) >= cfg.half_below or min(h, w) < cfg.half_min_side:
+            return g
+        half = cv2.resize(grey, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
+        g_half = grid_pass(half, Letterbox(w // 2, h // 2, self.input_size), *maps, self.target, cfg)
+        return merge_half_resolution(grey, g, g_half, self.target, cfg)
 
     def grid_result(self, image: np.ndarray, grid: GridConfig | None = None) -> GridResult:
         """The grid pass's whole result on one image (with its identity margin), under ``grid``

@@ -391,3 +391,48 @@ def grid_pass(
     conf = np.full(len(ids), 1.0 - np.exp(-margin)) * np.where(lat.filled, cfg.filled_confidence, 1.0)
     order = np.argsort(ids[on])
     return GridResult(ids[on][order], lat.xy[on][order] + offset, conf[on][order], float(margin))
+
+
+def merge_half_resolution(grey: np.ndarray, full: GridResult, half: GridResult, board: Checkerboard, cfg: GridConfig) -> GridResult:
+    """The grid pass's result on the (H, W) image ``grey`` (``full``) completed with its result on
+    the image at half resolution (``half``, positions in half-resolution pixels), where that found
+    more: a blur of a few px and squares of 40-120 px look half as wide there. It is taken where
+    the two agree on at least ``cfg.half_min_shared`` corners (within 1.5 px) and on every corner
+    both report, or, where ``full`` found nothing, where its identity margin reaches
+    ``cfg.half_min_margin_alone``. The corners only ``half`` reports are fitted again at full
+    resolution (keeping twice their half-resolution position where the fit fails or moves them
+    1 px or more) and kept where the print around them correlates with their own by
+    ``cfg.half_min_corr`` and no better with an axis neighbour's (the other checker parity;
+    :func:`cotrain.detect.tag_completion.print_check`)."""
+    from cotrain.detect.tag_completion import CompletionConfig, print_check
+
+    if len(half.ids) <= len(full.ids):
+        return full
+    q = (half.xy + 0.5) * 2 - 0.5
+    at_full = dict(zip(full.ids.tolist(), full.xy))
+    shared = [np.linalg.norm(at_full[i] - p) for i, p in zip(half.ids.tolist(), q) if i in at_full]
+    if len(full.ids):
+        if len(shared) < cfg.half_min_shared or max(shared) > 1.5:
+            return full
+    elif not half.margin >= cfg.half_min_margin_alone:
+        return full
+    new = ~np.isin(half.ids, full.ids)
+    allowed = ~outside_circle(grey)
+    rim_dist = cv2.distanceTransform(allowed.astype(np.uint8), cv2.DIST_L2, 3)
+    smoothed: dict[int, np.ndarray] = {}
+    q_fit, fitted, _ = fit_saddles(grey, smoothed, q[new], cfg.final_max_half, cfg, rim_dist)
+    refit = fitted & (np.linalg.norm(q_fit - q[new], axis=1) < 1.0)
+    q_new = np.where(refit[:, None], q_fit, q[new])
+    ids = np.concatenate([full.ids, half.ids[new]])
+    xy = np.concatenate([full.xy.reshape(-1, 2), q_new])
+    conf = np.concatenate([full.confidence, half.confidence[new]])
+    added = np.arange(len(ids)) >= len(full.ids)
+    sm = smooth_cached(smoothed, grey, 1)
+    ok = print_check(sm, rim_dist, board, ids, xy, CompletionConfig(), strict=added, min_corr=cfg.half_min_corr)
+    qi = np.clip(np.rint(xy).astype(int), 0, [grey.shape[1] - 1, grey.shape[0] - 1])
+    # Off the rim by more than the half-resolution windows reach: there a board's edge against the
+    # dark rim makes an X of its own, and the full-resolution pass's rim rules were not applied.
+    ok &= rim_dist[qi[:, 1], qi[:, 0]] >= cfg.half_rim_px
+    ok |= ~added  # the full-resolution corners stay
+    order = np.argsort(ids[ok])
+    return GridResult(ids[ok][order], xy[ok][order], conf[ok][order], full.margin if len(full.ids) else half.margin)

@@ -196,6 +196,7 @@ def print_check(
     xy: np.ndarray,
     cfg: CompletionConfig,
     strict: np.ndarray | None = None,
+    min_corr: float = -1.0,
 ) -> np.ndarray:
     """(K,) bool: which identified corners ``ids`` (K,) at ``xy`` (K, 2) the print does not
     contradict. Each corner's surroundings in ``sm`` (H, W; blurred as for :func:`print_correlation`)
@@ -213,10 +214,10 @@ def print_check(
     if min(cfg.neighbours, K - 1) < 4:
         return np.ones(K, bool)
     strict = np.zeros(K, bool) if strict is None else np.asarray(strict, bool)
-    keep = _uncontradicted(sm, rim_dist, board, ids, xy, np.ones(K, bool), strict, cfg)
+    keep = _uncontradicted(sm, rim_dist, board, ids, xy, np.ones(K, bool), strict, cfg, min_corr)
     if keep.all() or min(cfg.neighbours, int(keep.sum()) - 1) < 4:
         return keep
-    return _uncontradicted(sm, rim_dist, board, ids, xy, keep, strict, cfg)
+    return _uncontradicted(sm, rim_dist, board, ids, xy, keep, strict, cfg, min_corr)
 
 
 def _uncontradicted(
@@ -228,6 +229,7 @@ def _uncontradicted(
     support: np.ndarray,
     strict: np.ndarray,
     cfg: CompletionConfig,
+    min_corr: float = -1.0,
 ) -> np.ndarray:
     """One pass of :func:`print_check`, each corner's homography fitted to the nearest corners of
     ``support`` (K,) bool other than itself."""
@@ -262,12 +264,14 @@ def _uncontradicted(
     pat = (pat - (pat * m).sum(2, keepdims=True) / cnt) * m
     den = np.sqrt((pat * pat).sum(2) * (seen * seen).sum(2))
     corr = np.where(den > 1e-12, (pat * seen).sum(2) / np.maximum(den, 1e-12), -1.0)  # (K, 9)
-    other = np.where(on, corr[:, 1:], -np.inf).max(1)
+    # Neighbours printed as the corner is (a checkerboard's diagonal ones) tell nothing apart.
+    same = np.abs(printed[nb] - printed[ids][:, None]).max(2) < 1e-6
+    other = np.where(on & ~same, corr[:, 1:], -np.inf).max(1)
     # The tag's width there (px): the shorter image of a tag side along the board's axes (NaN: large).
     ends = _project_each(H, kP[:, None] + np.array([[board.spacing, 0.0], [0.0, board.spacing]]))
     side = np.linalg.norm(ends - q0, axis=2).min(1)
     margin = np.where(~(side < cfg.check_large_px) & ~strict, cfg.check_margin_large, cfg.check_margin)
-    return ~enough | ~(other > corr[:, 0] + margin)
+    return ~enough | (~(other > corr[:, 0] + margin) & ((corr[:, 0] >= min_corr) | ~strict))
 
 
 def rays_along(sm: np.ndarray, q: np.ndarray, H: np.ndarray, p: np.ndarray, gap: float, gap_px: float, cfg: CompletionConfig) -> bool:

@@ -231,3 +231,34 @@ def test_join_lattices_joins_parts_of_one_lattice():
     bad[k_bad] += [0.0, 16.0]  # over half a step off: 0.45 x 30 = 13.5 px
     joined = join_lattices([big, Lattice(bad, turned, small.filled)], cfg)[0]
     assert len(joined.ab) == NX * NY - 1 and (NX - 1, 2) not in joined.where
+
+
+def test_merge_half_resolution_completes_an_empty_result_and_refuses_slips():
+    """A flat board and a half-resolution result at the true corners (half their positions):
+    where the full-resolution pass found nothing and the margin is sure, the corners are taken,
+    fitted at full resolution, except one given its row neighbour's place (the other checker
+    parity); an unsure margin, too few shared corners, or a shared corner elsewhere keeps the
+    full-resolution result."""
+    from dataclasses import replace
+
+    from cotrain.detect.grid_pass import GridResult, merge_half_resolution
+
+    img, q = board_image(sq=40, org=(60, 50), size=(560, 400))
+    cfg = GridConfig()
+    ids = np.arange(NX * NY)
+    at_half = (q + 0.5) / 2 - 0.5 + np.random.default_rng(0).normal(0, 0.1, q.shape)
+    at_half[20] = at_half[21]  # corner 20 put on 21's place; 21 not reported
+    keep = ids != 21
+    half = GridResult(ids[keep], at_half[keep], np.ones(keep.sum()), 80.0)
+    none = GridResult(np.zeros(0, int), np.zeros((0, 2)), np.zeros(0), float("nan"))
+    out = merge_half_resolution(img, none, half, BOARD, cfg)
+    assert set(out.ids.tolist()) == set(ids[keep].tolist()) - {20}
+    assert np.linalg.norm(out.xy - q[out.ids], axis=1).max() < 0.1  # refitted at full resolution
+    assert len(merge_half_resolution(img, none, replace(half, margin=30.0), BOARD, cfg).ids) == 0
+    few = GridResult(ids[:3], q[:3], np.ones(3), 40.0)
+    assert merge_half_resolution(img, few, half, BOARD, cfg) is few
+    elsewhere = GridResult(ids[:8], q[:8] + [3.0, 0.0], np.ones(8), 40.0)
+    assert merge_half_resolution(img, elsewhere, half, BOARD, cfg) is elsewhere
+    agree = GridResult(ids[:8], q[:8], np.ones(8), 40.0)
+    out = merge_half_resolution(img, agree, half, BOARD, cfg)
+    assert set(out.ids.tolist()) == set(ids[keep].tolist()) - {20} and np.array_equal(out.xy[:8], q[:8])
