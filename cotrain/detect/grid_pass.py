@@ -400,7 +400,7 @@ def merge_half_resolution(grey: np.ndarray, full: GridResult, half: GridResult, 
     the two agree on at least ``cfg.half_min_shared`` corners (within 1.5 px) and on every corner
     both report, or, where ``full`` found nothing, where its identity margin reaches
     ``cfg.half_min_margin_alone``. The corners only ``half`` reports are fitted again at full
-    resolution (keeping twice their half-resolution position where the fit fails or moves them
+    resolution (keeping their half-resolution position, mapped back, where the fit fails or moves them
     1 px or more) and kept where the print around them correlates with their own by
     ``cfg.half_min_corr`` and no better with an axis neighbour's (the other checker parity;
     :func:`cotrain.detect.tag_completion.print_check`)."""
@@ -408,11 +408,12 @@ def merge_half_resolution(grey: np.ndarray, full: GridResult, half: GridResult, 
 
     if len(half.ids) <= len(full.ids):
         return full
-    q = (half.xy + 0.5) * 2 - 0.5
+    h, w = grey.shape
+    q = (half.xy + 0.5) * np.array([w / (w // 2), h / (h // 2)]) - 0.5  # 2, or a little more for an odd size
     at_full = dict(zip(full.ids.tolist(), full.xy))
     shared = [np.linalg.norm(at_full[i] - p) for i, p in zip(half.ids.tolist(), q) if i in at_full]
     if len(full.ids):
-        if len(shared) < cfg.half_min_shared or max(shared) > 1.5:
+        if len(shared) < cfg.half_min_shared or (shared and max(shared) > 1.5):
             return full
     elif not half.margin >= cfg.half_min_margin_alone:
         return full
@@ -434,5 +435,7 @@ def merge_half_resolution(grey: np.ndarray, full: GridResult, half: GridResult, 
     # dark rim makes an X of its own, and the full-resolution pass's rim rules were not applied.
     ok &= rim_dist[qi[:, 1], qi[:, 0]] >= cfg.half_rim_px
     ok |= ~added  # the full-resolution corners stay
+    if not ok[added].any():
+        return full
     order = np.argsort(ids[ok])
     return GridResult(ids[ok][order], xy[ok][order], conf[ok][order], full.margin if len(full.ids) else half.margin)

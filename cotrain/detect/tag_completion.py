@@ -55,7 +55,7 @@ class CompletionConfig:
     search: float = 0.6  # ... else candidates within this fraction of it are tried
     min_symmetry: float = 0.5  # point symmetry of that saddle fit (as the candidates'; the print check follows)
     crowd: float = 0.5  # a corner this close to an identified one (fraction of the local gap) is refused
-    patch: float = 0.45  # half-size of the patch compared with the print, in tag sizes
+    patch: float = 0.45  # half-size of the patch compared with the print, in the board's spacing (a tag side, a square)
     patch_samples: int = 11  # samples across it
     min_corr: float = 0.5  # correlation of the image with the print around the corner ...
     min_corr_margin: float = 0.1  # ... better by this than with the print around each grid neighbour
@@ -148,11 +148,15 @@ def print_correlation(
 def local_homographies(P: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """:func:`local_homography` of N point sets at once: board points P (N, K, 2) (metres) to
     pixels q (N, K, 2), by the normalised direct linear transform (each set centred and scaled to
-    unit mean distance, the smallest singular vector; the least-squares algebraic fit, which
+    mean distance sqrt(2), the smallest singular vector; the least-squares algebraic fit, which
     ``cv2.findHomography(P, q, 0)`` refines further). Returns H (N, 3, 3), oriented with the points
     in front, and whether each is posed (N,): both board axes spanned, and not degenerate."""
     P, q = np.asarray(P, np.float64), np.asarray(q, np.float64)
     N, K = P.shape[:2]
+    if K < 4:
+        return np.zeros((N, 3, 3)), np.zeros(N, bool)
+    finite = np.isfinite(P).all((1, 2)) & np.isfinite(q).all((1, 2))
+    P, q = np.where(finite[:, None, None], P, 0.0), np.where(finite[:, None, None], q, 0.0)
 
     def normaliser(x: np.ndarray) -> np.ndarray:  # (N, 3, 3): centre at 0, mean distance sqrt(2)
         m = x.mean(1)
@@ -176,7 +180,8 @@ def local_homographies(P: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.nda
     Hn = vt[:, -1].reshape(N, 3, 3)
     H = np.linalg.solve(Tq, Hn @ Tp)  # Tq^-1 Hn Tp
     span = (np.ptp(P[..., 0], 1) > 0) & (np.ptp(P[..., 1], 1) > 0) & (K >= 4)
-    posed = span & np.isfinite(H).all((1, 2)) & (sv[:, -2] > 1e-9 * sv[:, 0])
+    # Rank 8 (the 8th singular value of the 2K x 9 system clear of 0): three of four points on a line are not.
+    posed = finite & span & np.isfinite(H).all((1, 2)) & (sv[:, 7] > 1e-9 * sv[:, 0])
     w = np.einsum("nk,nk->n", P.mean(1), H[:, 2, :2]) + H[:, 2, 2]
     return H * np.where(w < 0, -1.0, 1.0)[:, None, None], posed
 
@@ -208,12 +213,16 @@ def print_check(
     (the square's other corner, where a gap of 2-3 px collapses or glare washes it out), or a tag
     corner read at the wrong end of its gap. A wrong corner bends the homographies of the corners
     around it, so the corners are checked twice, the second time with homographies of the corners
-    the first check kept. Corners with fewer than four others around, or with under a fifth of the
-    patch inside the image circle, are kept."""
+    the first check kept (a corner the first pass dropped may pass the second). Grid neighbours
+    printed exactly as the corner is (a checkerboard's diagonal ones) are left out of the
+    comparison. ``strict`` (K,) bool: corners held to ``cfg.check_margin`` whatever their tag's
+    width and to a correlation of ``min_corr`` with their own print, and dropped where they
+    cannot be checked; the others are kept where they cannot be (fewer than four other corners
+    around, a homography not posed, under a fifth of the patch inside the image circle)."""
     K = len(ids)
-    if min(cfg.neighbours, K - 1) < 4:
-        return np.ones(K, bool)
     strict = np.zeros(K, bool) if strict is None else np.asarray(strict, bool)
+    if min(cfg.neighbours, K - 1) < 4:
+        return ~strict
     keep = _uncontradicted(sm, rim_dist, board, ids, xy, np.ones(K, bool), strict, cfg, min_corr)
     if keep.all() or min(cfg.neighbours, int(keep.sum()) - 1) < 4:
         return keep
@@ -271,7 +280,7 @@ def _uncontradicted(
     ends = _project_each(H, kP[:, None] + np.array([[board.spacing, 0.0], [0.0, board.spacing]]))
     side = np.linalg.norm(ends - q0, axis=2).min(1)
     margin = np.where(~(side < cfg.check_large_px) & ~strict, cfg.check_margin_large, cfg.check_margin)
-    return ~enough | (~(other > corr[:, 0] + margin) & ((corr[:, 0] >= min_corr) | ~strict))
+    return (~enough & ~strict) | (enough & ~(other > corr[:, 0] + margin) & ((corr[:, 0] >= min_corr) | ~strict))
 
 
 def rays_along(sm: np.ndarray, q: np.ndarray, H: np.ndarray, p: np.ndarray, gap: float, gap_px: float, cfg: CompletionConfig) -> bool:

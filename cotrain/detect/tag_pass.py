@@ -1458,16 +1458,24 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
     if len(r.ids) >= cfg.half_below or r.scale > 1 or min(grey.shape) < cfg.half_min_side:
         return r
     # Blurred and large tags: at half resolution the fixed windows and circles of the pass see a
-    # blur of 5 px as one of 2.5 and a tag of 120 px as one of 60. Corners found only there are
-    # fitted again at full resolution (kept at twice their half-resolution position where that
-    # fit fails or moves them by a pixel or more) and kept where the print around them does not
-    # contradict them (held to the small tags' margin whatever their size).
-    half = cv2.resize(grey, (grey.shape[1] // 2, grey.shape[0] // 2), interpolation=cv2.INTER_AREA)
+    # blur of 5 px as one of 2.5 and a tag of 120 px as one of 60. Where both passes report a
+    # corner they must agree (within 1.5 px). Corners found only at half resolution are fitted
+    # again at full resolution (kept at their half-resolution position mapped back where that fit
+    # fails or moves them by a pixel or more) and kept where the print around them does not
+    # contradict them (held to the small tags' margin whatever their size); their tags are added
+    # to the decoded ones where a corner of theirs is kept.
+    H, W = grey.shape
+    half = cv2.resize(grey, (W // 2, H // 2), interpolation=cv2.INTER_AREA)
     r2 = _tag_pass_circle(half, board, replace(cfg, min_side_px=0))
     new = ~np.isin(r2.ids, r.ids)
     if not new.any():
         return r
-    q = (r2.xy[new] + 0.5) * 2 - 0.5
+    to_full = np.array([W / (W // 2), H / (H // 2)])  # 2, or a little more for an odd size
+    q_all = (r2.xy + 0.5) * to_full - 0.5
+    at_full = dict(zip(r.ids.tolist(), r.xy))
+    if any(np.linalg.norm(at_full[i] - p) > 1.5 for i, p in zip(r2.ids.tolist(), q_all) if i in at_full):
+        return r  # the two passes place the board differently: the full-resolution one stays
+    q = q_all[new]
     allowed = ~outside_circle(grey)
     rim_dist = cv2.distanceTransform(allowed.astype(np.uint8), cv2.DIST_L2, 3)
     smoothed: dict[int, np.ndarray] = {}
@@ -1479,8 +1487,11 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
     added = np.arange(len(ids)) >= len(r.ids)
     ok = print_check(smooth_cached(smoothed, grey, 1), rim_dist, board, ids, xy, cfg.complete, strict=added)
     ok[~added] = True  # the full-resolution pass's corners passed its own check
+    if not ok[added].any():
+        return r
     order = np.argsort(ids[ok])
-    more = ~np.isin(r2.tags, r.tags)
+    kept_new = ids[ok & added]
+    more = ~np.isin(r2.tags, r.tags) & np.array([np.isin(board.tag_corners(t), kept_new).any() for t in r2.tags.tolist()], bool)
     return replace(
         r,
         ids=ids[ok][order],

@@ -49,11 +49,15 @@ def test_local_homographies_match_opencv_per_set_and_refuse_degenerate_sets():
     ]
     h = np.concatenate([P, np.ones((N, K, 1))], 2) @ H_true.transpose(0, 2, 1)
     q = h[..., :2] / h[..., 2:] + rng.normal(0, 0.1, (N, K, 2))
-    P[-2] = np.stack([np.linspace(0, 0.3, K), np.full(K, 0.1)], 1)  # one line
+    P[-3] = np.stack([np.linspace(0, 0.3, K), np.full(K, 0.1)], 1)  # one line along x
+    P[-2] = np.stack([np.linspace(0, 0.3, K), np.linspace(0.05, 0.25, K)], 1)  # one diagonal line
     P[-1] = 0.2  # one point
     H, posed = local_homographies(P, q)
-    assert posed[:-2].all() and not posed[-2:].any()
-    for n in range(N - 2):
+    assert posed[:-3].all() and not posed[-3:].any()
+    four = np.array([[[0.0, 0.0], [0.1, 0.1], [0.2, 0.2], [0.3, 0.0]]])  # three of four on a line
+    assert not local_homographies(four, four * 1000)[1][0]
+    assert local_homographies(np.array([[[0.0, 0.0], [0.1, 0.0], [0.1, 0.1], [0.0, 0.1]]]), four * 1000)[1][0]
+    for n in range(N - 3):
         H_cv, _ = cv2.findHomography(P[n], q[n], 0)
         a = np.c_[P[n], np.ones(K)] @ H[n].T
         b = np.c_[P[n], np.ones(K)] @ H_cv.T
@@ -113,6 +117,10 @@ def test_print_check_drops_a_corner_moved_across_its_gap_and_keeps_the_rest():
     ids_k, xy_k = ids[~np.isin(ids, [28, 65])], xy[~np.isin(ids, [28, 65])]
     keep = print_check(sm, rim, g, ids_k, xy_k, CompletionConfig())
     assert set(ids_k[~keep].tolist()) == {27, 64}
+    # Too few corners to check: kept, unless strict (corners a second pass adds).
+    few = ids_k[:4]
+    assert print_check(sm, rim, g, few, q[few], CompletionConfig()).all()
+    assert not print_check(sm, rim, g, few, q[few], CompletionConfig(), strict=np.ones(4, bool)).any()
 
 
 def _anchor(g, block: list[int]) -> np.ndarray:
