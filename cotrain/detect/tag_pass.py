@@ -132,9 +132,7 @@ class TagConfig:
     max_enlarge: float = 1.5  # ... by at most this factor; the thresholds above that judge a tag's size in px scale with it
     # --- blurred and large tags ---
     half_below: int = 70  # a frame where fewer corners are found is read at half resolution too (0: never) ...
-    half_min_side: int = (
-        700  # ... where its shorter side has at least this many px; what only that finds is added where the print check keeps it
-    )
+    half_min_side: int = 700  # ... and not read enlarged (min_side_px), with a shorter side of this many px or more
     # --- boards ---
     min_corners: int = 4  # smallest lattice that is reported
     complete: CompletionConfig = field(default_factory=CompletionConfig)  # corners the growth missed, predicted from the placed board
@@ -1499,6 +1497,7 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
         confidence=conf[ok][order],
         tags=np.concatenate([r.tags, r2.tags[more]]),
         hamming=np.concatenate([r.hamming, r2.hamming[more]]),
+        # Counts of tags the two passes mostly both saw: the larger of the two.
         dropped_tags=max(r.dropped_tags, r2.dropped_tags),
         foreign_tags=max(r.foreign_tags, r2.foreign_tags),
     )
