@@ -26,6 +26,7 @@ import numpy as np
 
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.grid_pass import GridResult, grid_pass, merge_half_resolution
+from cotrain.detect.half_resolution import halve
 from cotrain.detect.images import MIN_SIDE, ImageError, brighten, to_grey_float
 from cotrain.detect.onnx_model import OnnxModel
 from cotrain.detect.saddle import saddle_fit, smooth_for, window_half
@@ -154,8 +155,7 @@ class Detector:
         h, w = grey.shape
         if len(g.ids) >= cfg.half_below or min(h, w) < cfg.half_min_side:
             return g
-        half = cv2.resize(grey, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
-        g_half = grid_pass(half, Letterbox(w // 2, h // 2, self.input_size), *maps, self.target, cfg)
+        g_half = grid_pass(halve(grey), Letterbox(w // 2, h // 2, self.input_size), *maps, self.target, cfg)
         return merge_half_resolution(grey, g, g_half, self.target, cfg)
 
     def grid_result(self, image: np.ndarray, grid: GridConfig | None = None) -> GridResult:

@@ -45,9 +45,11 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from cotrain.detect.grid_config import GridConfig
+from cotrain.detect.half_resolution import corners_at_half_resolution
 from cotrain.detect.identity import assign_ids, canonical_ids, cell_darkness, corner_votes, edge_evidence
 from cotrain.detect.lattice import STEPS, Lattice, grow_lattice, refine_positions, skipped_corners, verify_lattice
 from cotrain.detect.saddle import fit_saddles, outside_circle, saddle_candidates, saddle_response, smooth_cached, window_half
+from cotrain.detect.tag_completion import CompletionConfig
 from cotrain.geometry.letterbox import CELLS, Letterbox
 from cotrain.targets import ROTATIONS, Checkerboard
 
@@ -395,47 +397,29 @@ def grid_pass(
 
 def merge_half_resolution(grey: np.ndarray, full: GridResult, half: GridResult, board: Checkerboard, cfg: GridConfig) -> GridResult:
     """The grid pass's result on the (H, W) image ``grey`` (``full``) completed with its result on
-    the image at half resolution (``half``, positions in half-resolution pixels), where that found
-    more: a blur of a few px and squares of 40-120 px look half as wide there. It is taken where
-    the two agree on at least ``cfg.half_min_shared`` corners (within 1.5 px) and on every corner
-    both report, or, where ``full`` found nothing, where its identity margin reaches
-    ``cfg.half_min_margin_alone``. The corners only ``half`` reports are fitted again at full
-    resolution (keeping their half-resolution position, mapped back, where the fit fails or moves them
-    1 px or more) and kept where the print around them correlates with their own by
-    ``cfg.half_min_corr`` and no better with an axis neighbour's (the other checker parity;
-    :func:`cotrain.detect.tag_completion.print_check`)."""
-    from cotrain.detect.tag_completion import CompletionConfig, print_check
-
+    the image at half resolution (``half``, :func:`cotrain.detect.half_resolution.halve`'s pixels),
+    where that found more. It is taken where the two share at least ``cfg.half_min_shared``
+    corners, or, where ``full`` found nothing, where its identity margin reaches
+    ``cfg.half_min_margin_alone``; the corners only ``half`` reports are added as
+    :func:`cotrain.detect.half_resolution.corners_at_half_resolution` keeps them (a correlation
+    of ``cfg.half_min_corr`` with their print and no better one with an axis neighbour's, the
+    other checker parity; ``cfg.half_rim_px`` from the rim, where a board's edge against the dark
+    rim makes an X of its own and the full-resolution pass's rim rules were not applied)."""
     if len(half.ids) <= len(full.ids):
         return full
-    h, w = grey.shape
-    q = (half.xy + 0.5) * np.array([w / (w // 2), h / (h // 2)]) - 0.5  # 2, or a little more for an odd size
-    at_full = dict(zip(full.ids.tolist(), full.xy))
-    shared = [np.linalg.norm(at_full[i] - p) for i, p in zip(half.ids.tolist(), q) if i in at_full]
     if len(full.ids):
-        if len(shared) < cfg.half_min_shared or (shared and max(shared) > 1.5):
+        if np.isin(half.ids, full.ids).sum() < cfg.half_min_shared:
             return full
     elif not half.margin >= cfg.half_min_margin_alone:
         return full
-    new = ~np.isin(half.ids, full.ids)
-    allowed = ~outside_circle(grey)
-    rim_dist = cv2.distanceTransform(allowed.astype(np.uint8), cv2.DIST_L2, 3)
-    smoothed: dict[int, np.ndarray] = {}
-    q_fit, fitted, _ = fit_saddles(grey, smoothed, q[new], cfg.final_max_half, cfg, rim_dist)
-    refit = fitted & (np.linalg.norm(q_fit - q[new], axis=1) < 1.0)
-    q_new = np.where(refit[:, None], q_fit, q[new])
-    ids = np.concatenate([full.ids, half.ids[new]])
-    xy = np.concatenate([full.xy.reshape(-1, 2), q_new])
-    conf = np.concatenate([full.confidence, half.confidence[new]])
-    added = np.arange(len(ids)) >= len(full.ids)
-    sm = smooth_cached(smoothed, grey, 1)
-    ok = print_check(sm, rim_dist, board, ids, xy, CompletionConfig(), strict=added, min_corr=cfg.half_min_corr)
-    qi = np.clip(np.rint(xy).astype(int), 0, [grey.shape[1] - 1, grey.shape[0] - 1])
-    # Off the rim by more than the half-resolution windows reach: there a board's edge against the
-    # dark rim makes an X of its own, and the full-resolution pass's rim rules were not applied.
-    ok &= rim_dist[qi[:, 1], qi[:, 0]] >= cfg.half_rim_px
-    ok |= ~added  # the full-resolution corners stay
-    if not ok[added].any():
+    found = corners_at_half_resolution(
+        grey, full.ids, full.xy, half.ids, half.xy, board, cfg, CompletionConfig(), min_corr=cfg.half_min_corr, rim_px=cfg.half_rim_px
+    )
+    if found is None or not len(found[0]):
         return full
-    order = np.argsort(ids[ok])
-    return GridResult(ids[ok][order], xy[ok][order], conf[ok][order], full.margin if len(full.ids) else half.margin)
+    sel, q = found
+    ids = np.concatenate([full.ids, half.ids[sel]])
+    order = np.argsort(ids)
+    xy = np.concatenate([full.xy.reshape(-1, 2), q])[order]
+    conf = np.concatenate([full.confidence, half.confidence[sel]])[order]
+    return GridResult(ids[order], xy, conf, full.margin if len(full.ids) else half.margin)

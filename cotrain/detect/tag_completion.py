@@ -126,23 +126,46 @@ def print_correlation(
     homography H (board metres -> pixels) moved by ``shift`` (2,) px over the patch of
     :func:`print_patches` (see :class:`PrintMatch`). (-1, 1) where fewer than a fifth of the
     samples lie inside the image circle (``rim_dist`` (H, W) over 1.5 px)."""
-    U, printed = print_patches(board, cfg)
-    P = board.points().numpy()[:, :2]
-    q = _project(H, P[t] + U) + shift
-    inside = np.isfinite(q).all(1)
-    inside[inside] = values_at(rim_dist, q[inside]) > 1.5  # NaN outside the image
-    if inside.sum() < len(U) / 5:
+    corr, other_ok, enough = _print_correlations(sm, rim_dist, board, H[None], np.asarray(shift, np.float64)[None], np.array([t]), cfg)
+    if not enough[0]:
         return PrintMatch(-1.0, 1.0)
-    seen = values_at(sm, q[inside]).astype(np.float64)
-    seen -= seen.mean()
-    c0, r0 = t % board.nx, t // board.nx
-    beside = [(c0 + a, r0 + b) for b in (-1, 0, 1) for a in (-1, 0, 1) if a or b]
-    others = [r * board.nx + c for c, r in beside if 0 <= c < board.nx and 0 <= r < board.ny]
-    pat = printed[[t, *others]][:, inside]  # (1 + n, m)
-    pat = pat - pat.mean(1, keepdims=True)
-    den = np.sqrt((pat * pat).sum(1) * (seen @ seen))
-    corr = np.where(den > 1e-12, pat @ seen / np.maximum(den, 1e-12), -1.0)
-    return PrintMatch(float(corr[0]), float(corr[1:].max()) if others else -1.0)
+    others = corr[0, 1:][other_ok[0]]
+    return PrintMatch(float(corr[0, 0]), float(others.max()) if len(others) else -1.0)
+
+
+def _print_correlations(
+    sm: np.ndarray, rim_dist: np.ndarray, board: Target, H: np.ndarray, shift: np.ndarray, ids: np.ndarray, cfg: CompletionConfig
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The image ``sm`` (H, W) around corners ``ids`` (K,), sampled over the patch of
+    :func:`print_patches` through homographies H (K, 3, 3) (board metres -> pixels) moved by
+    ``shift`` (K, 2) px, correlated with the print around each corner and around its eight grid
+    neighbours. Returns the correlations (K, 9) (the corner's own first; -1 without contrast),
+    which neighbours count (K, 8): on the board and printed otherwise than the corner (a
+    checkerboard's diagonal neighbours are printed alike), and whether a fifth of the samples
+    lie inside the image circle (``rim_dist`` over 1.5 px) (K,)."""
+    U, printed = print_patches(board, cfg)
+    p = board.points().numpy()[:, :2][ids]
+    q = _project_each(H, p[:, None] + U[None]) + shift[:, None]
+    q = np.where(np.isfinite(q), q, -1e6)  # behind the horizon: outside the image
+    vals = values_at(sm, q)  # (K, M), NaN outside the image
+    inside = np.isfinite(vals) & (values_at(rim_dist, q) > 1.5)
+    c0, r0 = ids % board.nx, ids // board.nx
+    cn, rn = c0[:, None] + _GRID8[:, 0], r0[:, None] + _GRID8[:, 1]
+    on = (cn >= 0) & (cn < board.nx) & (rn >= 0) & (rn < board.ny)
+    nb = np.where(on, rn * board.nx + cn, 0)
+    pat = printed[np.concatenate([ids[:, None], nb], 1)]  # (K, 9, M)
+    m = inside.astype(np.float64)[:, None]  # (K, 1, M)
+    cnt = np.maximum(m.sum(2, keepdims=True), 1)
+    seen = np.where(inside, vals, 0.0)[:, None]
+    seen = (seen - (seen * m).sum(2, keepdims=True) / cnt) * m
+    pat = (pat - (pat * m).sum(2, keepdims=True) / cnt) * m
+    den = np.sqrt((pat * pat).sum(2) * (seen * seen).sum(2))
+    corr = np.where(den > 1e-12, (pat * seen).sum(2) / np.maximum(den, 1e-12), -1.0)
+    same = np.abs(printed[nb] - printed[ids][:, None]).max(2) < 1e-6
+    return corr, on & ~same, inside.sum(1) >= len(U) / 5
+
+
+_GRID8 = np.array([(a, b) for b in (-1, 0, 1) for a in (-1, 0, 1) if a or b])  # a corner's eight grid neighbours (column, row steps)
 
 
 def local_homographies(P: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -244,9 +267,7 @@ def _uncontradicted(
     ``support`` (K,) bool other than itself."""
     K = len(ids)
     n = min(cfg.neighbours, int(support.sum()) - 1)
-    U, printed = print_patches(board, cfg)
-    P = board.points().numpy()[:, :2]
-    kP = P[ids]
+    kP = board.points().numpy()[:, :2][ids]
     sup = np.nonzero(support)[0]
     _, near = cKDTree(kP[sup]).query(kP, k=n + 1)
     near = sup[near.reshape(K, -1)]
@@ -255,27 +276,9 @@ def _uncontradicted(
     H, posed = local_homographies(kP[near], xy[near])
     # The patch through each corner's homography, moved so that the corner lands on its position.
     q0 = _project_each(H, kP[:, None])  # (K, 1, 2)
-    q = _project_each(H, kP[:, None] + U[None]) - q0 + xy[:, None]
-    q = np.where(np.isfinite(q), q, -1e6)  # behind the horizon: outside the image
-    vals = values_at(sm, q)  # (K, M), NaN outside the image
-    inside = np.isfinite(vals) & (values_at(rim_dist, q) > 1.5)
-    enough = posed & np.isfinite(q0[:, 0, 0]) & (inside.sum(1) >= len(U) / 5)
-    c0, r0 = ids % board.nx, ids // board.nx
-    steps = [(a, b) for b in (-1, 0, 1) for a in (-1, 0, 1) if a or b]
-    cn, rn = c0[:, None] + np.array([a for a, _ in steps]), r0[:, None] + np.array([b for _, b in steps])
-    on = (cn >= 0) & (cn < board.nx) & (rn >= 0) & (rn < board.ny)
-    nb = np.where(on, rn * board.nx + cn, 0)
-    pat = printed[np.concatenate([ids[:, None], nb], 1)]  # (K, 9, M)
-    m = inside.astype(np.float64)[:, None]  # (K, 1, M)
-    cnt = np.maximum(m.sum(2, keepdims=True), 1)
-    seen = np.where(inside, vals, 0.0)[:, None]
-    seen = (seen - (seen * m).sum(2, keepdims=True) / cnt) * m
-    pat = (pat - (pat * m).sum(2, keepdims=True) / cnt) * m
-    den = np.sqrt((pat * pat).sum(2) * (seen * seen).sum(2))
-    corr = np.where(den > 1e-12, (pat * seen).sum(2) / np.maximum(den, 1e-12), -1.0)  # (K, 9)
-    # Neighbours printed as the corner is (a checkerboard's diagonal ones) tell nothing apart.
-    same = np.abs(printed[nb] - printed[ids][:, None]).max(2) < 1e-6
-    other = np.where(on & ~same, corr[:, 1:], -np.inf).max(1)
+    corr, other_ok, enough = _print_correlations(sm, rim_dist, board, H, xy - q0[:, 0], ids, cfg)
+    enough &= posed & np.isfinite(q0[:, 0, 0])
+    other = np.where(other_ok, corr[:, 1:], -np.inf).max(1)
     # The tag's width there (px): the shorter image of a tag side along the board's axes (NaN: large).
     ends = _project_each(H, kP[:, None] + np.array([[board.spacing, 0.0], [0.0, board.spacing]]))
     side = np.linalg.norm(ends - q0, axis=2).min(1)

@@ -64,6 +64,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from cotrain.detect.grid_config import GridConfig
+from cotrain.detect.half_resolution import corners_at_half_resolution, halve
 from cotrain.detect.lattice import STEPS, Lattice, beside_points, corner_rays, final_fits, shortest_steps, values_at
 from cotrain.detect.saddle import fit_saddles, outside_circle, saddle_response, smooth_cached, window_half
 from cotrain.detect.tag_completion import CompletionConfig, complete_board, print_check
@@ -1455,46 +1456,22 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
     r = _tag_pass_circle(grey, board, cfg)
     if len(r.ids) >= cfg.half_below or r.scale > 1 or min(grey.shape) < cfg.half_min_side:
         return r
-    # Blurred and large tags: at half resolution the fixed windows and circles of the pass see a
-    # blur of 5 px as one of 2.5 and a tag of 120 px as one of 60. Where both passes report a
-    # corner they must agree (within 1.5 px). Corners found only at half resolution are fitted
-    # again at full resolution (kept at their half-resolution position mapped back where that fit
-    # fails or moves them by a pixel or more) and kept where the print around them does not
-    # contradict them (held to the small tags' margin whatever their size); their tags are added
-    # to the decoded ones where a corner of theirs is kept.
-    H, W = grey.shape
-    half = cv2.resize(grey, (W // 2, H // 2), interpolation=cv2.INTER_AREA)
-    r2 = _tag_pass_circle(half, board, replace(cfg, min_side_px=0))
-    new = ~np.isin(r2.ids, r.ids)
-    if not new.any():
+    # Blurred and large tags (cotrain.detect.half_resolution): corners found only at half
+    # resolution, fitted again and checked against the print; their tags are added to the
+    # decoded ones where a corner of theirs is kept.
+    r2 = _tag_pass_circle(halve(grey), board, replace(cfg, min_side_px=0))
+    found = corners_at_half_resolution(grey, r.ids, r.xy, r2.ids, r2.xy, board, cfg.grid, cfg.complete)
+    if found is None or not len(found[0]):
         return r
-    to_full = np.array([W / (W // 2), H / (H // 2)])  # 2, or a little more for an odd size
-    q_all = (r2.xy + 0.5) * to_full - 0.5
-    at_full = dict(zip(r.ids.tolist(), r.xy))
-    if any(np.linalg.norm(at_full[i] - p) > 1.5 for i, p in zip(r2.ids.tolist(), q_all) if i in at_full):
-        return r  # the two passes place the board differently: the full-resolution one stays
-    q = q_all[new]
-    allowed = ~outside_circle(grey)
-    rim_dist = cv2.distanceTransform(allowed.astype(np.uint8), cv2.DIST_L2, 3)
-    smoothed: dict[int, np.ndarray] = {}
-    q_fit, fitted, _ = fit_saddles(grey, smoothed, q, cfg.grid.final_max_half, cfg.grid, rim_dist)
-    q = np.where((fitted & (np.linalg.norm(q_fit - q, axis=1) < 1.0))[:, None], q_fit, q)
-    ids = np.concatenate([r.ids, r2.ids[new]])
-    xy = np.concatenate([r.xy, q])
-    conf = np.concatenate([r.confidence, r2.confidence[new]])
-    added = np.arange(len(ids)) >= len(r.ids)
-    ok = print_check(smooth_cached(smoothed, grey, 1), rim_dist, board, ids, xy, cfg.complete, strict=added)
-    ok[~added] = True  # the full-resolution pass's corners passed its own check
-    if not ok[added].any():
-        return r
-    order = np.argsort(ids[ok])
-    kept_new = ids[ok & added]
-    more = ~np.isin(r2.tags, r.tags) & np.array([np.isin(board.tag_corners(t), kept_new).any() for t in r2.tags.tolist()], bool)
+    sel, q = found
+    ids = np.concatenate([r.ids, r2.ids[sel]])
+    order = np.argsort(ids)
+    more = ~np.isin(r2.tags, r.tags) & np.array([np.isin(board.tag_corners(t), r2.ids[sel]).any() for t in r2.tags.tolist()], bool)
     return replace(
         r,
-        ids=ids[ok][order],
-        xy=xy[ok][order],
-        confidence=conf[ok][order],
+        ids=ids[order],
+        xy=np.concatenate([r.xy, q])[order],
+        confidence=np.concatenate([r.confidence, r2.confidence[sel]])[order],
         tags=np.concatenate([r.tags, r2.tags[more]]),
         hamming=np.concatenate([r.hamming, r2.hamming[more]]),
         # Counts of tags the two passes mostly both saw: the larger of the two.
