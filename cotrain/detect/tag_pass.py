@@ -9,7 +9,9 @@ checkerboard's: tags and crossing squares are dark, the gap strips between them 
    image circle), fitted as the grid pass fits them (:mod:`cotrain.detect.saddle`); their four
    edge rays (:func:`corner_rays`) and the candidates along them (:func:`axis_neighbours`);
 2. seeds (:func:`seed_tag`): a candidate whose ray neighbours lead to the three other corners of
-   a tag that looks like one (black border ring in white gaps, black and white data cells);
+   a tag that looks like one (black border ring in white gaps, black and white data cells); seeds
+   whose tag decodes alone grow first, the others after them (a quad of junctions across two
+   large bent tags can look like a tag, and would otherwise cover their corners);
 3. growth (:func:`grow_tag_lattice`): breadth first; each neighbour is predicted one long or one
    short step along a lattice axis (step lengths carried from corner to corner, and the
    parallelograms of neighbours already placed) and matched to a nearby candidate, a saddle found
@@ -17,7 +19,10 @@ checkerboard's: tags and crossing squares are dark, the gap strips between them 
    step must be an edge with the dark cell on the side the lattice's parity says, and must not
    pass over another candidate (:func:`step_taken`);
 4. reading (:func:`read_cells`, :func:`look_at_tag`): each tag cell with its four corners is read
-   through its own homography, bent by the lattice corners around it and by its sides as the
+   through its own homography (where the frame shows a fisheye's image circle, the homography of
+   the corners' rays under an equidistant lens guessed from the circle,
+   :mod:`cotrain.detect.image_circle`, so the lens bends the tag's square as it bends the tag),
+   bent by the lattice corners around it and by its sides as the
    image shows them (:func:`side_points`; never one homography per board: the fisheye bends a
    tag at the rim, a tag side bowed by a data cell already moves every cell a row), unless the
    sides disagree with the corners (a slid corner); the cells sharpened against blur and the data split
@@ -65,6 +70,7 @@ from scipy.spatial import cKDTree
 
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.half_resolution import corners_at_half_resolution, halve
+from cotrain.detect.image_circle import EquidistantLens, fit_image_circle, ray_homographies
 from cotrain.detect.lattice import STEPS, Lattice, beside_points, corner_rays, final_fits, shortest_steps, values_at
 from cotrain.detect.saddle import fit_saddles, outside_circle, saddle_response, smooth_cached, window_half
 from cotrain.detect.tag_completion import CompletionConfig, complete_board, print_check
@@ -110,6 +116,7 @@ class TagConfig:
     max_side_misfit: float = 0.04  # tags are read through a map bent to their sides, where the sides fit it within this (tag widths)
     sharpen: float = 1.5  # weight of the 4-neighbour Laplacian that undoes blur over a tag's cells (rendered tags of 10-30 px)
     min_cell_px: float = 1.0  # tags whose data cells are smaller than this (px) are not read
+    lens_fov: float = 210.0  # deg: where an image circle shows, tags are read as an equidistant fisheye of this FoV filling it bends them (0: through pixel homographies)
     # --- placement ---
     min_margin: float = 12.0  # the board's placement must beat the runner-up by this (correlation; a clean tag gives 36)
     min_mean_corr: float = 0.4  # ... and its tags must correlate with their codes by this much on average (-1 .. 1)
@@ -344,14 +351,22 @@ def fourth_corner(
 
 
 def seed_tag(
-    xy: np.ndarray, nbr: RayNeighbours, seed: int, img: np.ndarray, spacing: float, cfg: TagConfig, tree: cKDTree
-) -> tuple[np.ndarray, list[int]] | None:
+    xy: np.ndarray,
+    nbr: RayNeighbours,
+    seed: int,
+    img: np.ndarray,
+    spacing: float,
+    cfg: TagConfig,
+    tree: cKDTree,
+    lens: EquidistantLens | None = None,
+) -> tuple[np.ndarray, list[int], bool] | None:
     """A seed for the growth: candidate ``seed`` (of xy (K, 2), neighbours along its edges ``nbr``,
     see :func:`axis_neighbours`) is a tag corner whose tag, lattice cell
     (0, 0), has its three other corners among the candidates and looks like a tag in ``img``
     (H, W): a black border ring inside white gaps, black and white data cells (see
-    :func:`look_at_tag`). Returns the seed's step frame (axis, kind (long, short), 2) and the
-    candidates at the tag's other corners, lattice (1, 0), (1, 1), (0, 1); None otherwise. This
+    :func:`look_at_tag`). Returns the seed's step frame (axis, kind (long, short), 2), the
+    candidates at the tag's other corners, lattice (1, 0), (1, 1), (0, 1), and whether the tag
+    decodes alone (a tag36h11 code within ``cfg.max_hamming``); None otherwise. This
     keeps the growth off the X-junctions between a tag's own data cells, and off the black squares
     at the gap crossings."""
     p0 = xy[seed]
@@ -364,12 +379,13 @@ def seed_tag(
             continue
         if not ring_in_gaps(img, c, spacing):
             continue  # a quick look first: most quads of candidates are no tag
-        look = look_at_tag(img, c, spacing, sharpen=cfg.sharpen, max_side_misfit=cfg.max_side_misfit)
+        look = look_at_tag(img, c, spacing, sharpen=cfg.sharpen, max_side_misfit=cfg.max_side_misfit, lens=lens)
         if look is None or look.contrast < cfg.min_bit_contrast or look.clean < cfg.min_clean:
             continue
         if min(look.white.mean(), 1 - look.white.mean()) < cfg.min_data_share or look.data_contrast < cfg.min_data_contrast:
             continue  # uniform inside: a crossing square, not a tag
-        return frame, [int(tree.query(c[1])[1]), int(j), int(tree.query(c[3])[1])]
+        decodes = decode_bits(look.white)[2] <= cfg.max_hamming
+        return frame, [int(tree.query(c[1])[1]), int(j), int(tree.query(c[3])[1])], decodes
     return None
 
 
@@ -799,14 +815,40 @@ def _project(H: np.ndarray, p: np.ndarray) -> np.ndarray:
 class TagMap:
     """T tags' unit squares (u along a, v along b; corners at 0 and 1) -> image pixels (:func:`tag_maps`)."""
 
-    H: np.ndarray  # (T, 3, 3) the homographies of the tags' four corners
+    H: np.ndarray  # (T, 3, 3) the homographies of the tags' four corners (to pixels; with a lens, to rays)
     coef: np.ndarray  # (T, 6, 2) the quadratics that bend the unit squares first (:func:`_quadratic`); zero: not bent
     misfit: np.ndarray  # (T,) the largest distance (tag widths) of a point found on a side from the fitted side; 0 without side points
+    lens: EquidistantLens | None = None  # the lens guessed from the image circle; None: H maps to pixels
 
     def __call__(self, u: np.ndarray) -> np.ndarray:
         """(k, 2) unit coordinates (the same for every tag) or (T, k, 2) -> (T, k, 2) pixels."""
         u = np.broadcast_to(np.asarray(u, np.float64), (len(self.H), *np.shape(u)[-2:]))
-        return _project(self.H, u + _quadratic(u) @ self.coef)
+        return _to_image(self.H, u + _quadratic(u) @ self.coef, self.lens)
+
+    def take(self, idx: np.ndarray) -> TagMap:
+        """The maps of tags ``idx`` (an index or bool mask over T)."""
+        return TagMap(self.H[idx], self.coef[idx], self.misfit[idx], self.lens)
+
+
+def _to_image(H: np.ndarray, u: np.ndarray, lens: EquidistantLens | None) -> np.ndarray:
+    """Unit points u (T, n, 2) through homographies H (T, 3, 3) to pixels (T, n, 2): directly, or
+    as rays through ``lens``."""
+    if lens is None:
+        return _project(H, u)
+    x, y = u[..., 0], u[..., 1]
+    h = H[:, None]
+    return lens.project_xyz(*(h[..., i, 0] * x + h[..., i, 1] * y + h[..., i, 2] for i in range(3)))
+
+
+def _to_unit(Hi: np.ndarray, p: np.ndarray, lens: EquidistantLens | None) -> np.ndarray:
+    """Pixels p (T, n, 2) through the inverse homographies Hi (T, 3, 3) to unit points (T, n, 2):
+    directly, or lifted to rays by ``lens`` first (a point at infinity goes to 0)."""
+    if lens is None:
+        return _project(Hi, p)
+    v = lens.lift(p)
+    w = (Hi[:, None] @ v[..., None])[..., 0]
+    z = w[..., 2:]
+    return np.where(np.abs(z) > np.finfo(np.float64).eps, w[..., :2] / np.where(z == 0, 1.0, z), 0.0)
 
 
 def tag_maps(
@@ -816,9 +858,11 @@ def tag_maps(
     side_px: np.ndarray | None = None,
     side_of: np.ndarray | None = None,
     side_ok: np.ndarray | None = None,
+    lens: EquidistantLens | None = None,
 ) -> TagMap:
     """The maps from T tags' unit squares to the image: the homography of each tag's four corners
-    (``corners`` (T, 4, 2)), bent by a quadratic where more is known of how the fisheye bends the
+    (``corners`` (T, 4, 2); with ``lens``, of their rays, so that the lens bends the square as it
+    bends the tag), bent by a quadratic where more is known of how the fisheye bends the
     tag: lattice corners around it (``more[t]`` (n_t, 2) pixels at unit coordinates
     ``unit_more[t]`` (n_t, 2)), and points found on its sides (``side_px`` (T, m, 2) pixels on the
     sides ``side_of`` (T, m) of :data:`SIDES`, where ``side_ok`` (T, m) says they were found; see
@@ -829,9 +873,13 @@ def tag_maps(
     corners = np.asarray(corners, np.float64)
     T = len(corners)
     unit = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float32)
-    H = np.stack([cv2.getPerspectiveTransform(unit, c.astype(np.float32)) for c in corners]) if T else np.zeros((0, 3, 3))
+    if lens is None:
+        H = np.stack([cv2.getPerspectiveTransform(unit, c.astype(np.float32)) for c in corners]) if T else np.zeros((0, 3, 3))
+        good = np.ones(T, bool)
+    else:
+        H, good = ray_homographies(lens.lift(corners))
     det = np.linalg.det(H)
-    good = np.isfinite(det) & (np.abs(det) >= 1e-12)  # elsewhere a degenerate quad: nothing to bend
+    good &= np.isfinite(det) & (np.abs(det) >= 1e-12)  # elsewhere a degenerate quad: nothing to bend
     Hi = np.zeros_like(H)
     Hi[good] = np.linalg.inv(H[good])
     n_more = [0 if more is None or more[t] is None else len(more[t]) for t in range(T)]
@@ -849,12 +897,12 @@ def tag_maps(
             if n:
                 um[t, :n], pm[t, :n] = unit_more[t], more[t]
         there = np.arange(nm)[None] < np.array(n_more)[:, None]  # (T, nm)
-        seen = _project(Hi, pm)
+        seen = _to_unit(Hi, pm, lens)
         U[:, :, 4 : 4 + nm] = um
         R[:, :, 4 : 4 + nm] = np.where(there, (seen - um).transpose(2, 0, 1), 0.0)
         Wt[:, :, 4 : 4 + nm] = there
     if m:
-        seen = _project(Hi, side_px)
+        seen = _to_unit(Hi, side_px, lens)
         ok = np.ones(side_px.shape[:2], bool) if side_ok is None else side_ok
         s0 = 4 + max(n_more, default=0)
         for k in range(2):
@@ -875,7 +923,7 @@ def tag_maps(
         res = np.abs((A[:, :, s0:] @ coef[..., None])[..., 0] - R[:, :, s0:])  # (2, T, m)
         res = np.where((Wt[:, :, s0:] > 0) & fit[..., None], res, 0.0)
         misfit = res.max(axis=(0, 2))
-    return TagMap(H, coef.transpose(1, 2, 0), misfit)
+    return TagMap(H, coef.transpose(1, 2, 0), misfit, lens)
 
 
 def tag_map(
@@ -948,6 +996,7 @@ def look_at_tags(
     *,
     sharpen: float,
     max_side_misfit: float | None = None,
+    lens: EquidistantLens | None = None,
 ) -> list[TagLook | None]:
     """Read the T tags whose corners, lattice (0, 0), (1, 0), (1, 1), (0, 1), are ``corners``
     (T, 4, 2) from ``img`` (H, W; unblurred: cells of small tags are 1-2 px) through each tag's own
@@ -966,7 +1015,7 @@ def look_at_tags(
     data, bord, gaps = _unit_points(float(spacing))
     u = np.concatenate([data, bord, gaps])
     n = len(data)
-    to_image = tag_maps(corners, unit_more, more)
+    to_image = tag_maps(corners, unit_more, more, lens=lens)
     vals = values_at(img, to_image(u))  # (T, 400)
     seen = np.isfinite(vals).all(1)
     if max_side_misfit is not None:
@@ -975,7 +1024,7 @@ def look_at_tags(
         if try_.any():
             # The sides as the image shows them bend the map further (a fisheye bends a tag's sides).
             idx = np.nonzero(try_)[0]
-            sub = TagMap(to_image.H[idx], to_image.coef[idx], to_image.misfit[idx])
+            sub = to_image.take(idx)
             side_px, side_of, side_ok = sides_seen(img, sub, spacing, bl[idx], wh[idx])
             bent = tag_maps(
                 corners[idx],
@@ -984,10 +1033,11 @@ def look_at_tags(
                 side_px,
                 np.broadcast_to(side_of, side_ok.shape),
                 side_ok,
+                lens,
             )
             use = bent.misfit <= max_side_misfit  # else the corners and the sides disagree: a corner slid
             if use.any():
-                again = values_at(img, TagMap(bent.H[use], bent.coef[use], bent.misfit[use])(u))
+                again = values_at(img, bent.take(use)(u))
                 vals[idx[use]] = again
                 seen[idx[use]] = np.isfinite(again).all(1)
     out: list[TagLook | None] = [None] * T
@@ -1034,10 +1084,11 @@ def look_at_tag(
     *,
     sharpen: float,
     max_side_misfit: float | None = None,
+    lens: EquidistantLens | None = None,
 ) -> TagLook | None:
     """:func:`look_at_tags` of one tag (``corners`` (4, 2), ``unit_more`` and ``more`` (n, 2))."""
     ring = {} if more is None else {"unit_more": [unit_more], "more": [more]}
-    return look_at_tags(img, np.asarray(corners)[None], spacing, **ring, sharpen=sharpen, max_side_misfit=max_side_misfit)[0]
+    return look_at_tags(img, np.asarray(corners)[None], spacing, **ring, sharpen=sharpen, max_side_misfit=max_side_misfit, lens=lens)[0]
 
 
 @functools.lru_cache(maxsize=1)
@@ -1129,7 +1180,7 @@ class TagCell:
         return (self.tag, round(self.centre[0]), round(self.centre[1]))
 
 
-def read_cells(lat: Lattice, img: np.ndarray, spacing: float, cfg: TagConfig) -> list[TagCell]:
+def read_cells(lat: Lattice, img: np.ndarray, spacing: float, cfg: TagConfig, lens: EquidistantLens | None = None) -> list[TagCell]:
     """Every tag cell of the lattice (a, b both even) with its four corners, data cells of at least
     ``cfg.min_cell_px`` and all samples in the image, read; ``clean`` says whether it looks like a
     tag (``cfg.min_bit_contrast``, ``cfg.min_clean``)."""
@@ -1155,7 +1206,7 @@ def read_cells(lat: Lattice, img: np.ndarray, spacing: float, cfg: TagConfig) ->
     if not found:
         return []
     corners = np.stack([c for _, c, _ in found])
-    looks = look_at_tags(img, corners, spacing, unit_more, more, sharpen=cfg.sharpen, max_side_misfit=cfg.max_side_misfit)
+    looks = look_at_tags(img, corners, spacing, unit_more, more, sharpen=cfg.sharpen, max_side_misfit=cfg.max_side_misfit, lens=lens)
     read = [k for k, look in enumerate(looks) if look is not None]
     codes = decode_many(np.array([looks[k].white for k in read]).reshape(-1, 36))
     out = []
@@ -1486,14 +1537,17 @@ def _tag_pass_circle(grey: np.ndarray, board: AprilGrid, cfg: TagConfig) -> TagR
     if f > 1:
         grey = cv2.resize(grey, None, fx=f, fy=f, interpolation=cv2.INTER_LINEAR)
         cfg = replace(cfg, **{k: getattr(cfg, k) * f for k in ("small_tag_px", "small_gap_px", "keep_unfitted_px", "rim_strict_px")})
-    allowed = ~outside_circle(grey)
+    outside = outside_circle(grey)
+    circle = fit_image_circle(outside) if cfg.lens_fov > 0 else None
+    allowed = ~outside
     allowed[[0, -1], :] = False
     allowed[:, [0, -1]] = False
     ys, xs = np.nonzero(allowed.any(1))[0], np.nonzero(allowed.any(0))[0]
     H, W = grey.shape
     y0, y1 = (max(0, ys[0] - CIRCLE_PAD_PX), min(H, ys[-1] + 1 + CIRCLE_PAD_PX)) if len(ys) else (0, H)
     x0, x1 = (max(0, xs[0] - CIRCLE_PAD_PX), min(W, xs[-1] + 1 + CIRCLE_PAD_PX)) if len(xs) else (0, W)
-    r = _tag_pass_in(grey[y0:y1, x0:x1], allowed[y0:y1, x0:x1], board, cfg)
+    lens = None if circle is None else EquidistantLens.from_circle(circle[0] - np.array([x0, y0]), circle[1], cfg.lens_fov)
+    r = _tag_pass_in(grey[y0:y1, x0:x1], allowed[y0:y1, x0:x1], board, cfg, lens)
     xy = r.xy + np.array([x0, y0], np.float64)
     if f > 1:
         xy = (xy + 0.5) / f - 0.5  # pixel centres: x' = (x + 0.5) f - 0.5
@@ -1509,8 +1563,9 @@ def enlargement(shape: tuple[int, int], cfg: TagConfig) -> float:
     return min(cfg.min_side_px / short, cfg.max_enlarge)
 
 
-def _tag_pass_in(grey: np.ndarray, allowed: np.ndarray, board: AprilGrid, cfg: TagConfig) -> TagResult:
-    """:func:`tag_pass` on ``grey`` (H, W) where ``allowed`` (H, W) bool is the image circle."""
+def _tag_pass_in(grey: np.ndarray, allowed: np.ndarray, board: AprilGrid, cfg: TagConfig, lens: EquidistantLens | None) -> TagResult:
+    """:func:`tag_pass` on ``grey`` (H, W) where ``allowed`` (H, W) bool is the image circle;
+    tags are read through ``lens`` where one is guessed (:mod:`cotrain.detect.image_circle`)."""
 
     def empty(foreign: int = 0) -> TagResult:
         return TagResult(np.zeros(0, int), np.zeros((0, 2)), np.zeros(0), np.zeros(0, int), np.zeros(0, int), 0, foreign)
@@ -1528,26 +1583,40 @@ def _tag_pass_in(grey: np.ndarray, allowed: np.ndarray, board: AprilGrid, cfg: T
     spacing = board.cfg.tag_spacing
     covered = np.zeros(len(xy), bool)
     grown: list[Lattice] = []
+    # Seeds whose tag decodes alone grow first; the others (small or blurred tags, and quads of
+    # junctions that only look like a tag: across two large bent tags) once those have covered
+    # what they reach, so that such a quad does not cover the corners of the tags it cuts.
+    later: list[tuple[int, np.ndarray, list[int]]] = []
     for seed in range(len(xy)):
         if len(grown) >= cfg.max_seeds:
             break
         if covered[seed]:
             continue
-        found_seed = seed_tag(xy, nbr, seed, grey, spacing, cfg, tree)
+        found_seed = seed_tag(xy, nbr, seed, grey, spacing, cfg, tree, lens)
         if found_seed is None:
             continue
-        frame, tag_corners = found_seed
-        lat = grow_tag_lattice(xy, nbr, seed, frame, grey, cfg, smoothed, rim_dist, tree, tag_corners)
-        covered |= cKDTree(lat.xy).query(xy)[0] < cfg.grid.merge_radius_px
-        covered |= inside_cells(lat, xy, grey.shape)  # a grown tag's own data junctions are no seeds
-        grown.append(lat)
+        frame, tag_corners, decodes = found_seed
+        if not decodes:
+            later.append((seed, frame, tag_corners))
+            continue
+        grown.append(grow_tag_lattice(xy, nbr, seed, frame, grey, cfg, smoothed, rim_dist, tree, tag_corners))
+        covered |= cKDTree(grown[-1].xy).query(xy)[0] < cfg.grid.merge_radius_px
+        covered |= inside_cells(grown[-1], xy, grey.shape)  # a grown tag's own data junctions are no seeds
+    for seed, frame, tag_corners in later:
+        if len(grown) >= cfg.max_seeds:
+            break
+        if covered[seed]:
+            continue
+        grown.append(grow_tag_lattice(xy, nbr, seed, frame, grey, cfg, smoothed, rim_dist, tree, tag_corners))
+        covered |= cKDTree(grown[-1].xy).query(xy)[0] < cfg.grid.merge_radius_px
+        covered |= inside_cells(grown[-1], xy, grey.shape)
     found: list[_Board] = []
     foreign: set[tuple[int, int, int]] = set()
     joined = [L for L in join_lattices(grown, cfg.grid.merge_radius_px) if not any(L is G for G in grown)]
     for lat in grown + joined:
         if len(lat.ab) < cfg.min_corners:
             continue
-        cells = read_cells(lat, grey, spacing, cfg)
+        cells = read_cells(lat, grey, spacing, cfg, lens)
         foreign |= {c.key for c in cells if c.clean and c.tag >= board.n_tags and c.hamming <= cfg.max_hamming}
         place = place_board(cells, board)
         if place is None or place.margin < cfg.min_margin or place.score < cfg.min_mean_corr * 36 * place.cells:

@@ -781,8 +781,10 @@ def test_decode_many_finds_the_nearest_code_in_any_turn():
 
 def test_the_pass_on_the_image_circle_finds_what_it_finds_on_the_whole_frame():
     """tag_pass works on the image circle's bounding box (grown by CIRCLE_PAD_PX): the same
-    corners and ids as on the whole frame, at the same positions (to float rounding), in frame
-    pixels. The board lies at the circle's left rim, where the crop's edge is nearest."""
+    corners and ids as on the whole frame (read through the same lens, in the whole frame's
+    pixels), at the same positions (to float rounding), in frame pixels. The board lies at the
+    circle's left rim, where the crop's edge is nearest."""
+    from cotrain.detect.image_circle import EquidistantLens, fit_image_circle
     from cotrain.detect.images import to_grey_float
     from cotrain.detect.saddle import outside_circle
     from cotrain.detect.tag_pass import CIRCLE_PAD_PX, TagConfig, _tag_pass_in, tag_pass
@@ -797,7 +799,8 @@ def test_the_pass_on_the_image_circle_finds_what_it_finds_on_the_whole_frame():
     xs = np.nonzero(allowed.any(0))[0]
     assert xs[0] > CIRCLE_PAD_PX and xs[-1] < img.shape[1] - 1 - CIRCLE_PAD_PX  # the crop cuts the frame
     cropped = tag_pass(grey, g)
-    whole = _tag_pass_in(grey, allowed, g, TagConfig())
+    circle = fit_image_circle(outside_circle(grey))
+    whole = _tag_pass_in(grey, allowed, g, TagConfig(), EquidistantLens.from_circle(*circle, TagConfig().lens_fov))
     assert len(whole.ids) > 20
     np.testing.assert_array_equal(cropped.ids, whole.ids)
     np.testing.assert_allclose(cropped.xy, whole.xy, atol=1e-3)  # float32 sampling at other coordinates

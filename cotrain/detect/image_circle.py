@@ -1,0 +1,123 @@
+"""The fisheye a frame was taken with, guessed from its image circle, for reading tags.
+
+A board is a plane, so the map from a tag's square to the camera's rays is a homography
+(``v ~ H (u, v, 1)``) whatever the lens. In the image the same square is bent by the lens:
+near the rim of a 200-degree image a large tag's sides are arcs, and a homography of its four
+corners in pixels misplaces its inner cells by a cell or more. Here the lens is guessed from
+the image circle alone, an equidistant fisheye (``r = f theta``) whose circle of radius ``R``
+is ``fov`` degrees across (``f = R / (fov / 2)``): tags read through the homography of their
+corners' rays under that guess are bent as the lens bends them, within a small part of a cell
+for any FoV from 180 to 240 degrees and any of the usual models (Kannala-Brandt, UCM, EUCM,
+Double Sphere), since it is only used for the inside of one tag from its four corners.
+
+- :func:`fit_image_circle`: the circle (centre, radius) of the black frame's inner edge, or
+  None where no such circle shows (a frame without a black frame: pixels are read through
+  homographies then).
+- :class:`EquidistantLens`: ``lift`` pixels to unit rays and ``project`` rays to pixels.
+- :func:`ray_homographies`: per tag, the homography from its unit square to its corners' rays.
+
+Pure functions over numpy arrays; pixels follow docs/conventions.md (centre of the top-left
+pixel at (0, 0)).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+MIN_ARC_PX = 200  # edge pixels of the black frame a circle needs (about a sixth of a 720 px circle)
+INLIER_PX = 2.0  # px: edge pixels this close to the circle are on it (the frame's edge is found at half resolution)
+MIN_INLIERS = 0.6  # share of the black frame's edge pixels on the circle (else the dark frame runs into the scene)
+
+
+@dataclass(frozen=True)
+class EquidistantLens:
+    """An equidistant fisheye: a ray at ``theta`` from the axis lands ``focal * theta`` px from ``centre``."""
+
+    centre: tuple[float, float]  # px, where the axis meets the image
+    focal: float  # px per radian
+
+    @classmethod
+    def from_circle(cls, centre: np.ndarray, radius: float, fov_deg: float) -> EquidistantLens:
+        """The lens whose image circle of ``radius`` px about ``centre`` (2,) spans ``fov_deg`` degrees."""
+        return cls((float(centre[0]), float(centre[1])), float(radius) / np.radians(fov_deg / 2))
+
+    def lift(self, q: np.ndarray) -> np.ndarray:
+        """Pixels q (..., 2) -> unit rays v (..., 3) (z along the axis)."""
+        q = np.asarray(q, np.float64)
+        dx, dy = q[..., 0] - self.centre[0], q[..., 1] - self.centre[1]
+        r = np.hypot(dx, dy)
+        theta = r / self.focal
+        # sin(theta) / r, which tends to 1 / focal at the centre.
+        s = np.where(r > 1e-9, np.sin(theta) / np.maximum(r, 1e-9), 1.0 / self.focal)
+        return np.stack([dx * s, dy * s, np.cos(theta)], -1)
+
+    def project(self, v: np.ndarray) -> np.ndarray:
+        """Rays v (..., 3), of any length (not 0) -> pixels (..., 2); rays behind the lens too (theta over 90 deg)."""
+        v = np.asarray(v, np.float64)
+        return self.project_xyz(v[..., 0], v[..., 1], v[..., 2])
+
+    def project_xyz(self, x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """:meth:`project` of rays given by their components (each (...,)) -> pixels (..., 2)."""
+        rho = np.hypot(x, y)
+        k = np.where(rho > 1e-12, self.focal * np.arctan2(rho, z) / np.maximum(rho, 1e-12), 0.0)  # on the axis: the centre
+        return np.stack([self.centre[0] + x * k, self.centre[1] + y * k], -1)
+
+
+def fit_image_circle(outside: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """The image circle of a fisheye frame whose black frame is ``outside`` (H, W) bool (see
+    :func:`cotrain.detect.saddle.outside_circle`): its centre (2,) px and radius px, fitted to the
+    frame's inner edge (algebraic fit, then again to the edge pixels within :data:`INLIER_PX`).
+    None where the edge is too short or not a circle (no black frame, or a dark scene joined to it)."""
+    H, W = outside.shape
+    edge = cv2.morphologyEx(outside.astype(np.uint8), cv2.MORPH_GRADIENT, np.ones((3, 3), np.uint8)) > 0
+    edge[:3] = edge[-3:] = False  # the image border is no edge of the circle
+    edge[:, :3] = edge[:, -3:] = False
+    ys, xs = np.nonzero(edge)
+    if len(xs) < MIN_ARC_PX:
+        return None
+    p = np.stack([xs, ys], 1).astype(np.float64)
+    keep = np.ones(len(p), bool)
+    for _ in range(3):
+        A = np.concatenate([p[keep], np.ones((int(keep.sum()), 1))], 1)
+        sol = np.linalg.lstsq(A, (p[keep] ** 2).sum(1), rcond=None)[0]
+        centre = sol[:2] / 2
+        r2 = sol[2] + centre @ centre
+        if not np.isfinite(r2) or r2 <= 0:
+            return None
+        radius = float(np.sqrt(r2))
+        keep = np.abs(np.linalg.norm(p - centre, axis=1) - radius) < INLIER_PX
+        if keep.sum() < MIN_ARC_PX:
+            return None
+    if keep.mean() < MIN_INLIERS or not (0 <= centre[0] < W and 0 <= centre[1] < H):
+        return None
+    # The morphological edge lies half a pixel each side of the boundary: its mean is on it.
+    return centre, radius
+
+
+def ray_homographies(v_corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per tag, the homography H (T, 3, 3) with ``v ~ H (u, v, 1)`` that takes the unit square's
+    corners (0, 0), (1, 0), (1, 1), (0, 1) to the rays ``v_corners`` (T, 4, 3), scaled so that it
+    gives every corner a positive multiple of its ray (a tag's points then lie in front of the
+    lens, however far off-axis); and (T,) bool whether it does (else three of the rays lie in one
+    plane through the lens, or the four cross the line at infinity: no view of a plane's square).
+
+    Through the projective basis: ``P = [p0 p1 p3] diag(lam)`` with ``[p0 p1 p3] lam = p2`` takes
+    e1, e2, e3 and (1, 1, 1) to the four corners, and H is that of the rays after the inverse of
+    the unit square's own."""
+    v = np.asarray(v_corners, np.float64)
+    T = len(v)
+    A = v[:, [0, 1, 3]].transpose(0, 2, 1)  # (T, 3, 3): the rays of corners 0, 1, 3 as columns
+    det = np.linalg.det(A)
+    ok = np.isfinite(det) & (np.abs(det) > 1e-9)
+    A = np.where(ok[:, None, None], A, np.eye(3))
+    lam = np.linalg.solve(A, np.where(ok[:, None], v[:, 2], 1.0)[..., None])[..., 0]  # (T, 3)
+    # The unit square's basis: [u0 u1 u3] mu = u2 gives mu = (-1, 1, 1); its map is B = [u0 u1 u3] diag(mu).
+    # H = A diag(lam) B^-1; corner i goes to lam_i / mu_i times its ray (corner 2: to p2 itself).
+    B = np.array([[0.0, 1, 0], [0, 0, 1], [1, 1, 1]]) * np.array([-1.0, 1, 1])
+    H = (A * lam[:, None, :]) @ np.linalg.inv(B)
+    # Corner 2 goes to its ray itself; the others' multiples must be positive too.
+    ok &= ((lam * np.array([-1.0, 1, 1])) > 0).all(1) & np.isfinite(H).all((1, 2))
+    return H, ok

@@ -1,0 +1,133 @@
+"""The lens guessed from the image circle (cotrain.detect.image_circle), against independent math
+and against the renderer's cameras."""
+
+import cv2
+import numpy as np
+import pytest
+
+from cotrain.detect.image_circle import EquidistantLens, fit_image_circle, ray_homographies
+from cotrain.detect.saddle import outside_circle
+from cotrain.detect.tag_pass import TagConfig, decode_bits, look_at_tag, shortest_side
+from cotrain.targets import TargetConfig, make_target
+from tests.detect.test_tag_pass import centre, render
+
+UNIT = np.array([[0.0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]])
+
+
+def test_equidistant_lens_known_values_and_round_trip():
+    lens = EquidistantLens.from_circle(np.array([640.0, 360.0]), 400.0, 200.0)
+    assert lens.focal == pytest.approx(400.0 / np.radians(100.0))
+    # The circle's edge is 100 deg off-axis; the axis is the centre; 90 deg lies focal * pi / 2 out.
+    v_rim = np.array([np.sin(np.radians(100)), 0.0, np.cos(np.radians(100))])
+    np.testing.assert_allclose(lens.project(v_rim), [1040.0, 360.0], atol=1e-9)
+    np.testing.assert_allclose(lens.project(np.array([0.0, 0.0, 2.0])), [640.0, 360.0], atol=1e-12)
+    np.testing.assert_allclose(lens.project(np.array([0.0, -3.0, 0.0])), [640.0, 360.0 - lens.focal * np.pi / 2], atol=1e-9)
+    # Batch shapes, rays of any length, and the round trip up to the circle's edge and beyond 90 deg.
+    rng = np.random.default_rng(0)
+    q = np.array([640.0, 360.0]) + rng.uniform(-390, 390, (3, 5, 2)) * [1, 0.7]
+    v = lens.lift(q)
+    assert v.shape == (3, 5, 3)
+    np.testing.assert_allclose(np.linalg.norm(v, axis=-1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(lens.project(2.5 * v), q, atol=1e-9)
+    np.testing.assert_allclose(lens.lift(np.array([640.0, 360.0])), [0, 0, 1], atol=1e-12)
+
+
+def test_ray_homographies_take_the_unit_square_to_its_rays_and_refuse_no_square():
+    rng = np.random.default_rng(1)
+    H_true = rng.normal(size=(40, 3, 3))
+    v = np.einsum("tij,kj->tki", H_true, UNIT)
+    v /= np.linalg.norm(v, axis=-1, keepdims=True)  # each corner's ray, pointing where its point lies
+    H, ok = ray_homographies(v)
+    assert ok.all()
+    Hu = np.einsum("tij,kj->tki", H, UNIT)
+    scale = (Hu * v).sum(-1)
+    assert (scale > 0).all()  # positive multiples: the points in front
+    np.testing.assert_allclose(Hu, scale[..., None] * v, atol=1e-9)
+    # Inner points agree with the true map (up to the positive scale): a homography is fixed by four points.
+    u = np.array([0.3, 0.7, 1.0])
+    a, b = H @ u, H_true @ u
+    a /= np.linalg.norm(a, axis=-1, keepdims=True)
+    b /= np.linalg.norm(b, axis=-1, keepdims=True)
+    np.testing.assert_allclose(np.abs((a * b).sum(-1)), 1.0, atol=1e-9)
+    # One corner's ray reversed: no view of a square; three rays in one plane through the lens: none either.
+    flipped = v.copy()
+    flipped[:, 1] *= -1
+    assert not ray_homographies(flipped)[1].any()
+    flat = v[:1].copy()
+    flat[0, 3] = flat[0, 0] + flat[0, 1]
+    assert not ray_homographies(flat)[1].any()
+
+
+def circle_frame(h: int, w: int, c: tuple[float, float], r: float, blobs: bool = False) -> np.ndarray:
+    """A grey scene inside a circle of radius r about c, black outside (anti-aliased by 4x supersampling)."""
+    s = 4
+    yy, xx = np.mgrid[0 : h * s, 0 : w * s]
+    inside = np.hypot((xx + 0.5) / s - 0.5 - c[0], (yy + 0.5) / s - 0.5 - c[1]) < r
+    img = cv2.resize(inside.astype(np.float32), (w, h), interpolation=cv2.INTER_AREA) * 0.6
+    if blobs:
+        cv2.rectangle(img, (int(c[0] - 60), int(c[1] - 40)), (int(c[0] + 80), int(c[1] + 30)), 0.3, -1)
+    return img
+
+
+@pytest.mark.parametrize("c, r", [((640.0, 360.0), 340.0), ((652.3, 371.8), 500.0), ((630.0, 355.0), 700.0)])
+def test_fit_image_circle_finds_the_circle_whole_or_cut_by_the_frame(c, r):
+    """A whole circle, one cut at the top and bottom of the frame, and one larger than the frame's
+    height with only its sides showing (a dark patch inside touching nothing): the centre within
+    half a pixel, the radius within 1.5 px (the black frame is found at half resolution and grown
+    by a pixel: the radius comes out about 1 px long, 0.2 % of the focal length)."""
+    img = circle_frame(720, 1280, c, r, blobs=True)
+    fit = fit_image_circle(outside_circle(img))
+    assert fit is not None
+    np.testing.assert_allclose(fit[0], c, atol=0.5)
+    assert fit[1] == pytest.approx(r, abs=1.5)
+
+
+def test_fit_image_circle_refuses_frames_without_a_black_circle():
+    rng = np.random.default_rng(2)
+    grey = np.full((480, 640), 0.5, np.float32)
+    assert fit_image_circle(outside_circle(grey)) is None  # no black frame
+    dark = grey.copy()
+    dark[:, :200] = 0.0  # a dark scene at the frame's edge: a straight edge, no circle
+    dark += rng.normal(0, 0.01, dark.shape).astype(np.float32)
+    assert fit_image_circle(outside_circle(dark)) is None
+
+
+def test_large_bent_tags_read_through_the_guessed_lens():
+    """A board 8 cm from a 200-degree lens of each family, 40-90 deg off-axis: tags 30-110 px
+    across whose sides the lens bends. Read from their true corners through the equidistant lens
+    guessed from the image circle (taken as 210 degrees, not the true 200), every one decodes as
+    itself; through the corners' pixel homography bent to its sides, the largest (100 px and more)
+    do not."""
+    missed = 0
+    for model in ("kb4", "ucm", "eucm", "ds"):
+        missed += _large_tags_read(model)
+    assert missed >= 4
+
+
+def _large_tags_read(model: str) -> int:
+    """The tags of 30 px and more that the pixel homography misses (all must read through the lens)."""
+    g = make_target(TargetConfig(kind="aprilgrid", margin=0.3))
+    cfg = TagConfig()
+    c = np.array(centre(g))
+    img, q, vis, _ = render(g, model, 200, (c + [0, 0, 0.08]).tolist(), (c + [-0.5, 0.05, 0]).tolist())
+    grey = img.astype(np.float32) / 255
+    circle = fit_image_circle(outside_circle(grey))
+    assert circle is not None
+    np.testing.assert_allclose(circle[0], [640, 360], atol=1.0)  # the renderer's circle: 380 px about the centre
+    assert circle[1] == pytest.approx(380, abs=2.0)
+    lens = EquidistantLens.from_circle(circle[0], circle[1], cfg.lens_fov)
+    through_lens, through_pixels, n = 0, 0, 0
+    for t in range(g.n_tags):
+        corners = q[np.asarray(g.tag_corners(t))[[0, 3, 2, 1]]]  # lattice order (0, 0), (1, 0), (1, 1), (0, 1)
+        if not vis[g.tag_corners(t)].all() or shortest_side(corners) < 30:
+            continue
+        n += 1
+        for lens_or_none in (lens, None):
+            look = look_at_tag(grey, corners, 0.3, sharpen=cfg.sharpen, max_side_misfit=cfg.max_side_misfit, lens=lens_or_none)
+            tid, _, ham = decode_bits(look.white)
+            if tid == t and ham <= cfg.max_hamming:
+                through_lens += lens_or_none is not None
+                through_pixels += lens_or_none is None
+    assert n >= 10
+    assert through_lens == n, f"{model}: {n - through_lens} of {n} large tags not read through the lens"
+    return n - through_pixels
