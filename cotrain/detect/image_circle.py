@@ -108,7 +108,6 @@ def ray_homographies(v_corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     e1, e2, e3 and (1, 1, 1) to the four corners, and H is that of the rays after the inverse of
     the unit square's own."""
     v = np.asarray(v_corners, np.float64)
-    T = len(v)
     A = v[:, [0, 1, 3]].transpose(0, 2, 1)  # (T, 3, 3): the rays of corners 0, 1, 3 as columns
     det = np.linalg.det(A)
     ok = np.isfinite(det) & (np.abs(det) > 1e-9)

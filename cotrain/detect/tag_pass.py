@@ -116,7 +116,7 @@ class TagConfig:
     max_side_misfit: float = 0.04  # tags are read through a map bent to their sides, where the sides fit it within this (tag widths)
     sharpen: float = 1.5  # weight of the 4-neighbour Laplacian that undoes blur over a tag's cells (rendered tags of 10-30 px)
     min_cell_px: float = 1.0  # tags whose data cells are smaller than this (px) are not read
-    lens_fov: float = 210.0  # deg: where an image circle shows, tags are read as an equidistant fisheye of this FoV filling it bends them (0: through pixel homographies)
+    lens_fov: float = 210.0  # deg: where an image circle shows, tags are read through an equidistant lens of this FoV filling it (0: never)
     # --- placement ---
     min_margin: float = 12.0  # the board's placement must beat the runner-up by this (correlation; a clean tag gives 36)
     min_mean_corr: float = 0.4  # ... and its tags must correlate with their codes by this much on average (-1 .. 1)
