@@ -120,3 +120,49 @@ def ray_homographies(v_corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     # Corner 2 goes to its ray itself; the others' multiples must be positive too.
     ok &= ((lam * np.array([-1.0, 1, 1])) > 0).all(1) & np.isfinite(H).all((1, 2))
     return H, ok
+
+
+def local_views(q: np.ndarray, lens: EquidistantLens) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """N sets of pixels q (N, K, 2) as each set's own pinhole view of their rays under ``lens``:
+    the rays turned so that their mean lies on the axis (``R`` (N, 3, 3), ``R v``) and divided by
+    their depth, (N, K, 2). A plane's points map to these views by a homography, as they map to
+    the rays. Also (N,) bool: every ray of the set within 84 deg of its mean (else the set spans
+    too much of the sphere for one view; a set of nearby corners never does)."""
+    v = lens.lift(q)
+    z = v.mean(1)
+    z /= np.maximum(np.linalg.norm(z, axis=-1, keepdims=True), 1e-12)
+    helper = np.where(np.abs(z[:, :1]) < 0.9, np.array([1.0, 0, 0]), np.array([0.0, 1, 0]))
+    x = np.cross(helper, z)
+    x /= np.linalg.norm(x, axis=-1, keepdims=True)
+    R = np.stack([x, np.cross(z, x), z], 1)  # rows: the view's axes
+    w = np.einsum("nij,nkj->nki", R, v)
+    ok = (w[..., 2] > 0.1).all(1)
+    return w[..., :2] / np.where(w[..., 2:] > 0.1, w[..., 2:], 1.0), R, ok
+
+
+@dataclass
+class PlaneMaps:
+    """K maps from points of a plane (the board, metres) to pixels: homographies ``H`` (K, 3, 3)
+    straight to the image, or, with ``lens``, to each map's own view of the rays (``R`` (K, 3, 3),
+    :func:`local_views`) and on through the lens."""
+
+    H: np.ndarray  # (K, 3, 3) board points -> pixels, or -> the local views
+    R: np.ndarray | None = None  # (K, 3, 3) the local views' axes (rows), with a lens
+    lens: EquidistantLens | None = None
+
+    def __call__(self, p: np.ndarray) -> np.ndarray:
+        """Board points p (K, M, 2) -> pixels (K, M, 2); NaN behind a map's horizon."""
+        p = np.asarray(p, np.float64)
+        H = self.H
+        h = p @ H[:, :2, :2].transpose(0, 2, 1) + H[:, None, :2, 2]
+        w = p @ H[:, 2, :2, None] + H[:, None, 2, 2:]
+        g = np.where(w > 1e-12, h / np.where(w > 1e-12, w, 1.0), np.nan)
+        if self.lens is None:
+            return g
+        v = np.concatenate([g, np.ones_like(g[..., :1])], -1) @ self.R  # R^T (g, 1): back to the camera's rays
+        return self.lens.project(v)
+
+    def take(self, idx: np.ndarray | int) -> PlaneMaps:
+        """The maps ``idx`` (an index array, a mask, or one index kept as a batch of one)."""
+        idx = np.atleast_1d(idx)
+        return PlaneMaps(self.H[idx], None if self.R is None else self.R[idx], self.lens)

@@ -7,7 +7,9 @@ corner of the board has a known place on the page. Round by round, each corner b
 identified one (a grid step away) is
 
 1. predicted through a homography fitted to the identified corners nearest to it on the board
-   (:func:`local_homography`; two tags across or so, where the fisheye bends little), which must
+   (:func:`local_map`; two tags across or so; where the tag pass has guessed the lens from the
+   image circle, the homography of their rays, so the fisheye's bend across them is the lens's,
+   else of their pixels, where the fisheye bends little but at the rim), which must
    fit them within ``max_residual`` of the local gap (with only four identified corners the fit
    is exact and the print check below carries the decision);
 2. found: a saddle fitted at the prediction (within ``reach`` of the local gap), or, only where
@@ -38,6 +40,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from cotrain.detect.grid_config import GridConfig
+from cotrain.detect.image_circle import EquidistantLens, PlaneMaps, local_views
 from cotrain.detect.lattice import corner_rays, values_at
 from cotrain.detect.saddle import fit_saddles, pixel_index, smooth_cached, window_half
 from cotrain.targets import Target
@@ -66,6 +69,7 @@ class CompletionConfig:
     check_margin: float = 0.0  # ... and one is dropped where a grid neighbour's print matches it better by more than this ...
     check_large_px: float = 20.0  # ... or, in tags at least this wide (px) ...
     check_margin_large: float = 0.35  # ... by more than this (a local homography fits a large tag's bend less well)
+    lens: bool = True  # homographies of the corners' rays under the tag pass's lens guess, where it has one (tag_pass.TagConfig.lens_fov)
 
 
 _PATCHES: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}  # print_patches' results per board and patch
@@ -88,13 +92,6 @@ def print_patches(board: Target, cfg: CompletionConfig) -> tuple[np.ndarray, np.
     return _PATCHES[key]
 
 
-def _project(H: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """Homography H (3, 3) applied to points p (..., 2); NaN behind its horizon."""
-    h = p @ H[:, :2].T + H[:, 2]
-    w = h[..., 2:]
-    return np.where(w > 1e-12, h[..., :2] / np.where(w > 1e-12, w, 1.0), np.nan)
-
-
 def _value(img: np.ndarray, q: np.ndarray) -> float:
     """img (H, W) at the pixel nearest q (2,), clamped into the image."""
     x, y = pixel_index(q[None], img.shape[1], img.shape[0])[0]
@@ -112,6 +109,30 @@ def local_homography(P: np.ndarray, q: np.ndarray) -> np.ndarray | None:
     return H if (P.mean(0) @ H[2, :2] + H[2, 2]) > 0 else -H  # points in front: positive scale
 
 
+def local_map(P: np.ndarray, q: np.ndarray, lens: EquidistantLens | None = None) -> PlaneMaps | None:
+    """The map (one of :class:`PlaneMaps`) from board points P (K, 2) (metres) to pixels q (K, 2):
+    their :func:`local_homography`, or with ``lens`` the one to the points' own view of their rays
+    (:func:`cotrain.detect.image_circle.local_views`: the fisheye's bend across the points is
+    then the lens's). None where the points do not span both board axes."""
+    if lens is None:
+        H = local_homography(P, q)
+        return None if H is None else PlaneMaps(H[None])
+    g, R, ok = local_views(np.asarray(q, np.float64)[None], lens)
+    H = local_homography(P, g[0]) if ok[0] else None
+    return None if H is None else PlaneMaps(H[None], R, lens)
+
+
+def local_maps(P: np.ndarray, q: np.ndarray, lens: EquidistantLens | None = None) -> tuple[PlaneMaps, np.ndarray]:
+    """:func:`local_map` of N point sets at once (P, q (N, K, 2); through :func:`local_homographies`):
+    the maps and whether each is posed (N,)."""
+    if lens is None:
+        H, posed = local_homographies(P, q)
+        return PlaneMaps(H), posed
+    g, R, ok = local_views(np.asarray(q, np.float64), lens)
+    H, posed = local_homographies(P, g)
+    return PlaneMaps(H, R, lens), posed & ok
+
+
 class PrintMatch(NamedTuple):
     """How the image around a corner matches the print (:func:`print_correlation`)."""
 
@@ -120,13 +141,13 @@ class PrintMatch(NamedTuple):
 
 
 def print_correlation(
-    sm: np.ndarray, rim_dist: np.ndarray, board: AprilGrid, H: np.ndarray, shift: np.ndarray, t: int, cfg: CompletionConfig
+    sm: np.ndarray, rim_dist: np.ndarray, board: AprilGrid, to_image: PlaneMaps, shift: np.ndarray, t: int, cfg: CompletionConfig
 ) -> PrintMatch:
     """The image ``sm`` (H, W) around corner ``t`` against the print there, sampled through
-    homography H (board metres -> pixels) moved by ``shift`` (2,) px over the patch of
+    ``to_image`` (one map, board metres -> pixels) moved by ``shift`` (2,) px over the patch of
     :func:`print_patches` (see :class:`PrintMatch`). (-1, 1) where fewer than a fifth of the
     samples lie inside the image circle (``rim_dist`` (H, W) over 1.5 px)."""
-    corr, other_ok, enough = _print_correlations(sm, rim_dist, board, H[None], np.asarray(shift, np.float64)[None], np.array([t]), cfg)
+    corr, other_ok, enough = _print_correlations(sm, rim_dist, board, to_image, np.asarray(shift, np.float64)[None], np.array([t]), cfg)
     if not enough[0]:
         return PrintMatch(-1.0, 1.0)
     others = corr[0, 1:][other_ok[0]]
@@ -134,10 +155,10 @@ def print_correlation(
 
 
 def _print_correlations(
-    sm: np.ndarray, rim_dist: np.ndarray, board: Target, H: np.ndarray, shift: np.ndarray, ids: np.ndarray, cfg: CompletionConfig
+    sm: np.ndarray, rim_dist: np.ndarray, board: Target, to_image: PlaneMaps, shift: np.ndarray, ids: np.ndarray, cfg: CompletionConfig
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The image ``sm`` (H, W) around corners ``ids`` (K,), sampled over the patch of
-    :func:`print_patches` through homographies H (K, 3, 3) (board metres -> pixels) moved by
+    :func:`print_patches` through K maps ``to_image`` (board metres -> pixels) moved by
     ``shift`` (K, 2) px, correlated with the print around each corner and around its eight grid
     neighbours. Returns the correlations (K, 9) (the corner's own first; -1 without contrast),
     which neighbours count (K, 8): on the board and printed otherwise than the corner (a
@@ -145,7 +166,7 @@ def _print_correlations(
     lie inside the image circle (``rim_dist`` over 1.5 px) (K,)."""
     U, printed = print_patches(board, cfg)
     p = board.points().numpy()[:, :2][ids]
-    q = _project_each(H, p[:, None] + U[None]) + shift[:, None]
+    q = to_image(p[:, None] + U[None]) + shift[:, None]
     q = np.where(np.isfinite(q), q, -1e6)  # behind the horizon: outside the image
     vals = values_at(sm, q)  # (K, M), NaN outside the image
     inside = np.isfinite(vals) & (values_at(rim_dist, q) > 1.5)
@@ -209,13 +230,6 @@ def local_homographies(P: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.nda
     return H * np.where(w < 0, -1.0, 1.0)[:, None, None], posed
 
 
-def _project_each(H: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """Homographies H (K, 3, 3) applied to points p (K, M, 2) -> (K, M, 2); NaN behind each horizon."""
-    h = p @ H[:, :2, :2].transpose(0, 2, 1) + H[:, None, :2, 2]
-    w = p @ H[:, 2, :2, None] + H[:, None, 2, 2:]
-    return np.where(w > 1e-12, h / np.where(w > 1e-12, w, 1.0), np.nan)
-
-
 def print_check(
     sm: np.ndarray,
     rim_dist: np.ndarray,
@@ -225,11 +239,12 @@ def print_check(
     cfg: CompletionConfig,
     strict: np.ndarray | None = None,
     min_corr: float = -1.0,
+    lens: EquidistantLens | None = None,
 ) -> np.ndarray:
     """(K,) bool: which identified corners ``ids`` (K,) at ``xy`` (K, 2) the print does not
     contradict. Each corner's surroundings in ``sm`` (H, W; blurred as for :func:`print_correlation`)
     are sampled through the homography of the ``cfg.neighbours`` other identified corners nearest
-    it on the board, moved onto it, and correlated with the print around it and around each of its
+    it on the board (with ``lens``, of their rays: :func:`local_maps`), moved onto it, and correlated with the print around it and around each of its
     eight grid neighbours (the patch of :func:`print_patches`). A corner is contradicted where a
     neighbour's print matches by more than ``cfg.check_margin`` over its own (``cfg.check_margin_large``
     in tags ``cfg.check_large_px`` wide or more): a corner the lattice put one crossing square over
@@ -246,10 +261,10 @@ def print_check(
     strict = np.zeros(K, bool) if strict is None else np.asarray(strict, bool)
     if min(cfg.neighbours, K - 1) < 4:
         return ~strict
-    keep = _uncontradicted(sm, rim_dist, board, ids, xy, np.ones(K, bool), strict, cfg, min_corr)
+    keep = _uncontradicted(sm, rim_dist, board, ids, xy, np.ones(K, bool), strict, cfg, min_corr, lens)
     if keep.all() or min(cfg.neighbours, int(keep.sum()) - 1) < 4:
         return keep
-    return _uncontradicted(sm, rim_dist, board, ids, xy, keep, strict, cfg, min_corr)
+    return _uncontradicted(sm, rim_dist, board, ids, xy, keep, strict, cfg, min_corr, lens)
 
 
 def _uncontradicted(
@@ -262,6 +277,7 @@ def _uncontradicted(
     strict: np.ndarray,
     cfg: CompletionConfig,
     min_corr: float = -1.0,
+    lens: EquidistantLens | None = None,
 ) -> np.ndarray:
     """One pass of :func:`print_check`, each corner's homography fitted to the nearest corners of
     ``support`` (K,) bool other than itself."""
@@ -273,29 +289,30 @@ def _uncontradicted(
     near = sup[near.reshape(K, -1)]
     own = near == np.arange(K)[:, None]  # a corner of the support finds itself first (distinct ids: distinct points)
     near = np.where(own.any(1)[:, None], np.roll(near, -1, 1), near)[:, :n]
-    H, posed = local_homographies(kP[near], xy[near])
+    to_image, posed = local_maps(kP[near], xy[near], lens)
     # The patch through each corner's homography, moved so that the corner lands on its position.
-    q0 = _project_each(H, kP[:, None])  # (K, 1, 2)
-    corr, other_ok, enough = _print_correlations(sm, rim_dist, board, H, xy - q0[:, 0], ids, cfg)
+    q0 = to_image(kP[:, None])  # (K, 1, 2)
+    corr, other_ok, enough = _print_correlations(sm, rim_dist, board, to_image, xy - q0[:, 0], ids, cfg)
     enough &= posed & np.isfinite(q0[:, 0, 0])
     other = np.where(other_ok, corr[:, 1:], -np.inf).max(1)
     # The tag's width there (px): the shorter image of a tag side along the board's axes (NaN: large).
-    ends = _project_each(H, kP[:, None] + np.array([[board.spacing, 0.0], [0.0, board.spacing]]))
+    ends = to_image(kP[:, None] + np.array([[board.spacing, 0.0], [0.0, board.spacing]]))
     side = np.linalg.norm(ends - q0, axis=2).min(1)
     margin = np.where(~(side < cfg.check_large_px) & ~strict, cfg.check_margin_large, cfg.check_margin)
     return (~enough & ~strict) | (enough & ~(other > corr[:, 0] + margin) & ((corr[:, 0] >= min_corr) | ~strict))
 
 
-def rays_along(sm: np.ndarray, q: np.ndarray, H: np.ndarray, p: np.ndarray, gap: float, gap_px: float, cfg: CompletionConfig) -> bool:
+def rays_along(sm: np.ndarray, q: np.ndarray, to_image: PlaneMaps, p: np.ndarray, gap: float, gap_px: float, cfg: CompletionConfig) -> bool:
     """Whether the X-junction at q (2,) in ``sm`` has four edge rays (read on a circle of
     ``cfg.ray_radius`` of the local gap ``gap_px``) and each of the board's four axis directions
-    at board point p (2,) (through homography H; ``gap`` metres long) leaves along one of them
+    at board point p (2,) (through ``to_image``, one map; ``gap`` metres long) leaves along one of them
     within ``cfg.max_ray_angle``: a corner half under an occluder or cut by a glare spot has an
     edge of that instead."""
     rays = corner_rays(sm, q[None], np.array([cfg.ray_radius * gap_px]))[0]  # (4, 2)
     if np.isnan(rays).any():
         return False
-    d = np.stack([_project(H, p + s) - _project(H, p) for s in ([gap, 0], [0, gap], [-gap, 0], [0, -gap])])
+    ends = to_image((p + np.array([[0.0, 0], [gap, 0], [0, gap], [-gap, 0], [0, -gap]]))[None])[0]
+    d = ends[1:] - ends[0]
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     return bool((d @ rays.T).max(1).min() >= np.cos(np.radians(cfg.max_ray_angle)))
 
@@ -310,8 +327,10 @@ def complete_board(
     xy: np.ndarray,
     cfg: CompletionConfig,
     grid: GridConfig,
+    lens: EquidistantLens | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Add the board's corners that its identified corners predict (see the module's docstring).
+    """Add the board's corners that its identified corners predict (see the module's docstring;
+    with ``lens``, through the homographies of the rays, :func:`local_map`).
 
     Args:
         grey: (H, W) float32 image; smoothed: its blur cache (:func:`smooth_cached`); rim_dist: (H, W)
@@ -345,13 +364,13 @@ def complete_board(
             if not beside or failed.get(t, 0) >= beside:
                 continue
             near = np.argsort(np.linalg.norm(kP - P[t], axis=1))[: cfg.neighbours]
-            H = local_homography(kP[near], kq[near])
-            if H is None:
+            to_image = local_map(kP[near], kq[near], lens)
+            if to_image is None:
                 failed[t] = beside
                 continue
-            q0 = _project(H, P[t])
-            g_px = min(np.linalg.norm(_project(H, P[t] + [gap, 0]) - q0), np.linalg.norm(_project(H, P[t] + [0, gap]) - q0))
-            res = np.linalg.norm(_project(H, kP[near]) - kq[near], axis=1).max()
+            q0, *ends = to_image((P[t] + np.array([[0.0, 0.0], [gap, 0], [0, gap]]))[None])[0]
+            g_px = min(np.linalg.norm(ends[0] - q0), np.linalg.norm(ends[1] - q0))
+            res = np.linalg.norm(to_image(kP[near][None])[0] - kq[near], axis=1).max()
             if (
                 not np.isfinite(g_px)
                 or g_px < cfg.min_gap_px
@@ -361,7 +380,7 @@ def complete_board(
             ):
                 failed[t] = beside
                 continue
-            todo.append((t, q0, g_px, H, beside))
+            todo.append((t, q0, g_px, to_image, beside))
         if not todo:
             break
         added = 0
@@ -370,7 +389,7 @@ def complete_board(
             sel = np.nonzero(halves == h)[0]
             fitted, ok, _ = fit_saddles(grey, smoothed, np.array([todo[k][1] for k in sel]), int(h), fit_cfg, rim_dist)
             for k, q_fit, ok_k in zip(sel, fitted, ok):
-                t, q0, g_px, H, beside = todo[k]
+                t, q0, g_px, to_image, beside = todo[k]
                 options = [q_fit] if ok_k and np.linalg.norm(q_fit - q0) < cfg.reach * g_px else []
                 if tree is not None and not options:
                     options = [candidates[j] for j in tree.query_ball_point(q0, cfg.search * g_px)]
@@ -379,8 +398,8 @@ def complete_board(
                 for q in options:
                     if np.linalg.norm(allq - q, axis=1).min() < cfg.crowd * g_px or _value(rim_dist, q) < cfg.min_rim_px:
                         continue
-                    m = print_correlation(sm, rim_dist, board, H, q - q0, t, cfg)
-                    if m.corr < cfg.sure_corr and not rays_along(sm, q, H, P[t], gap, g_px, cfg):
+                    m = print_correlation(sm, rim_dist, board, to_image, q - q0, t, cfg)
+                    if m.corr < cfg.sure_corr and not rays_along(sm, q, to_image, P[t], gap, g_px, cfg):
                         continue
                     if m.corr >= max(cfg.min_corr, best_corr) and m.corr - m.other >= cfg.min_corr_margin:
                         best, best_corr = q, m.corr

@@ -1671,13 +1671,17 @@ def _tag_pass_in(grey: np.ndarray, allowed: np.ndarray, board: AprilGrid, cfg: T
     if cfg.complete.check:
         # A corner the print around it contradicts (a neighbour's pattern matches better) is dropped;
         # completion may find it where it is.
-        ok = print_check(smooth_cached(smoothed, grey, 1), rim_dist, board, ids_a, xy_a, cfg.complete)
+        ok = print_check(
+            smooth_cached(smoothed, grey, 1), rim_dist, board, ids_a, xy_a, cfg.complete, lens=lens if cfg.complete.lens else None
+        )
         ids_a, xy_a, conf_a = ids_a[ok], xy_a[ok], conf_a[ok]
     if cfg.complete.rounds:
         # Corners the growth missed, predicted from the identified ones and checked against the
         # print; their confidence is that check's correlation.
         given = dict(zip(ids_a.tolist(), conf_a.tolist()))
-        ids_a, xy_a, corr = complete_board(grey, smoothed, rim_dist, xy, board, ids_a, xy_a, cfg.complete, cfg.grid)
+        ids_a, xy_a, corr = complete_board(
+            grey, smoothed, rim_dist, xy, board, ids_a, xy_a, cfg.complete, cfg.grid, lens if cfg.complete.lens else None
+        )
         conf_a = np.array([given.get(i, c) for i, c in zip(ids_a.tolist(), corr.tolist())])
     order = np.argsort(ids_a)
     return TagResult(
