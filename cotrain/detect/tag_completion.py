@@ -244,8 +244,9 @@ def print_check(
     """(K,) bool: which identified corners ``ids`` (K,) at ``xy`` (K, 2) the print does not
     contradict. Each corner's surroundings in ``sm`` (H, W; blurred as for :func:`print_correlation`)
     are sampled through the homography of the ``cfg.neighbours`` other identified corners nearest
-    it on the board (with ``lens``, of their rays: :func:`local_maps`), moved onto it, and correlated with the print around it and around each of its
-    eight grid neighbours (the patch of :func:`print_patches`). A corner is contradicted where a
+    it on the board (with ``lens``, of their rays: :func:`local_maps`), moved onto it, and
+    correlated with the print around it and around each of its eight grid neighbours (the patch
+    of :func:`print_patches`). A corner is contradicted where a
     neighbour's print matches by more than ``cfg.check_margin`` over its own (``cfg.check_margin_large``
     in tags ``cfg.check_large_px`` wide or more): a corner the lattice put one crossing square over
     (the square's other corner, where a gap of 2-3 px collapses or glare washes it out), or a tag
