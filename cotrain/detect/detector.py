@@ -39,7 +39,8 @@ from cotrain.targets import AprilGrid, Checkerboard, Target
 # report: detections cached under an older version are made again (see Detector.cache_key).
 # 2: AprilGrid frames brightened; the grid pass's contrast thresholds scale with the board's contrast.
 # 3: AprilGrid corners checked against the print; frames with few corners read at half resolution too.
-# 4: AprilGrid tags read through a lens guessed from the image circle; seeds that decode grow first.
+# 4: AprilGrid tags read through a lens guessed from the image circle; seeds that decode grow first;
+#    checkerboards completed from their identified corners.
 OUTPUT_VERSION = 4
 
 

@@ -27,7 +27,11 @@ This pass turns them into identities the way a person would (docs/detector.md ha
    with the best one where they overlap, add the corners it lacks (:func:`merge_lattices`);
 4. positions (:func:`cotrain.detect.lattice.refine_positions`): the reported corners are fitted
    once more in a small window (at most 3 px half-size), close to the junction, where bent edges
-   and the blooming of real prints pull least.
+   and the blooming of real prints pull least;
+5. completion (:func:`cotrain.detect.tag_completion.complete_board`, as for the AprilGrid): the
+   placed board's corners the growth did not reach, predicted from the identified ones (through
+   the lens guessed from the image circle, :mod:`cotrain.detect.image_circle`), found where a
+   saddle matches the print around them and its edge rays follow the board's axes.
 
 So one identity decision is made per board from all its corners, and a corner only gets an id if
 it is connected to the board's lattice. Thresholds: :class:`cotrain.detect.grid_config.GridConfig`.
@@ -38,6 +42,7 @@ Pure functions over numpy arrays; pixels follow docs/conventions.md (centre of t
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 
 import cv2
@@ -49,7 +54,8 @@ from cotrain.detect.half_resolution import corners_at_half_resolution
 from cotrain.detect.identity import assign_ids, canonical_ids, cell_darkness, corner_votes, edge_evidence
 from cotrain.detect.lattice import STEPS, Lattice, grow_lattice, refine_positions, skipped_corners, verify_lattice
 from cotrain.detect.saddle import fit_saddles, outside_circle, saddle_candidates, saddle_response, smooth_cached, window_half
-from cotrain.detect.tag_completion import CompletionConfig
+from cotrain.detect.image_circle import EquidistantLens, fit_image_circle
+from cotrain.detect.tag_completion import CompletionConfig, complete_board
 from cotrain.geometry.letterbox import CELLS, Letterbox
 from cotrain.targets import ROTATIONS, Checkerboard
 
@@ -319,7 +325,8 @@ def grid_pass(
     # Work on the crop around the network's corner / board region (all full-resolution filtering
     # scales with its area); crop pixels + offset = input pixels.
     roi = search_region(np.maximum(corner_prob, mask_prob), box, cfg)
-    allowed = ~outside_circle(grey)
+    outside = outside_circle(grey)
+    allowed = ~outside
     allowed[[0, -1], :] = False  # the image's own border is a rim too
     allowed[:, [0, -1]] = False
     roi &= allowed
@@ -391,8 +398,24 @@ def grid_pass(
     ids = canonical_ids(ids, lat.xy, board)
     on = ids >= 0
     conf = np.full(len(ids), 1.0 - np.exp(-margin)) * np.where(lat.filled, cfg.filled_confidence, 1.0)
-    order = np.argsort(ids[on])
-    return GridResult(ids[on][order], lat.xy[on][order] + offset, conf[on][order], float(margin))
+    ids, q, conf = ids[on], lat.xy[on], conf[on]
+    if cfg.complete_rounds and 4 <= len(ids) < board.n_corners:
+        # Corners the growth did not reach (bent rows at the rim, a blurred stretch), predicted from
+        # the identified ones and checked against the print (cotrain.detect.tag_completion); their
+        # confidence is the placement's times that check's correlation.
+        circle = fit_image_circle(outside) if cfg.lens_fov > 0 else None
+        lens = None if circle is None else EquidistantLens.from_circle(circle[0] - offset, circle[1], cfg.lens_fov)
+        # A checker's print tells only the two parities apart: a saddle at an occluder's edge, or
+        # the rim's, can match it, so every corner added must also have its four edge rays along
+        # the board's axes and a correlation of cfg.complete_min_corr.
+        complete = CompletionConfig(
+            rounds=cfg.complete_rounds, min_rim_px=cfg.complete_rim_px, min_corr=cfg.complete_min_corr, check=False, sure_corr=math.inf
+        )
+        given = dict(zip(ids.tolist(), conf.tolist()))
+        ids, q, corr = complete_board(grey, smoothed, rim_dist, xy, board, ids, q, complete, cfg, lens)
+        conf = np.array([given.get(i, (1.0 - np.exp(-margin)) * c) for i, c in zip(ids.tolist(), corr.tolist())])
+    order = np.argsort(ids)
+    return GridResult(ids[order], q[order] + offset, conf[order], float(margin))
 
 
 def merge_half_resolution(grey: np.ndarray, full: GridResult, half: GridResult, board: Checkerboard, cfg: GridConfig) -> GridResult:

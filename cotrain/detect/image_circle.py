@@ -69,16 +69,18 @@ class EquidistantLens:
 def fit_image_circle(outside: np.ndarray) -> tuple[np.ndarray, float] | None:
     """The image circle of a fisheye frame whose black frame is ``outside`` (H, W) bool (see
     :func:`cotrain.detect.saddle.outside_circle`): its centre (2,) px and radius px, fitted to the
-    frame's inner edge (algebraic fit, then again to the edge pixels within :data:`INLIER_PX`).
+    frame's inner edge (its contour; algebraic fit, then again to the edge pixels within
+    :data:`INLIER_PX`).
     None where the edge is too short or not a circle (no black frame, or a dark scene joined to it)."""
     H, W = outside.shape
-    edge = cv2.morphologyEx(outside.astype(np.uint8), cv2.MORPH_GRADIENT, np.ones((3, 3), np.uint8)) > 0
-    edge[:3] = edge[-3:] = False  # the image border is no edge of the circle
-    edge[:, :3] = edge[:, -3:] = False
-    ys, xs = np.nonzero(edge)
-    if len(xs) < MIN_ARC_PX:
+    contours, _ = cv2.findContours(outside.astype(np.uint8), cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
+    if not contours:
         return None
-    p = np.stack([xs, ys], 1).astype(np.float64)
+    p = np.concatenate([c.reshape(-1, 2) for c in contours]).astype(np.float64)  # the frame's pixels along its edge
+    inner = (p[:, 0] >= 3) & (p[:, 0] < W - 3) & (p[:, 1] >= 3) & (p[:, 1] < H - 3)  # the image border is no edge of the circle
+    p = p[inner]
+    if len(p) < MIN_ARC_PX:
+        return None
     keep = np.ones(len(p), bool)
     for _ in range(3):
         A = np.concatenate([p[keep], np.ones((int(keep.sum()), 1))], 1)
@@ -93,8 +95,8 @@ def fit_image_circle(outside: np.ndarray) -> tuple[np.ndarray, float] | None:
             return None
     if keep.mean() < MIN_INLIERS or not (0 <= centre[0] < W and 0 <= centre[1] < H):
         return None
-    # The morphological edge lies half a pixel each side of the boundary: its mean is on it.
-    return centre, radius
+    # The frame's own pixels along the edge lie half a pixel outside it.
+    return centre, radius - 0.5
 
 
 def ray_homographies(v_corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -44,7 +44,6 @@ from cotrain.detect.image_circle import EquidistantLens, PlaneMaps, local_views
 from cotrain.detect.lattice import corner_rays, values_at
 from cotrain.detect.saddle import fit_saddles, pixel_index, smooth_cached, window_half
 from cotrain.targets import Target
-from cotrain.targets.aprilgrid import AprilGrid
 
 
 @dataclass
@@ -109,6 +108,13 @@ def local_homography(P: np.ndarray, q: np.ndarray) -> np.ndarray | None:
     return H if (P.mean(0) @ H[2, :2] + H[2, 2]) > 0 else -H  # points in front: positive scale
 
 
+def smallest_step(board: Target) -> float:
+    """The shortest step (metres) between neighbouring corners along the board's x axis: an
+    AprilGrid's gap between tags (the crossing square's side), a checkerboard's square."""
+    xs = np.unique(np.round(board.points().numpy()[:, 0], 9))
+    return float(np.diff(xs).min())
+
+
 def local_map(P: np.ndarray, q: np.ndarray, lens: EquidistantLens | None = None) -> PlaneMaps | None:
     """The map (one of :class:`PlaneMaps`) from board points P (K, 2) (metres) to pixels q (K, 2):
     their :func:`local_homography`, or with ``lens`` the one to the points' own view of their rays
@@ -141,7 +147,7 @@ class PrintMatch(NamedTuple):
 
 
 def print_correlation(
-    sm: np.ndarray, rim_dist: np.ndarray, board: AprilGrid, to_image: PlaneMaps, shift: np.ndarray, t: int, cfg: CompletionConfig
+    sm: np.ndarray, rim_dist: np.ndarray, board: Target, to_image: PlaneMaps, shift: np.ndarray, t: int, cfg: CompletionConfig
 ) -> PrintMatch:
     """The image ``sm`` (H, W) around corner ``t`` against the print there, sampled through
     ``to_image`` (one map, board metres -> pixels) moved by ``shift`` (2,) px over the patch of
@@ -323,7 +329,7 @@ def complete_board(
     smoothed: dict[int, np.ndarray],
     rim_dist: np.ndarray,
     candidates: np.ndarray,
-    board: AprilGrid,
+    board: Target,
     ids: np.ndarray,
     xy: np.ndarray,
     cfg: CompletionConfig,
@@ -342,7 +348,7 @@ def complete_board(
         corners given), sorted by id.
     """
     P = board.points().numpy()[:, :2]
-    gap = board.cfg.tag_spacing * board.cfg.tag_size
+    gap = smallest_step(board)
     known = {int(i): np.asarray(p, np.float64) for i, p in zip(ids, xy)}
     score = {int(i): np.nan for i in ids}
     gaps: dict[int, float] = {}  # added corner -> its local gap (px)

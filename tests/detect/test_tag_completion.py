@@ -258,3 +258,28 @@ def test_the_tag_pass_completes_rim_views():
         assert set(grown.ids.tolist()) < set(full.ids.tolist())
         assert vis[full.ids].all() and np.isin(np.nonzero(vis)[0], full.ids).mean() > 0.98
         assert np.linalg.norm(full.xy - q[full.ids], axis=1).max() < 0.5
+
+
+def test_complete_board_recovers_a_checkerboard_rim_view_from_a_block_of_corners():
+    """The same completion on a checkerboard (its step is the square, its print the checker):
+    a 9 x 6 board seen 30-100 deg off-axis through a 200-degree lens, given a 3 x 3 block of its
+    corners at their labels, finds most visible corners through the lens guessed from the image
+    circle, each at its own label (the print's parity refuses the neighbouring squares' corners)."""
+    g = make_target(TargetConfig(kind="checkerboard", squares_x=10, squares_y=7, square_size=0.04, margin=0.5))
+    c = np.array(centre(g))
+    img, q, vis, angle = render(g, "ds", 200, (c + [0.0, 0.0, -0.2]).tolist(), (c + [-0.5, 0.05, 0.0]).tolist())  # the print faces -z
+    grey = img.astype(np.float32) / 255
+    outside = outside_circle(grey)
+    lens = EquidistantLens.from_circle(*fit_image_circle(outside), 210.0)
+    rim = cv2.distanceTransform((~outside).astype(np.uint8), cv2.DIST_L2, 3)
+    smoothed: dict[int, np.ndarray] = {}
+    cand, _ = tag_candidates(grey, ~outside, TagConfig(), smoothed, rim)
+    i, j = np.meshgrid(np.arange(3, 6), np.arange(2, 5))
+    given = (j * g.nx + i).ravel()
+    assert vis[given].all() and vis.sum() > 35 and angle[vis].max() > 95
+    ids, xy, corr = complete_board(grey, smoothed, rim, cand, g, given, q[given], CompletionConfig(check=False), GridConfig(), lens)
+    assert vis[ids].all()
+    err = np.linalg.norm(xy - q[ids], axis=1)
+    assert err.max() < 0.5, f"corner {ids[err.argmax()]} is {err.max():.2f} px off"
+    found = np.isin(np.nonzero(vis)[0], ids).mean()
+    assert found > 0.8, f"{found:.2f} of the visible corners"
