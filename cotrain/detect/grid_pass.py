@@ -52,9 +52,9 @@ from scipy.spatial import cKDTree
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.half_resolution import corners_at_half_resolution
 from cotrain.detect.identity import assign_ids, canonical_ids, cell_darkness, corner_votes, edge_evidence
+from cotrain.detect.image_circle import EquidistantLens, fit_image_circle
 from cotrain.detect.lattice import STEPS, Lattice, grow_lattice, refine_positions, skipped_corners, verify_lattice
 from cotrain.detect.saddle import fit_saddles, outside_circle, saddle_candidates, saddle_response, smooth_cached, window_half
-from cotrain.detect.image_circle import EquidistantLens, fit_image_circle
 from cotrain.detect.tag_completion import CompletionConfig, complete_board
 from cotrain.geometry.letterbox import CELLS, Letterbox
 from cotrain.targets import ROTATIONS, Checkerboard
