@@ -55,7 +55,9 @@ class CompletionConfig:
     min_rim_px: float = 3.0  # ... or nearer to the image circle's rim (px); and no corner found nearer
     reach: float = 0.3  # a saddle fitted at the prediction counts within this fraction of the local gap ...
     search: float = 0.6  # ... else candidates within this fraction of it are tried
-    min_symmetry: float = 0.5  # point symmetry of that saddle fit (as the candidates'; the print check follows)
+    min_symmetry: float = 0.5  # point symmetry of that saddle fit (as the candidates'; the print check follows) ...
+    small_gap_px: float = 4.0  # ... or, where the local gap is narrower than this (px; tags under 13 px), where that fails ...
+    small_min_symmetry: float = 0.3  # ... this much
     crowd: float = 0.5  # a corner this close to an identified one (fraction of the local gap) is refused
     patch: float = 0.45  # half-size of the patch compared with the print, in the board's spacing (a tag side, a square)
     patch_samples: int = 11  # samples across it
@@ -355,6 +357,7 @@ def complete_board(
     failed: dict[int, int] = {}  # corner -> identified neighbours when it failed: tried again when it has more
     sm = smooth_cached(smoothed, grey, 1)
     fit_cfg = replace(grid, min_symmetry=cfg.min_symmetry)
+    small_cfg = replace(grid, min_symmetry=cfg.small_min_symmetry)
     tree = cKDTree(candidates) if len(candidates) else None
     Hh, Ww = grey.shape
     nx = board.nx
@@ -395,6 +398,12 @@ def complete_board(
         for h in np.unique(halves):
             sel = np.nonzero(halves == h)[0]
             fitted, ok, _ = fit_saddles(grey, smoothed, np.array([todo[k][1] for k in sel]), int(h), fit_cfg, rim_dist)
+            # In gaps of a few pixels the crossing square ends inside the smallest window and its far
+            # corner breaks the point symmetry (tags of 8-12 px): such a fit is tried again, looser.
+            small = np.nonzero(~ok & (np.array([todo[k][2] for k in sel]) < cfg.small_gap_px))[0]
+            if len(small):
+                pts = np.array([todo[sel[k]][1] for k in small])
+                fitted[small], ok[small], _ = fit_saddles(grey, smoothed, pts, int(h), small_cfg, rim_dist)
             for k, q_fit, ok_k in zip(sel, fitted, ok):
                 t, q0, g_px, to_image, beside = todo[k]
                 options = [q_fit] if ok_k and np.linalg.norm(q_fit - q0) < cfg.reach * g_px else []
