@@ -28,7 +28,7 @@ This pass turns them into identities the way a person would (docs/detector.md ha
 4. positions (:func:`cotrain.detect.lattice.refine_positions`): the reported corners are fitted
    once more in a small window (at most 3 px half-size), close to the junction, where bent edges
    and the blooming of real prints pull least;
-5. completion (:func:`cotrain.detect.tag_completion.complete_board`, as for the AprilGrid): the
+5. completion (docs/detector.md, grid pass step 7; :func:`cotrain.detect.tag_completion.complete_board`, as for the AprilGrid): the
    placed board's corners the growth did not reach, predicted from the identified ones (through
    the lens guessed from the image circle, :mod:`cotrain.detect.image_circle`), found where a
    saddle matches the print around them and its edge rays follow the board's axes.
@@ -405,6 +405,16 @@ def grid_pass(
         # confidence is the placement's times that check's correlation.
         circle = fit_image_circle(outside) if cfg.lens_fov > 0 else None
         lens = None if circle is None else EquidistantLens.from_circle(circle[0] - offset, circle[1], cfg.lens_fov)
+        # The crop's own edges (where they are not the frame's) cut fit windows as the rim does.
+        h, w = grey.shape
+        cut = np.full((h, w), np.inf, np.float32)
+        for at_edge, d in ((x0 > 0, np.arange(w)[None, :] + 1.0), (x1 < outside.shape[1], w - np.arange(w)[None, :])):
+            if at_edge:
+                cut = np.minimum(cut, np.broadcast_to(d.astype(np.float32), (h, w)))
+        for at_edge, d in ((y0 > 0, np.arange(h)[:, None] + 1.0), (y1 < outside.shape[0], h - np.arange(h)[:, None])):
+            if at_edge:
+                cut = np.minimum(cut, np.broadcast_to(d.astype(np.float32), (h, w)))
+        rim_c = np.minimum(rim_dist, cut).astype(np.float32)
         # A checker's print tells only the two parities apart: a saddle at an occluder's edge, or
         # the rim's, can match it, so every corner added must also have its four edge rays along
         # the board's axes and a correlation of cfg.complete_min_corr.
@@ -412,7 +422,7 @@ def grid_pass(
             rounds=cfg.complete_rounds, min_rim_px=cfg.complete_rim_px, min_corr=cfg.complete_min_corr, check=False, sure_corr=math.inf
         )
         given = dict(zip(ids.tolist(), conf.tolist()))
-        ids, q, corr = complete_board(grey, smoothed, rim_dist, xy, board, ids, q, complete, cfg, lens)
+        ids, q, corr = complete_board(grey, smoothed, rim_c, xy, board, ids, q, complete, cfg, lens)
         conf = np.array([given.get(i, (1.0 - np.exp(-margin)) * c) for i, c in zip(ids.tolist(), corr.tolist())])
     order = np.argsort(ids)
     return GridResult(ids[order], q[order] + offset, conf[order], float(margin))

@@ -15,9 +15,12 @@ Double Sphere), since it is only used for the inside of one tag from its four co
   homographies then).
 - :class:`EquidistantLens`: ``lift`` pixels to unit rays and ``project`` rays to pixels.
 - :func:`ray_homographies`: per tag, the homography from its unit square to its corners' rays.
+- :func:`local_views` and :class:`PlaneMaps`: a set of corners' own pinhole view of their rays,
+  and the maps from board points to pixels through such views (or straight homographies).
 
-Pure functions over numpy arrays; pixels follow docs/conventions.md (centre of the top-left
-pixel at (0, 0)).
+Functions and small value classes over numpy arrays; pixels follow docs/conventions.md (centre of
+the top-left pixel at (0, 0)), in whatever image the caller works on (the passes work on a crop
+of the frame, and move the circle's centre into it).
 """
 
 from __future__ import annotations
@@ -27,7 +30,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-MIN_ARC_PX = 200  # edge pixels of the black frame a circle needs (about a sixth of a 720 px circle)
+MIN_ARC_PX = 200  # edge pixels of the black frame a circle needs (about 30 degrees of a 720 px circle)
+MIN_CONTOUR_PX = 40  # contours of the black frame shorter than this are specks of noise, not its edge
 INLIER_PX = 2.0  # px: edge pixels this close to the circle are on it (the frame's edge is found at half resolution)
 MIN_INLIERS = 0.6  # share of the black frame's edge pixels on the circle (else the dark frame runs into the scene)
 
@@ -36,7 +40,7 @@ MIN_INLIERS = 0.6  # share of the black frame's edge pixels on the circle (else 
 class EquidistantLens:
     """An equidistant fisheye: a ray at ``theta`` from the axis lands ``focal * theta`` px from ``centre``."""
 
-    centre: tuple[float, float]  # px, where the axis meets the image
+    centre: tuple[float, float]  # px, where the axis meets the image (in the pixels of the image the caller works on)
     focal: float  # px per radian
 
     @classmethod
@@ -69,11 +73,15 @@ class EquidistantLens:
 def fit_image_circle(outside: np.ndarray) -> tuple[np.ndarray, float] | None:
     """The image circle of a fisheye frame whose black frame is ``outside`` (H, W) bool (see
     :func:`cotrain.detect.saddle.outside_circle`): its centre (2,) px and radius px, fitted to the
-    frame's inner edge (its contour; algebraic fit, then again to the edge pixels within
-    :data:`INLIER_PX`).
-    None where the edge is too short or not a circle (no black frame, or a dark scene joined to it)."""
+    frame's inner edge: the contours of the black frame off the image border (not the specks noise
+    leaves in it, under :data:`MIN_CONTOUR_PX`), an algebraic circle fit, and fits again to the edge pixels
+    within a band around the last fit that narrows from a fifth of the radius to
+    :data:`INLIER_PX` (so a dark part of the scene joined to the frame pulls only the first fit).
+    None where the edge is too short or not a circle (no black frame, or a dark scene joined to
+    much of it: under :data:`MIN_INLIERS` of the edge on the circle)."""
     H, W = outside.shape
     contours, _ = cv2.findContours(outside.astype(np.uint8), cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
+    contours = [c for c in contours if len(c) >= MIN_CONTOUR_PX]  # not the specks noise leaves in the frame
     if not contours:
         return None
     p = np.concatenate([c.reshape(-1, 2) for c in contours]).astype(np.float64)  # the frame's pixels along its edge
@@ -81,22 +89,34 @@ def fit_image_circle(outside: np.ndarray) -> tuple[np.ndarray, float] | None:
     p = p[inner]
     if len(p) < MIN_ARC_PX:
         return None
-    keep = np.ones(len(p), bool)
-    for _ in range(3):
-        A = np.concatenate([p[keep], np.ones((int(keep.sum()), 1))], 1)
-        sol = np.linalg.lstsq(A, (p[keep] ** 2).sum(1), rcond=None)[0]
-        centre = sol[:2] / 2
-        r2 = sol[2] + centre @ centre
-        if not np.isfinite(r2) or r2 <= 0:
+    fit = _algebraic_circle(p)
+    for band in (0.2, 0.1, 0.05, 0.0):
+        if fit is None:
             return None
-        radius = float(np.sqrt(r2))
-        keep = np.abs(np.linalg.norm(p - centre, axis=1) - radius) < INLIER_PX
+        centre, radius = fit
+        keep = np.abs(np.linalg.norm(p - centre, axis=1) - radius) < max(band * radius, INLIER_PX)
         if keep.sum() < MIN_ARC_PX:
             return None
-    if keep.mean() < MIN_INLIERS or not (0 <= centre[0] < W and 0 <= centre[1] < H):
+        fit = _algebraic_circle(p[keep])
+    if fit is None:
         return None
-    # The frame's own pixels along the edge lie half a pixel outside it.
+    centre, radius = fit
+    keep = np.abs(np.linalg.norm(p - centre, axis=1) - radius) < INLIER_PX
+    if keep.sum() < MIN_ARC_PX or keep.mean() < MIN_INLIERS or not (0 <= centre[0] < W and 0 <= centre[1] < H):
+        return None
+    # The contour runs along the black frame's own pixels, half a pixel outside the boundary (the
+    # frame, found at half resolution and grown by a pixel, still comes out about a pixel wide).
     return centre, radius - 0.5
+
+
+def _algebraic_circle(p: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """The least-squares circle ``|p|^2 = 2 c . p + (r^2 - |c|^2)`` through points p (N, 2): its
+    centre (2,) and radius; None where the points fit no circle."""
+    A = np.concatenate([p, np.ones((len(p), 1))], 1)
+    sol = np.linalg.lstsq(A, (p**2).sum(1), rcond=None)[0]
+    centre = sol[:2] / 2
+    r2 = sol[2] + centre @ centre
+    return (centre, float(np.sqrt(r2))) if np.isfinite(r2) and r2 > 0 else None
 
 
 def ray_homographies(v_corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -150,7 +170,7 @@ class PlaneMaps:
 
     H: np.ndarray  # (K, 3, 3) board points -> pixels, or -> the local views
     R: np.ndarray | None = None  # (K, 3, 3) the local views' axes (rows), with a lens
-    lens: EquidistantLens | None = None
+    lens: EquidistantLens | None = None  # the lens the views' rays go through; None: H maps to pixels
 
     def __call__(self, p: np.ndarray) -> np.ndarray:
         """Board points p (K, M, 2) -> pixels (K, M, 2); NaN behind a map's horizon."""

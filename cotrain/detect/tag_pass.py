@@ -878,8 +878,10 @@ def tag_maps(
         good = np.ones(T, bool)
     else:
         H, good = ray_homographies(lens.lift(corners))
-    det = np.linalg.det(H)
-    good &= np.isfinite(det) & (np.abs(det) >= 1e-12)  # elsewhere a degenerate quad: nothing to bend
+        H[~good] = np.nan  # four rays no square of a plane gives: the tag's samples are NaN, it is not read
+    finite = np.isfinite(H).all((1, 2))
+    det = np.linalg.det(np.where(finite[:, None, None], H, np.eye(3)))
+    good &= finite & (np.abs(det) >= 1e-12)  # elsewhere a degenerate quad: nothing to bend
     Hi = np.zeros_like(H)
     Hi[good] = np.linalg.inv(H[good])
     n_more = [0 if more is None or more[t] is None else len(more[t]) for t in range(T)]

@@ -262,3 +262,52 @@ def test_merge_half_resolution_completes_an_empty_result_and_refuses_slips():
     agree = GridResult(ids[:8], q[:8], np.ones(8), 40.0)
     out = merge_half_resolution(img, agree, half, BOARD, cfg)
     assert set(out.ids.tolist()) == set(ids[keep].tolist()) - {20} and np.array_equal(out.xy[:8], q[:8])
+
+
+def test_completion_recovers_corners_the_growth_did_not_reach(monkeypatch):
+    """A board at the side of a 200-degree lens whose lattices all stop halfway across the image
+    (as a growth stopped by a bent row or a blurred stretch would leave them): with completion
+    (GridConfig's shipped settings: the lens guessed from the image circle, edge rays always
+    asked, a correlation of 0.7, 8 px from the rim) the grid pass reports most of the visible
+    corners, each within 0.5 px of its label, those added with a confidence no higher than the
+    placed ones'; without it, only the corners the lattices kept."""
+    import cotrain.detect.grid_pass as gp
+    from cotrain.detect.detector import Detector
+    from cotrain.detect.lattice import Lattice
+    from cotrain.targets import TargetConfig, make_target
+    from tests.detect.test_tag_pass import centre, render
+
+    g = make_target(TargetConfig(kind="checkerboard"))
+    c = np.array(centre(g))
+    img, q, vis, _ = render(g, "ds", 200, (c + [0.0, 0.0, -0.15]).tolist(), (c + [-0.5, 0.05, 0.0]).tolist())  # the print faces -z
+    grow = gp.grow_lattice
+
+    x_stop = np.median(q[vis, 0])
+
+    def stopped(xy, *a, **k):  # every growth stops at the same place in the image (x_stop, crop pixels)
+        lat = grow(xy, *a, **k)
+        if lat is None:
+            return None
+        offset = xy_offset["x"]
+        keep = lat.xy[:, 0] + offset < x_stop
+        return Lattice(lat.xy[keep], lat.ab[keep], lat.filled[keep]) if keep.sum() >= 4 else None
+
+    find = gp.find_candidates
+    xy_offset = {"x": 0.0}
+
+    def candidates(grey, roi, offset, *a, **k):
+        xy_offset["x"] = float(offset[0])
+        return find(grey, roi, offset, *a, **k)
+
+    monkeypatch.setattr(gp, "grow_lattice", stopped)
+    monkeypatch.setattr(gp, "find_candidates", candidates)
+    cut = Detector(None, target=g, grid=GridConfig(complete_rounds=0)).detect(img)
+    full = Detector(None, target=g).detect(img)
+    assert 0 < len(cut.ids) <= 0.6 * vis.sum()
+    assert vis[full.ids].all()
+    err = np.linalg.norm(full.xy - q[full.ids], axis=1)
+    assert err.max() < 0.5, f"corner {full.ids[err.argmax()]} is {err.max():.2f} px off"
+    assert np.isin(np.nonzero(vis)[0], full.ids).mean() > 0.85
+    added = ~np.isin(full.ids, cut.ids)
+    assert added.sum() >= 10
+    assert (full.confidence[added] <= full.confidence[~added].max() + 1e-9).all()  # the placement's, times the print's correlation
