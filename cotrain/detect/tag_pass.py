@@ -70,7 +70,7 @@ from scipy.spatial import cKDTree
 
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.half_resolution import corners_at_half_resolution, halve
-from cotrain.detect.image_circle import EquidistantLens, fit_image_circle, ray_homographies
+from cotrain.detect.image_circle import EquidistantLens, fit_image_circle, local_views, ray_homographies
 from cotrain.detect.lattice import STEPS, Lattice, beside_points, corner_rays, final_fits, shortest_steps, values_at
 from cotrain.detect.saddle import fit_saddles, outside_circle, saddle_response, smooth_cached, window_half
 from cotrain.detect.tag_completion import CompletionConfig, complete_board, print_check
@@ -329,15 +329,29 @@ def edge_contrast(img: np.ndarray, p: np.ndarray, q: np.ndarray, normal: np.ndar
 
 
 def fourth_corner(
-    xy: np.ndarray, nbr: RayNeighbours, tree: cKDTree, p0: np.ndarray, A: np.ndarray, B: np.ndarray, cfg: TagConfig
+    xy: np.ndarray,
+    nbr: RayNeighbours,
+    tree: cKDTree,
+    p0: np.ndarray,
+    A: np.ndarray,
+    B: np.ndarray,
+    cfg: TagConfig,
+    lens: EquidistantLens | None = None,
 ) -> int | None:
     """The candidate (index into xy (K, 2)) that closes the quad p0, p0 + A, ?, p0 + B (2,): the
     one the ray neighbours of p0 + A (toward B) and of p0 + B (toward A) lead to (see
     :func:`ray_step`), where they agree or only one leads anywhere, within ``cfg.fourth_radius`` of
     the shorter side from the parallelogram's fourth corner; where neither does, the candidate
     there if it is the only one. Under perspective a crossing square's far corner may lie nearer the
-    parallelogram's corner than the tag's own."""
+    parallelogram's corner than the tag's own. With ``lens`` the parallelogram is closed in the
+    three corners' own view of their rays (:func:`cotrain.detect.image_circle.local_views`)."""
     pred = p0 + A + B
+    if lens is not None:
+        # The parallelogram in the three corners' own view of their rays: the lens's bend removed.
+        g, R, ok = local_views(np.array([[p0, p0 + A, p0 + B]]), lens)
+        if ok[0]:
+            g4 = g[0, 1] + g[0, 2] - g[0, 0]
+            pred = lens.project(np.append(g4, 1.0) @ R[0])
     r = cfg.fourth_radius * min(math.hypot(*A), math.hypot(*B))
     ja, jb = tree.query(np.array([p0 + A, p0 + B]))[1].tolist()
     via = {ray_step(xy[j], nbr.step[j], w, xy, tree, set(), cfg, nbr.index[j]) for j, w in ((ja, B), (jb, A))} - {None}
@@ -371,7 +385,7 @@ def seed_tag(
     at the gap crossings."""
     p0 = xy[seed]
     for frame in _seed_frames(nbr.step[seed], spacing, cfg):
-        j = fourth_corner(xy, nbr, tree, p0, frame[0, 0], frame[1, 0], cfg)
+        j = fourth_corner(xy, nbr, tree, p0, frame[0, 0], frame[1, 0], cfg, lens)
         if j is None:
             continue
         c = np.array([p0, p0 + frame[0, 0], xy[j], p0 + frame[1, 0]])
