@@ -195,6 +195,17 @@ def test_local_maps_through_the_lens_predict_a_plane_exactly_where_pixel_homogra
     np.testing.assert_allclose(maps.take(3)(P[3:4]), q[3:4], atol=1e-6)
 
 
+def _circle_view(grey: np.ndarray):
+    """What the tag pass sets up for a fisheye frame ``grey``: the lens guessed from its image
+    circle (TagConfig's FoV, 210 deg), the distance to the rim, the blur cache and the candidates."""
+    outside = outside_circle(grey)
+    lens = EquidistantLens.from_circle(*fit_image_circle(outside), TagConfig().lens_fov)
+    rim = cv2.distanceTransform((~outside).astype(np.uint8), cv2.DIST_L2, 3)
+    smoothed: dict[int, np.ndarray] = {}
+    cand, _ = tag_candidates(grey, ~outside, TagConfig(), smoothed, rim)
+    return lens, rim, smoothed, cand
+
+
 def test_complete_board_through_the_lens_recovers_more_of_a_close_rim_view():
     """A board 8 cm from a 200-degree Kannala-Brandt lens, 40-90 deg off-axis (tags 30-110 px,
     bent), given the four tags of a 2 x 2 block: through the lens guessed from the image circle
@@ -204,11 +215,7 @@ def test_complete_board_through_the_lens_recovers_more_of_a_close_rim_view():
     c = np.array(centre(g))
     img, q, vis, _ = render(g, "kb4", 200, (c + [0.0, 0.0, 0.08]).tolist(), (c + [-0.5, 0.05, 0.0]).tolist())
     grey = img.astype(np.float32) / 255
-    outside = outside_circle(grey)
-    lens = EquidistantLens.from_circle(*fit_image_circle(outside), TagConfig().lens_fov)
-    rim = cv2.distanceTransform((~outside).astype(np.uint8), cv2.DIST_L2, 3)
-    smoothed: dict[int, np.ndarray] = {}
-    cand, _ = tag_candidates(grey, ~outside, TagConfig(), smoothed, rim)
+    lens, rim, smoothed, cand = _circle_view(grey)
     given = _anchor(g, [13, 14, 19, 20])
     assert vis[given].all()
     found = {}
@@ -269,11 +276,7 @@ def test_complete_board_recovers_a_checkerboard_rim_view_from_a_block_of_corners
     c = np.array(centre(g))
     img, q, vis, angle = render(g, "ds", 200, (c + [0.0, 0.0, -0.2]).tolist(), (c + [-0.5, 0.05, 0.0]).tolist())  # the print faces -z
     grey = img.astype(np.float32) / 255
-    outside = outside_circle(grey)
-    lens = EquidistantLens.from_circle(*fit_image_circle(outside), 210.0)
-    rim = cv2.distanceTransform((~outside).astype(np.uint8), cv2.DIST_L2, 3)
-    smoothed: dict[int, np.ndarray] = {}
-    cand, _ = tag_candidates(grey, ~outside, TagConfig(), smoothed, rim)
+    lens, rim, smoothed, cand = _circle_view(grey)
     i, j = np.meshgrid(np.arange(3, 6), np.arange(2, 5))
     given = (j * g.nx + i).ravel()
     assert vis[given].all() and vis.sum() > 35 and angle[vis].max() > 95
@@ -295,11 +298,7 @@ def test_complete_board_fits_small_gaps_with_a_looser_symmetry():
     c = np.array(centre(g))
     img, q, vis, _ = render(g, "ucm", 200, (c + [0.0, 0.0, 1.0]).tolist(), (c + [-0.3, 0.05, 0.0]).tolist())
     grey = cv2.GaussianBlur(img.astype(np.float32) / 255, (0, 0), 0.8)
-    outside = outside_circle(grey)
-    lens = EquidistantLens.from_circle(*fit_image_circle(outside), TagConfig().lens_fov)
-    rim = cv2.distanceTransform((~outside).astype(np.uint8), cv2.DIST_L2, 3)
-    smoothed: dict[int, np.ndarray] = {}
-    cand, _ = tag_candidates(grey, ~outside, TagConfig(), smoothed, rim)
+    lens, rim, smoothed, cand = _circle_view(grey)
     given = _anchor(g, [14, 15, 20, 21])
     found = []
     for small_gap_px in (0.0, 4.0):
