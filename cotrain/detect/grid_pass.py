@@ -406,15 +406,10 @@ def grid_pass(
         circle = fit_image_circle(outside) if cfg.lens_fov > 0 else None
         lens = None if circle is None else EquidistantLens.from_circle(circle[0] - offset, circle[1], cfg.lens_fov)
         # The crop's own edges (where they are not the frame's) cut fit windows as the rim does.
-        h, w = grey.shape
-        cut = np.full((h, w), np.inf, np.float32)
-        for at_edge, d in ((x0 > 0, np.arange(w)[None, :] + 1.0), (x1 < outside.shape[1], w - np.arange(w)[None, :])):
-            if at_edge:
-                cut = np.minimum(cut, np.broadcast_to(d.astype(np.float32), (h, w)))
-        for at_edge, d in ((y0 > 0, np.arange(h)[:, None] + 1.0), (y1 < outside.shape[0], h - np.arange(h)[:, None])):
-            if at_edge:
-                cut = np.minimum(cut, np.broadcast_to(d.astype(np.float32), (h, w)))
-        rim_c = np.minimum(rim_dist, cut).astype(np.float32)
+        inside = allowed.copy()
+        inside[:, : int(x0 > 0)] = inside[:, inside.shape[1] - int(x1 < outside.shape[1]) :] = False
+        inside[: int(y0 > 0)] = inside[inside.shape[0] - int(y1 < outside.shape[0]) :] = False
+        rim_c = cv2.distanceTransform(inside.astype(np.uint8), cv2.DIST_L2, 3)
         # A checker's print tells only the two parities apart: a saddle at an occluder's edge, or
         # the rim's, can match it, so every corner added must also have its four edge rays along
         # the board's axes and a correlation of cfg.complete_min_corr.
