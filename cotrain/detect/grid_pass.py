@@ -417,7 +417,7 @@ def grid_pass(
             rounds=cfg.complete_rounds, min_rim_px=cfg.complete_rim_px, min_corr=cfg.complete_min_corr, check=False, sure_corr=math.inf
         )
         given = dict(zip(ids.tolist(), conf.tolist()))
-        ids, q, corr = complete_board(grey, smoothed, rim_c, xy, board, ids, q, complete, cfg, lens)
+        ids, q, corr, _ = complete_board(grey, smoothed, rim_c, xy, board, ids, q, complete, cfg, lens)
         conf = np.array([given.get(i, (1.0 - np.exp(-margin)) * c) for i, c in zip(ids.tolist(), corr.tolist())])
     order = np.argsort(ids)
     return GridResult(ids[order], q[order] + offset, conf[order], float(margin))

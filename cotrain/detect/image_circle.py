@@ -25,6 +25,7 @@ of the frame, and move the circle's centre into it).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -68,6 +69,26 @@ class EquidistantLens:
         rho = np.hypot(x, y)
         k = np.where(rho > 1e-12, self.focal * np.arctan2(rho, z) / np.maximum(rho, 1e-12), 0.0)  # on the axis: the centre
         return np.stack([self.centre[0] + x * k, self.centre[1] + y * k], -1)
+
+
+def parallelogram_corner(v0: list[float], v1: list[float], v2: list[float], lens: EquidistantLens) -> tuple[float, float] | None:
+    """The pixel of a parallelogram's fourth corner, opposite v0, from the unit rays (3 floats
+    each) of its corners v0, v1, v2 on a plane: the parallelogram closed in the three rays' own
+    pinhole view (:func:`local_views`), where each ray meets the plane ``z . p = 1`` perpendicular
+    to their mean z, and projected through ``lens``. None where a ray is over 84 deg from the
+    mean, as :func:`local_views` refuses. Scalar arithmetic: it runs for each quad a seed tries."""
+    zx, zy, zz = v0[0] + v1[0] + v2[0], v0[1] + v1[1] + v2[1], v0[2] + v1[2] + v2[2]
+    n = math.sqrt(zx * zx + zy * zy + zz * zz)
+    if n < 1e-12:
+        return None
+    zx, zy, zz = zx / n, zy / n, zz / n
+    d = [v[0] * zx + v[1] * zy + v[2] * zz for v in (v0, v1, v2)]
+    if min(d) <= 0.1:
+        return None
+    x, y, z = (v1[k] / d[1] + v2[k] / d[2] - v0[k] / d[0] for k in range(3))
+    rho = math.hypot(x, y)  # lens.project_xyz, in scalars
+    k = lens.focal * math.atan2(rho, z) / rho if rho > 1e-12 else 0.0
+    return float(lens.centre[0] + x * k), float(lens.centre[1] + y * k)
 
 
 def fit_image_circle(outside: np.ndarray) -> tuple[np.ndarray, float] | None:

@@ -326,6 +326,15 @@ def rays_along(sm: np.ndarray, q: np.ndarray, to_image: PlaneMaps, p: np.ndarray
     return bool((d @ rays.T).max(1).min() >= np.cos(np.radians(cfg.max_ray_angle)))
 
 
+class Completion(NamedTuple):
+    """What :func:`complete_board` gives."""
+
+    ids: np.ndarray  # (K',) the corners identified, given and added, sorted
+    xy: np.ndarray  # (K', 2) their pixels
+    corr: np.ndarray  # (K',) the print correlation of the corners added; NaN for the corners given
+    unfound: np.ndarray  # (U,) corners beside identified ones that may be in view (not predicted beyond the image or its circle) and were not found
+
+
 def complete_board(
     grey: np.ndarray,
     smoothed: dict[int, np.ndarray],
@@ -337,7 +346,7 @@ def complete_board(
     cfg: CompletionConfig,
     grid: GridConfig,
     lens: EquidistantLens | None = None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> Completion:
     """Add the board's corners that its identified corners predict (see the module's docstring;
     with ``lens``, through the homographies of the rays, :func:`local_map`).
 
@@ -346,8 +355,8 @@ def complete_board(
             distance to the image circle's rim; candidates: (C, 2) the tag pass's fitted saddles.
         ids: (K,) identified corner ids with positions xy (K, 2).
     Returns:
-        ids (K',), xy (K', 2), and the print correlation (K',) of the added corners (NaN for the
-        corners given), sorted by id.
+        The :class:`Completion`: the corners, sorted by id, and those predicted in the image that
+        were not found (occluded, blurred, or the prediction off).
     """
     P = board.points().numpy()[:, :2]
     gap = smallest_step(board)
@@ -355,6 +364,7 @@ def complete_board(
     score = {int(i): np.nan for i in ids}
     gaps: dict[int, float] = {}  # added corner -> its local gap (px)
     failed: dict[int, int] = {}  # corner -> identified neighbours when it failed: tried again when it has more
+    unfound: set[int] = set()  # corners predicted inside the image where nothing matched
     sm = smooth_cached(smoothed, grey, 1)
     fit_cfg = replace(grid, min_symmetry=cfg.min_symmetry)
     small_cfg = replace(grid, min_symmetry=cfg.small_min_symmetry)
@@ -377,18 +387,17 @@ def complete_board(
             to_image = local_map(kP[near], kq[near], lens)
             if to_image is None:
                 failed[t] = beside
+                unfound.add(t)  # no prediction: it may be in view
                 continue
             q0, *ends = to_image((P[t] + np.array([[0.0, 0.0], [gap, 0], [0, gap]]))[None])[0]
             g_px = min(np.linalg.norm(ends[0] - q0), np.linalg.norm(ends[1] - q0))
             res = np.linalg.norm(to_image(kP[near][None])[0] - kq[near], axis=1).max()
-            if (
-                not np.isfinite(g_px)
-                or g_px < cfg.min_gap_px
-                or not res <= cfg.max_residual * g_px  # NaN: a fitted corner behind the horizon
-                or not (0 <= q0[0] <= Ww - 1 and 0 <= q0[1] <= Hh - 1)
-                or _value(rim_dist, q0) < cfg.min_rim_px
-            ):
+            if not (0 <= q0[0] <= Ww - 1 and 0 <= q0[1] <= Hh - 1) or _value(rim_dist, q0) < cfg.min_rim_px:
+                failed[t] = beside  # out of view (NaN: behind the horizon)
+                continue
+            if not np.isfinite(g_px) or g_px < cfg.min_gap_px or not res <= cfg.max_residual * g_px:
                 failed[t] = beside
+                unfound.add(t)  # too small to fit, or a poor prediction: it may be in view
                 continue
             todo.append((t, q0, g_px, to_image, beside))
         if not todo:
@@ -421,6 +430,7 @@ def complete_board(
                         best, best_corr = q, m.corr
                 if best is None:
                     failed[t] = beside
+                    unfound.add(t)
                     continue
                 known[t], score[t], gaps[t] = np.asarray(best, np.float64), best_corr, g_px
                 added += 1
@@ -441,4 +451,9 @@ def complete_board(
                 if good[k]:
                     known[t] = q[k]
     out = np.array(sorted(known), int)
-    return out, np.array([known[i] for i in out]).reshape(-1, 2), np.array([score[i] for i in out])
+    return Completion(
+        out,
+        np.array([known[i] for i in out]).reshape(-1, 2),
+        np.array([score[i] for i in out]),
+        np.array(sorted(unfound - set(known)), int),
+    )

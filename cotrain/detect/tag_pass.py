@@ -50,8 +50,9 @@ checkerboard's: tags and crossing squares are dark, the gap strips between them 
    print around it (one that a grid neighbour's print matches better is dropped), then the placed
    board's corners the growth did not reach are predicted from the identified ones and checked
    against the print around them;
-9. half resolution: where few corners are found, the frame is read again at half resolution and
-   what only that finds is added where the print check keeps it (:func:`tag_pass`).
+9. half resolution: where few corners are found, and completion left a corner it predicted in
+   view unfound (or none was found), the frame is read again at half resolution and what only
+   that finds is added where the print check keeps it (:func:`tag_pass`).
 
 Pure functions over numpy arrays; pixels follow docs/conventions.md (centre of the top-left pixel at (0, 0)).
 """
@@ -70,7 +71,7 @@ from scipy.spatial import cKDTree
 
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.half_resolution import corners_at_half_resolution, halve
-from cotrain.detect.image_circle import EquidistantLens, fit_image_circle, local_views, ray_homographies
+from cotrain.detect.image_circle import EquidistantLens, fit_image_circle, parallelogram_corner, ray_homographies
 from cotrain.detect.lattice import STEPS, Lattice, beside_points, corner_rays, final_fits, shortest_steps, values_at
 from cotrain.detect.saddle import fit_saddles, outside_circle, saddle_response, smooth_cached, window_half
 from cotrain.detect.tag_completion import CompletionConfig, complete_board, print_check
@@ -157,6 +158,7 @@ class TagResult:
     dropped_tags: int = 0  # tags that decode alone to another place than the board's (not used), and second boards' tags
     foreign_tags: int = 0  # decoded tag36h11 tags that are not on the target (wild tags, other boards)
     scale: float = 1.0  # the factor the frame was read enlarged by (TagConfig.min_side_px); xy are in the frame's pixels
+    unfound: int | None = None  # corners completion predicted inside the image circle and found nothing at; None: no completion ran
 
 
 # --------------------------------------------------------------------------------------------
@@ -332,28 +334,31 @@ def fourth_corner(
     xy: np.ndarray,
     nbr: RayNeighbours,
     tree: cKDTree,
-    p0: np.ndarray,
+    seed: int,
     A: np.ndarray,
     B: np.ndarray,
     cfg: TagConfig,
     lens: EquidistantLens | None = None,
+    rays: list[list[float]] | None = None,
 ) -> int | None:
-    """The candidate (index into xy (K, 2)) that closes the quad p0, p0 + A, ?, p0 + B (2,): the
+    """The candidate (index into xy (K, 2)) that closes the quad p0, p0 + A, ?, p0 + B (2,), p0
+    the candidate ``seed``: the
     one the ray neighbours of p0 + A (toward B) and of p0 + B (toward A) lead to (see
     :func:`ray_step`), where they agree or only one leads anywhere, within ``cfg.fourth_radius`` of
     the shorter side from the parallelogram's fourth corner; where neither does, the candidate
     there if it is the only one. Under perspective a crossing square's far corner may lie nearer the
-    parallelogram's corner than the tag's own. With ``lens`` the parallelogram is closed in the
-    three corners' own view of their rays (:func:`cotrain.detect.image_circle.local_views`)."""
+    parallelogram's corner than the tag's own. With ``lens`` (and the candidates' unit ``rays``
+    (K, 3), :meth:`EquidistantLens.lift`) the parallelogram is closed in the three corners' own
+    view of their rays (:func:`cotrain.detect.image_circle.parallelogram_corner`)."""
+    p0 = xy[seed]
     pred = p0 + A + B
-    if lens is not None:
-        # The parallelogram in the three corners' own view of their rays: the lens's bend removed.
-        g, R, ok = local_views(np.array([[p0, p0 + A, p0 + B]]), lens)
-        if ok[0]:
-            g4 = g[0, 1] + g[0, 2] - g[0, 0]
-            pred = lens.project(np.append(g4, 1.0) @ R[0])
-    r = cfg.fourth_radius * min(math.hypot(*A), math.hypot(*B))
     ja, jb = tree.query(np.array([p0 + A, p0 + B]))[1].tolist()
+    if lens is not None and rays is not None:
+        # The parallelogram in the three corners' own view of their rays: the lens's bend removed.
+        q = parallelogram_corner(rays[seed], rays[ja], rays[jb], lens)
+        if q is not None:
+            pred = np.array(q)
+    r = cfg.fourth_radius * min(math.hypot(*A), math.hypot(*B))
     via = {ray_step(xy[j], nbr.step[j], w, xy, tree, set(), cfg, nbr.index[j]) for j, w in ((ja, B), (jb, A))} - {None}
     if len(via) == 1:
         j = via.pop()
@@ -373,6 +378,7 @@ def seed_tag(
     cfg: TagConfig,
     tree: cKDTree,
     lens: EquidistantLens | None = None,
+    rays: list[list[float]] | None = None,
 ) -> tuple[np.ndarray, list[int], bool] | None:
     """A seed for the growth: candidate ``seed`` (of xy (K, 2), neighbours along its edges ``nbr``,
     see :func:`axis_neighbours`) is a tag corner whose tag, lattice cell
@@ -382,10 +388,11 @@ def seed_tag(
     candidates at the tag's other corners, lattice (1, 0), (1, 1), (0, 1), and whether the tag
     decodes alone (a tag36h11 code within ``cfg.max_hamming``); None otherwise. This
     keeps the growth off the X-junctions between a tag's own data cells, and off the black squares
-    at the gap crossings."""
+    at the gap crossings. With ``lens``, ``rays`` (K, 3) are the candidates' unit rays under it
+    (:func:`fourth_corner`)."""
     p0 = xy[seed]
     for frame in _seed_frames(nbr.step[seed], spacing, cfg):
-        j = fourth_corner(xy, nbr, tree, p0, frame[0, 0], frame[1, 0], cfg, lens)
+        j = fourth_corner(xy, nbr, tree, seed, frame[0, 0], frame[1, 0], cfg, lens, rays)
         if j is None:
             continue
         c = np.array([p0, p0 + frame[0, 0], xy[j], p0 + frame[1, 0]])
@@ -1518,11 +1525,14 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
     A frame not enlarged, with a shorter side of ``cfg.half_min_side`` px or more, where fewer
     than ``cfg.half_below`` corners are found, is read again at half resolution (blurred tags,
     large tags), and the corners only that finds are added where the print check keeps them
-    (:func:`cotrain.detect.tag_completion.print_check`)."""
+    (:func:`cotrain.detect.tag_completion.print_check`); not where completion found every corner
+    it predicted in view (``TagResult.unfound`` 0: a partial view found whole)."""
     cfg = cfg or TagConfig()
     r = _tag_pass_circle(grey, board, cfg)
     if len(r.ids) >= cfg.half_below or r.scale > 1 or min(grey.shape) < cfg.half_min_side:
         return r
+    if r.unfound == 0:
+        return r  # every corner the board predicts inside the image circle is found: nothing to look for
     # Blurred and large tags (cotrain.detect.half_resolution): corners found only at half
     # resolution, fitted again and checked against the print; their tags are added to the
     # decoded ones where a corner of theirs is kept.
@@ -1597,6 +1607,7 @@ def _tag_pass_in(grey: np.ndarray, allowed: np.ndarray, board: AprilGrid, cfg: T
     rays = corner_rays(sm, xy, cfg.ray_radius * near)
     nbr = axis_neighbours(xy, rays, tree, sm, cfg)
     spacing = board.cfg.tag_spacing
+    rays_xyz = None if lens is None else lens.lift(xy).tolist()  # the candidates' unit rays, for the seeds
     covered = np.zeros(len(xy), bool)
     grown: list[Lattice] = []
     # Seeds whose tag decodes alone grow first; the others (small or blurred tags, and quads of
@@ -1608,7 +1619,7 @@ def _tag_pass_in(grey: np.ndarray, allowed: np.ndarray, board: AprilGrid, cfg: T
             break
         if covered[seed]:
             continue
-        found_seed = seed_tag(xy, nbr, seed, grey, spacing, cfg, tree, lens)
+        found_seed = seed_tag(xy, nbr, seed, grey, spacing, cfg, tree, lens, rays_xyz)
         if found_seed is None:
             continue
         frame, tag_corners, decodes = found_seed
@@ -1691,14 +1702,16 @@ def _tag_pass_in(grey: np.ndarray, allowed: np.ndarray, board: AprilGrid, cfg: T
             smooth_cached(smoothed, grey, 1), rim_dist, board, ids_a, xy_a, cfg.complete, lens=lens if cfg.complete.lens else None
         )
         ids_a, xy_a, conf_a = ids_a[ok], xy_a[ok], conf_a[ok]
-    if cfg.complete.rounds:
+    unfound = None
+    if cfg.complete.rounds and len(ids_a) >= 4:
         # Corners the growth missed, predicted from the identified ones and checked against the
         # print; their confidence is that check's correlation.
         given = dict(zip(ids_a.tolist(), conf_a.tolist()))
-        ids_a, xy_a, corr = complete_board(
+        ids_a, xy_a, corr, missing = complete_board(
             grey, smoothed, rim_dist, xy, board, ids_a, xy_a, cfg.complete, cfg.grid, lens if cfg.complete.lens else None
         )
         conf_a = np.array([given.get(i, c) for i, c in zip(ids_a.tolist(), corr.tolist())])
+        unfound = len(missing)
     order = np.argsort(ids_a)
     return TagResult(
         ids_a[order],
@@ -1708,4 +1721,5 @@ def _tag_pass_in(grey: np.ndarray, allowed: np.ndarray, board: AprilGrid, cfg: T
         np.array(ham, int),
         len(dropped),
         len(foreign),
+        unfound=unfound,
     )

@@ -5,7 +5,7 @@ import cv2
 import numpy as np
 import pytest
 
-from cotrain.detect.image_circle import EquidistantLens, fit_image_circle, ray_homographies
+from cotrain.detect.image_circle import EquidistantLens, fit_image_circle, local_views, parallelogram_corner, ray_homographies
 from cotrain.detect.saddle import outside_circle
 from cotrain.detect.tag_pass import TagConfig, decode_bits, look_at_tag, shortest_side
 from cotrain.targets import TargetConfig, make_target
@@ -30,6 +30,35 @@ def test_equidistant_lens_known_values_and_round_trip():
     np.testing.assert_allclose(np.linalg.norm(v, axis=-1), 1.0, atol=1e-12)
     np.testing.assert_allclose(lens.project(2.5 * v), q, atol=1e-9)
     np.testing.assert_allclose(lens.lift(np.array([640.0, 360.0])), [0, 0, 1], atol=1e-12)
+
+
+def test_parallelogram_corner_closes_the_quad_in_the_rays_own_view():
+    """The fourth corner agrees with the parallelogram closed in :func:`local_views`' rotated view
+    (another construction: a rotation basis, not the plane through the mean ray); it is exact for
+    a parallelogram on the plane perpendicular to the mean ray; and it refuses rays too far apart."""
+    lens = EquidistantLens.from_circle(np.array([640.0, 360.0]), 380.0, 210.0)
+    rng = np.random.default_rng(3)
+    for _ in range(30):
+        q = np.array([640.0, 360.0]) + rng.uniform(-360, 360, 2) * [1, 0.9]
+        q3 = q + rng.normal(0, 25, (3, 2))
+        v = lens.lift(q3)
+        got = parallelogram_corner(*v.tolist(), lens)
+        g, R, ok = local_views(q3[None], lens)
+        assert ok[0] and got is not None
+        want = lens.project(np.append(g[0, 1] + g[0, 2] - g[0, 0], 1.0) @ R[0])
+        np.testing.assert_allclose(got, want, atol=1e-9)
+    # A square 100 deg off-axis on the plane perpendicular to the mean of three of its corners' rays.
+    z = np.array([np.sin(np.radians(100)), 0.0, np.cos(np.radians(100))])
+    a, b = np.array([0.0, 0.05, 0.0]), np.cross(z, [0.0, 0.05, 0.0])
+    c = 0.5 * z - (a + b) / 3  # the mean of the three rays (to c, c + a, c + b) points along z
+    corners = [c, c + a, c + b]
+    assert np.allclose(np.cross(sum(p / np.linalg.norm(p) for p in corners), z), 0, atol=1e-3)
+    got = parallelogram_corner(*[(p / np.linalg.norm(p)).tolist() for p in corners], lens)
+    truth = lens.project(c + a + b)
+    pixel_guess = sum(lens.project(p) * w for p, w in zip(corners, (-1, 1, 1)))
+    assert np.linalg.norm(np.array(got) - truth) < 0.05 * np.linalg.norm(pixel_guess - truth)
+    # Two rays 90 deg from their mean: no one view holds them.
+    assert parallelogram_corner([0.0, 0, 1], [1.0, 0, 0], [-1.0, 0, 0], lens) is None
 
 
 def test_ray_homographies_take_the_unit_square_to_its_rays_and_refuse_no_square():

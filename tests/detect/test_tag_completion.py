@@ -145,7 +145,7 @@ def test_complete_board_recovers_a_rim_view_from_four_tags():
     cand, _ = tag_candidates(grey, allowed, TagConfig(), smoothed, rim)
     given = _anchor(g, [14, 15, 20, 21])
     assert vis[given].all()
-    ids, xy, corr = complete_board(grey, smoothed, rim, cand, g, given, q[given], CompletionConfig(), GridConfig())
+    ids, xy, corr, _ = complete_board(grey, smoothed, rim, cand, g, given, q[given], CompletionConfig(), GridConfig())
     added = ~np.isin(ids, given)
     assert vis[ids].all()
     err = np.linalg.norm(xy - q[ids], axis=1)
@@ -220,7 +220,7 @@ def test_complete_board_through_the_lens_recovers_more_of_a_close_rim_view():
     assert vis[given].all()
     found = {}
     for name, lens_or_none in (("lens", lens), ("pixels", None)):
-        ids, xy, _ = complete_board(grey, smoothed, rim, cand, g, given, q[given], CompletionConfig(), GridConfig(), lens_or_none)
+        ids, xy, _, _ = complete_board(grey, smoothed, rim, cand, g, given, q[given], CompletionConfig(), GridConfig(), lens_or_none)
         assert vis[ids].all()
         err = np.linalg.norm(xy - q[ids], axis=1)
         assert err.max() < 0.5, f"{name}: corner {ids[err.argmax()]} is {err.max():.2f} px off"
@@ -243,7 +243,7 @@ def test_complete_board_adds_nothing_where_the_board_is_covered():
     smoothed: dict[int, np.ndarray] = {}
     cand, _ = tag_candidates(grey, np.ones(grey.shape, bool), TagConfig(), smoothed, rim)
     given = _anchor(g, [0, 1, 6, 7])
-    ids, xy, _ = complete_board(grey, smoothed, rim, cand, g, given, q[given], CompletionConfig(), GridConfig())
+    ids, xy, _, _ = complete_board(grey, smoothed, rim, cand, g, given, q[given], CompletionConfig(), GridConfig())
     in_view = q[:, 0] < x_cut - 8
     assert np.isin(np.nonzero(in_view)[0], ids).mean() > 0.9
     assert (q[ids, 0] < x_cut + 1).all(), "a corner under the sheet was added"
@@ -280,7 +280,7 @@ def test_complete_board_recovers_a_checkerboard_rim_view_from_a_block_of_corners
     i, j = np.meshgrid(np.arange(3, 6), np.arange(2, 5))
     given = (j * g.nx + i).ravel()
     assert vis[given].all() and vis.sum() > 35 and angle[vis].max() > 95
-    ids, xy, corr = complete_board(grey, smoothed, rim, cand, g, given, q[given], CompletionConfig(check=False), GridConfig(), lens)
+    ids, xy, corr, _ = complete_board(grey, smoothed, rim, cand, g, given, q[given], CompletionConfig(check=False), GridConfig(), lens)
     assert vis[ids].all()
     err = np.linalg.norm(xy - q[ids], axis=1)
     assert err.max() < 0.5, f"corner {ids[err.argmax()]} is {err.max():.2f} px off"
@@ -303,9 +303,41 @@ def test_complete_board_fits_small_gaps_with_a_looser_symmetry():
     found = []
     for small_gap_px in (0.0, 4.0):
         cfg = CompletionConfig(small_gap_px=small_gap_px)
-        ids, xy, _ = complete_board(grey, smoothed, rim, cand, g, given, q[given], cfg, GridConfig(), lens)
+        ids, xy, _, _ = complete_board(grey, smoothed, rim, cand, g, given, q[given], cfg, GridConfig(), lens)
         assert vis[ids].all()
         err = np.linalg.norm(xy - q[ids], axis=1)
         assert err.max() < 1.0, f"corner {ids[err.argmax()]} is {err.max():.2f} px off"
         found.append(len(ids))
     assert found[1] >= found[0] + 10, found
+
+
+def test_complete_board_reports_the_corners_it_predicted_in_view_and_found_nothing_at():
+    """A partial view at the rim, given the tag pass's corners, with one tag's area painted over:
+    the corners completion predicts there and cannot find are reported unfound, and none of the
+    corners the view cuts off (off the image circle) is. The board alone, not painted over: the
+    tag pass finds every visible corner and reports none unfound."""
+    g = make_target(TargetConfig(kind="aprilgrid", margin=0.3))
+    c = np.array(centre(g))
+    img, q, vis, _ = render(g, "kb4", 200, (c + [0.0, 0.0, 0.28]).tolist(), (c + [-0.5, 0.05, 0.0]).tolist())
+    det = tag_pass(img.astype(np.float32) / 255, g)
+    assert np.isin(np.nonzero(vis)[0], det.ids).mean() > 0.9
+    assert det.unfound == len(set(np.nonzero(vis)[0]) - set(det.ids.tolist()))
+    # Tag 21's area painted the mean grey.
+    t = 21
+    inner = g.tag_corners(np.array([t]))[0]
+    assert vis[inner].all() and np.isin(inner, det.ids).all()
+    x, y, w, h = cv2.boundingRect(np.rint(q[inner]).astype(np.int32))
+    painted = img.copy()
+    painted[y - 2 : y + h + 3, x - 2 : x + w + 3] = 128
+    grey = painted.astype(np.float32) / 255
+    allowed = ~outside_circle(grey)
+    rim = cv2.distanceTransform(allowed.astype(np.uint8), cv2.DIST_L2, 3)
+    smoothed: dict[int, np.ndarray] = {}
+    cand, _ = tag_candidates(grey, allowed, TagConfig(), smoothed, rim)
+    given = det.ids[~np.isin(det.ids, inner)]
+    ids, _, _, unfound = complete_board(
+        grey, smoothed, rim, cand, g, given, det.xy[~np.isin(det.ids, inner)], CompletionConfig(), GridConfig()
+    )
+    assert not np.isin(inner, ids).any()
+    assert set(inner.tolist()) <= set(unfound.tolist())
+    assert vis[unfound].all(), "a corner off the view is reported unfound"
