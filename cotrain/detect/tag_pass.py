@@ -278,36 +278,43 @@ def edges_along(
     return same & (np.abs(diff.mean(1)) >= min_contrast)
 
 
-def _seed_frames(nbr: np.ndarray, spacing: float, cfg: TagConfig) -> list[np.ndarray]:
+def _seed_frames(nbr: np.ndarray, index: np.ndarray, spacing: float, cfg: TagConfig) -> list[tuple[np.ndarray, int, int]]:
     """Step frames (axis, kind (long, short), 2) under which a candidate would be a tag corner with
     the tag in the (+a, +b) quadrant: one per quadrant whose two sides have a neighbour, surest
     first (the nearest neighbours, both sides the longer of their axis), from its neighbours
-    ``nbr`` (axis, way, option, 2; see :func:`axis_neighbours`). The short steps are the neighbours the other way
+    ``nbr`` (axis, way, option, 2; see :func:`axis_neighbours`) and their candidate indices
+    ``index`` (axis, way, option), each with the candidates its two long steps lead to (along
+    axis 0, axis 1). The short steps are the neighbours the other way
     where they are shorter by ``cfg.min_long_short``, otherwise the target's gap (``spacing`` of
     the side): a corner on the board's outer edge has no gap beyond it."""
-    opts = [[[v for v in way if not np.isnan(v[0])] for way in axis] for axis in nbr]
+    # Plain floats: this runs for every seed tried.
+    opts = [
+        [[(x, y, math.hypot(x, y), j) for (x, y), j in zip(nbr[a, w].tolist(), index[a, w].tolist()) if x == x] for w in (0, 1)]
+        for a in (0, 1)
+    ]
     frames = []
     for s1 in (0, 1):
         for s2 in (0, 1):
-            for i, A in enumerate(opts[0][s1]):
-                for j, B in enumerate(opts[1][s2]):
-                    nA, nB = _norm(A), _norm(B)
-                    if abs(_cross(A, B)) < 0.3 * nA * nB:
+            for i, (ax, ay, nA, ja) in enumerate(opts[0][s1]):
+                for j, (bx, by, nB, jb) in enumerate(opts[1][s2]):
+                    cross = ax * by - ay * bx
+                    if abs(cross) < 0.3 * nA * nB:
                         continue
                     shorts, rank = [], 0
-                    for side, others in ((A, opts[0][1 - s1]), (B, opts[1][1 - s2])):
+                    for sx, sy, n_side, others in ((ax, ay, nA, opts[0][1 - s1]), (bx, by, nB, opts[1][1 - s2])):
                         opp = others[0] if others else None
-                        n_side = _norm(side)
-                        if opp is not None and _norm(opp) * cfg.min_long_short <= n_side:
-                            shorts.append(-opp)  # the gap behind the corner, pointing +a (+b)
+                        if opp is not None and opp[2] * cfg.min_long_short <= n_side:
+                            shorts.append((-opp[0], -opp[1]))  # the gap behind the corner, pointing +a (+b)
                         else:
-                            shorts.append(side * spacing)
-                            rank += opp is not None and _norm(opp) > n_side  # the other way is longer: less likely the tag
-                    fa, fb = (A, shorts[0]), (B, shorts[1])
-                    if _cross(A, B) < 0:
-                        fa, fb = fb, fa
-                    frames.append((i + j, rank, np.array([fa, fb])))
-    return [f for *_, f in sorted(frames, key=lambda x: x[:2])]
+                            shorts.append((sx * spacing, sy * spacing))
+                            rank += opp is not None and opp[2] > n_side  # the other way is longer: less likely the tag
+                    fa, fb = ((ax, ay), shorts[0]), ((bx, by), shorts[1])
+                    if cross < 0:
+                        frames.append((i + j, rank, len(frames), (fb, fa), jb, ja))
+                    else:
+                        frames.append((i + j, rank, len(frames), (fa, fb), ja, jb))
+    frames.sort(key=lambda x: x[:3])
+    return [(np.array(f, np.float64), j0, j1) for *_, f, j0, j1 in frames]
 
 
 def edge_contrast(img: np.ndarray, p: np.ndarray, q: np.ndarray, normal: np.ndarray, depth: float, rim_dist: np.ndarray) -> float:
@@ -334,15 +341,13 @@ def fourth_corner(
     xy: np.ndarray,
     nbr: RayNeighbours,
     tree: cKDTree,
-    seed: int,
-    A: np.ndarray,
-    B: np.ndarray,
+    corners: tuple[int, int, int],
     cfg: TagConfig,
     lens: EquidistantLens | None = None,
     rays: list[list[float]] | None = None,
 ) -> int | None:
-    """The candidate (index into xy (K, 2)) that closes the quad p0, p0 + A, ?, p0 + B (2,), p0
-    the candidate ``seed``: the
+    """The candidate (index into xy (K, 2)) that closes the quad of candidates ``corners`` (i0,
+    ia, ib: p0, p0 + A, ?, p0 + B): the
     one the ray neighbours of p0 + A (toward B) and of p0 + B (toward A) lead to (see
     :func:`ray_step`), where they agree or only one leads anywhere, within ``cfg.fourth_radius`` of
     the shorter side from the parallelogram's fourth corner; where neither does, the candidate
@@ -350,19 +355,20 @@ def fourth_corner(
     parallelogram's corner than the tag's own. With ``lens`` (and the candidates' unit ``rays``
     (K, 3), :meth:`EquidistantLens.lift`) the parallelogram is closed in the three corners' own
     view of their rays (:func:`cotrain.detect.image_circle.parallelogram_corner`)."""
-    p0 = xy[seed]
-    pred = p0 + A + B
-    ja, jb = tree.query(np.array([p0 + A, p0 + B]))[1].tolist()
+    i0, ja, jb = corners
+    (x0, y0), (xa, ya), (xb, yb) = xy[i0].tolist(), xy[ja].tolist(), xy[jb].tolist()
+    pred = None
     if lens is not None and rays is not None:
         # The parallelogram in the three corners' own view of their rays: the lens's bend removed.
-        q = parallelogram_corner(rays[seed], rays[ja], rays[jb], lens)
-        if q is not None:
-            pred = np.array(q)
-    r = cfg.fourth_radius * min(math.hypot(*A), math.hypot(*B))
+        pred = parallelogram_corner(rays[i0], rays[ja], rays[jb], lens)
+    if pred is None:
+        pred = (xa + xb - x0, ya + yb - y0)
+    r = cfg.fourth_radius * min(math.hypot(xa - x0, ya - y0), math.hypot(xb - x0, yb - y0))
+    A, B = xy[ja] - xy[i0], xy[jb] - xy[i0]
     via = {ray_step(xy[j], nbr.step[j], w, xy, tree, set(), cfg, nbr.index[j]) for j, w in ((ja, B), (jb, A))} - {None}
     if len(via) == 1:
         j = via.pop()
-        return j if math.hypot(*(xy[j] - pred)) < r else None
+        return j if math.hypot(float(xy[j, 0]) - pred[0], float(xy[j, 1]) - pred[1]) < r else None
     if via:
         return None  # the two sides disagree
     near = tree.query_ball_point(pred, r)
@@ -391,8 +397,8 @@ def seed_tag(
     at the gap crossings. With ``lens``, ``rays`` (K, 3) are the candidates' unit rays under it
     (:func:`fourth_corner`)."""
     p0 = xy[seed]
-    for frame in _seed_frames(nbr.step[seed], spacing, cfg):
-        j = fourth_corner(xy, nbr, tree, seed, frame[0, 0], frame[1, 0], cfg, lens, rays)
+    for frame, ja, jb in _seed_frames(nbr.step[seed], nbr.index[seed], spacing, cfg):
+        j = fourth_corner(xy, nbr, tree, (seed, ja, jb), cfg, lens, rays)
         if j is None:
             continue
         c = np.array([p0, p0 + frame[0, 0], xy[j], p0 + frame[1, 0]])
@@ -406,7 +412,7 @@ def seed_tag(
         if min(look.white.mean(), 1 - look.white.mean()) < cfg.min_data_share or look.data_contrast < cfg.min_data_contrast:
             continue  # uniform inside: a crossing square, not a tag
         decodes = decode_bits(look.white)[2] <= cfg.max_hamming
-        return frame, [int(tree.query(c[1])[1]), int(j), int(tree.query(c[3])[1])], decodes
+        return frame, [ja, int(j), jb], decodes
     return None
 
 
