@@ -426,6 +426,14 @@ def ring_in_gaps(img: np.ndarray, corners: np.ndarray, spacing: float) -> bool:
     be a tag: at a third and two thirds of each side, the black border (its inner ring, a cell and a
     half in) is darker than (at 7 of the 8 points)
     the white gap beyond the side (half a gap out). Bilinear in the quad: 16 samples."""
+    vals = values_at(img, _ring_weights(float(spacing)) @ corners)
+    return bool((vals[:8] < vals[8:]).sum() >= 7)
+
+
+@functools.lru_cache(maxsize=4)
+def _ring_weights(spacing: float) -> np.ndarray:
+    """(16, 4) bilinear weights of :func:`ring_in_gaps`' samples on a quad's four corners: two points
+    on each side, a cell and a half in (8), then half a gap out (8)."""
     t = np.array([1 / 3, 2 / 3])
 
     def on_sides(d: float) -> np.ndarray:  # (8, 2): two points on each side, ``d`` in from it (unit square)
@@ -433,10 +441,8 @@ def ring_in_gaps(img: np.ndarray, corners: np.ndarray, spacing: float) -> bool:
         return np.concatenate([np.stack(p, 1) for p in ((t, lo), (t, hi), (lo, t), (hi, t))])
 
     uv = np.concatenate([on_sides(1.5 / CELLS), on_sides(-spacing / 2)])
-    u, v = uv[:, :1], uv[:, 1:]
-    pts = (1 - u) * (1 - v) * corners[0] + u * (1 - v) * corners[1] + u * v * corners[2] + (1 - u) * v * corners[3]
-    vals = values_at(img, pts)
-    return bool((vals[:8] < vals[8:]).sum() >= 7)
+    u, v = uv[:, 0], uv[:, 1]
+    return np.stack([(1 - u) * (1 - v), u * (1 - v), u * v, (1 - u) * v], 1)
 
 
 def inside_cells(lat: Lattice, xy: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
