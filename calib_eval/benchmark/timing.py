@@ -1,9 +1,12 @@
 """Speed figures the docs quote: ``make bench`` (``python -m calib_eval.benchmark.timing``) runs them all.
 
-Rendering, a training step, the detector against findChessboardCornersSB on the same frames, and
-the calibration of a 480-frame stereo sequence; each figure is a median of several runs.
+Rendering, a training step, the detector against findChessboardCornersSB on the same frames, the
+AprilGrid tag pass against cv2.aruco on the same frames, and the calibration of a 480-frame
+stereo sequence; each figure is a median of several runs.
 ``python -m calib_eval.benchmark.timing detect [--model M.onnx]`` runs the detector figures alone
 (``--model``: another graph, like the int8 one of ``cotrain export --int8``, on the same frames).
+``python -m calib_eval.benchmark.timing tags [--runs N]`` times the AprilGrid tag pass against
+cv2.aruco on the same frames, and splits the tag pass's time into its stages.
 ``python -m calib_eval.benchmark.timing train [--config C] [--set train.device=cuda ...] [--profile]``
 splits one training step into its parts on the training device (a GPU session's first command:
 where the time of a step goes, before a run is planned).
@@ -265,6 +268,100 @@ def bench_detect(model: str | None = None, runs: int = 5, sets: tuple[DetectSet,
     return out
 
 
+# The tag pass's stages (cotrain.detect.tag_pass's module docstring), timed by the profiler in
+# bench_tags: (label, module, function); a stage's time includes what it calls.
+TAG_STAGES = (
+    ("candidates", "cotrain.detect.tag_pass", "tag_candidates"),
+    ("ray neighbours", "cotrain.detect.tag_pass", "axis_neighbours"),
+    ("seeds", "cotrain.detect.tag_pass", "seed_tag"),
+    ("growth", "cotrain.detect.tag_pass", "grow_tag_lattice"),
+    ("reading the tags", "cotrain.detect.tag_pass", "read_cells"),
+    ("placement", "cotrain.detect.tag_pass", "place_board"),
+    ("ray check", "cotrain.detect.tag_pass", "rays_agree"),
+    ("final fits", "cotrain.detect.lattice", "final_fits"),
+    ("print check", "cotrain.detect.tag_completion", "print_check"),
+    ("completion", "cotrain.detect.tag_completion", "complete_board"),
+    ("image circle", "cotrain.detect.image_circle", "fit_image_circle"),
+)
+
+
+def bench_tags(runs: int = 3, per_fov: int = 50, every: int = 2, root: Path = Path("report")) -> dict:
+    """Milliseconds per image of the AprilGrid tag pass (``AprilGridDetector.detect``) and of
+    cv2.aruco (``DICT_APRILTAG_36h11``, Kalibr's 2-bit border, the evaluation's settings) on the
+    same frames in the same run, one image after another, decoding excluded: every ``every``-th
+    frame of the FoV rows of the AprilGrid evaluation set (``python -m calib_eval.detection.tags``,
+    rendered once into ``root``). Each figure is the median over ``runs`` runs of (total time /
+    images). One more run under cProfile splits the tag pass by stage (:data:`TAG_STAGES`; the
+    profiler's overhead inflates them all, so they are shares, not times), and counts the frames
+    read again at half resolution."""
+    import cProfile
+    import importlib
+    import pstats
+
+    import cv2
+
+    from calib_eval.detection.tags import TagEvalConfig, render_set
+    from cotrain.detect.buffers import keep_image_buffers
+    from cotrain.detect.detector import AprilGridDetector
+    from cotrain.targets import TargetConfig, make_target
+
+    keep_image_buffers()
+    board = make_target(TargetConfig(kind="aprilgrid"))
+    cfg = TagEvalConfig(per_fov=per_fov, conditions=[], n_empty=0)
+    out = root / f"tags_{cfg.seed}_{per_fov}"
+    labels = [lab for lab in render_set(cfg, board, out) if lab["fov"]][::every]
+    images = [cv2.imread(str(out / "images" / lab["image"]), cv2.IMREAD_GRAYSCALE) for lab in labels]
+    ours = AprilGridDetector(board)
+    aruco = _aruco_peer()
+    ours.detect(images[0])
+    n = len(images)
+    t_ours, t_aruco = [], []
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        for img in images:
+            ours.detect(img)
+        t_ours.append(1000 * (time.perf_counter() - t0) / n)
+        t0 = time.perf_counter()
+        for img in images:
+            aruco(img)
+        t_aruco.append(1000 * (time.perf_counter() - t0) / n)
+    prof = cProfile.Profile()
+    prof.enable()
+    for img in images:
+        ours.detect(img)
+    prof.disable()
+    stats = pstats.Stats(prof).stats  # {(file, line, name): (calls, prim, tottime, cumtime, callers)}
+    total = sum(v[3] for k, v in stats.items() if k[2] == "detect" and k[0].endswith("detector.py"))
+    stages = {}
+    for label, module, name in TAG_STAGES:
+        path = importlib.import_module(module).__file__
+        stages[label] = sum(v[3] for k, v in stats.items() if k[2] == name and k[0] == path) / max(total, 1e-9)
+    half = sum(v[0] for k, v in stats.items() if k[2] == "_tag_pass_circle") - n
+    row = {
+        "images": n,
+        "tag_pass_ms": statistics.median(t_ours),
+        "aruco_ms": statistics.median(t_aruco),
+        "runs": {"tag_pass": t_ours, "aruco": t_aruco},
+        "stage_share": stages,
+        "half_resolution_frames": half,
+    }
+    row["ratio_vs_aruco"] = row["tag_pass_ms"] / row["aruco_ms"]
+    split = ", ".join(f"{k} {100 * v:.0f} %" for k, v in stages.items())
+    print(
+        f"tags, {n} frames of the FoV rows (ms/image, median of {runs} runs): tag pass {row['tag_pass_ms']:.1f}, "
+        f"cv2.aruco {row['aruco_ms']:.1f} ({row['ratio_vs_aruco']:.1f}x aruco's time); read again at half resolution: "
+        f"{half} frames; share of the tag pass's time (profiled): {split}"
+    )
+    return row
+
+
+def _aruco_peer():
+    """cv2.aruco as the AprilGrid evaluation runs it (:mod:`calib_eval.detection.tags`)."""
+    from calib_eval.detection.tags import PEERS
+
+    return PEERS["aruco"]()
+
+
 def bench_calibration(config: str = "FoV220_90", frames: int = 480, repeats: int = 3) -> dict:
     """Median seconds to calibrate a synthetic stereo sequence: all frames, and selector + selected subset."""
 
@@ -305,9 +402,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "what",
         nargs="?",
-        choices=("all", "detect", "train"),
+        choices=("all", "detect", "tags", "train"),
         default="all",
-        help="all figures (make bench), the detector's, or a training step's parts",
+        help="all figures (make bench), the detector's, the AprilGrid tag pass's, or a training step's parts",
     )
     ap.add_argument("--model", help="ONNX model for the detector figures (default: the shipped model)")
     ap.add_argument("--runs", type=int, default=5, help="runs per figure (the median is quoted)")
@@ -331,6 +428,12 @@ def main(argv: list[str] | None = None) -> int:
         out.write_text(json.dumps(results, indent=1, default=str))
         print(f"wrote {out}")
         return 0
+    if args.what == "tags":
+        out = Path("report") / "bench_tags.json"
+        out.parent.mkdir(exist_ok=True)
+        out.write_text(json.dumps(bench_tags(runs=args.runs), indent=1, default=str))
+        print(f"wrote {out}")
+        return 0
     if args.what == "detect":
         results = {"detect": bench_detect(args.model, runs=args.runs), "model": args.model or "shipped"}
         out = Path("report") / ("bench_detect.json" if not args.model else f"bench_detect_{Path(args.model).stem}.json")
@@ -343,6 +446,7 @@ def main(argv: list[str] | None = None) -> int:
         "render_1280x720": bench_render(RenderConfig(height=720, width=1280), batch=4, repeats=3),
         "render_vs_train_step": bench_render_vs_step(),
         "detect": bench_detect(args.model, runs=args.runs),
+        "tags": bench_tags(runs=args.runs),
         "calibration": bench_calibration(),
     }
     out = Path("report") / "bench.json"

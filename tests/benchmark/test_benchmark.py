@@ -130,3 +130,23 @@ def test_timing_train_refuses_a_missing_config_or_device_in_one_line(tmp_path, c
         assert e.value.code == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert err[-1].startswith("python -m calib_eval.benchmark.timing: error:")
+
+
+def test_tag_pass_timing_names_real_stages_and_times_both_detectors(tmp_path, capsys):
+    """``timing tags``: every stage it splits the tag pass into is a function of the detector (a
+    renamed one would read 0 %), and on four rendered frames both detectors are timed and the
+    stages' shares of the tag pass's time are shares."""
+    import importlib
+
+    from calib_eval.benchmark.timing import TAG_STAGES, bench_tags
+
+    for _, module, name in TAG_STAGES:
+        assert callable(getattr(importlib.import_module(module), name)), f"{module}.{name}"
+    row = bench_tags(runs=1, per_fov=1, every=1, root=tmp_path)
+    assert row["images"] == 4
+    assert row["tag_pass_ms"] > 0 and row["aruco_ms"] > 0
+    assert row["ratio_vs_aruco"] == row["tag_pass_ms"] / row["aruco_ms"]
+    shares = row["stage_share"]
+    assert set(shares) == {label for label, _, _ in TAG_STAGES}
+    assert all(0 <= v <= 1 for v in shares.values()) and shares["candidates"] > 0
+    assert "tag pass" in capsys.readouterr().out
