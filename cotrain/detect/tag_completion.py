@@ -332,7 +332,7 @@ class Completion(NamedTuple):
     ids: np.ndarray  # (K',) the corners identified, given and added, sorted
     xy: np.ndarray  # (K', 2) their pixels
     corr: np.ndarray  # (K',) the print correlation of the corners added; NaN for the corners given
-    unfound: np.ndarray  # (U,) corners beside identified ones that may be in view (not predicted beyond the image or its circle) and were not found
+    unfound: np.ndarray  # (U,) corners beside identified ones, not predicted off the image or its circle, and not found
 
 
 def complete_board(
