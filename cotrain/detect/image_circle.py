@@ -98,8 +98,12 @@ def fit_image_circle(outside: np.ndarray) -> tuple[np.ndarray, float] | None:
     leaves in it, under :data:`MIN_CONTOUR_PX`), an algebraic circle fit, and fits again to the edge pixels
     within a band around the last fit that narrows from a fifth of the radius to
     :data:`INLIER_PX` (so a dark part of the scene joined to the frame pulls only the first fit).
-    None where the edge is too short or not a circle (no black frame, or a dark scene joined to
-    much of it: under :data:`MIN_INLIERS` of the edge on the circle)."""
+    Where that leaves under :data:`MIN_INLIERS` of the edge on the circle (a dark scene joined to
+    much of the frame: the black borders of tags at the rim, a dark room), the circle with the
+    most edge pixels on it among circles through three of them (:func:`_consensus_circle`). Either
+    is kept where its centre lies in the image and the black frame lies all around outside it
+    (:func:`_black_all_around`). None where the edge is too short or no circle passes (no black
+    frame, or a dark scene's round edge)."""
     H, W = outside.shape
     contours, _ = cv2.findContours(outside.astype(np.uint8), cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
     contours = [c for c in contours if len(c) >= MIN_CONTOUR_PX]  # not the specks noise leaves in the frame
@@ -110,6 +114,27 @@ def fit_image_circle(outside: np.ndarray) -> tuple[np.ndarray, float] | None:
     p = p[inner]
     if len(p) < MIN_ARC_PX:
         return None
+    fit = _narrowing_circle(p)
+    if fit is not None:
+        centre, radius = fit
+        keep = np.abs(np.linalg.norm(p - centre, axis=1) - radius) < INLIER_PX
+        if keep.sum() < MIN_ARC_PX or keep.mean() < MIN_INLIERS:
+            fit = None
+    if fit is None:
+        fit = _consensus_circle(p, outside.shape)
+    if fit is None:
+        return None
+    centre, radius = fit
+    if not (0 <= centre[0] < W and 0 <= centre[1] < H) or not _black_all_around(outside, centre, radius):
+        return None
+    # The contour runs along the black frame's own pixels, half a pixel outside the boundary (the
+    # frame, found at half resolution and grown by a pixel, still comes out about a pixel wide).
+    return centre, radius - 0.5
+
+
+def _narrowing_circle(p: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """The circle fitted to edge pixels p (N, 2) again and again, each time to those within a band
+    around the last fit, narrowing from a fifth of the radius to :data:`INLIER_PX`."""
     fit = _algebraic_circle(p)
     for band in (0.2, 0.1, 0.05, 0.0):
         if fit is None:
@@ -119,15 +144,56 @@ def fit_image_circle(outside: np.ndarray) -> tuple[np.ndarray, float] | None:
         if keep.sum() < MIN_ARC_PX:
             return None
         fit = _algebraic_circle(p[keep])
-    if fit is None:
+    return fit
+
+
+CONSENSUS_TRIES = 128  # circles through three edge pixels that :func:`_consensus_circle` tries ...
+CONSENSUS_POINTS = 600  # ... each scored on this many of the edge pixels (evenly taken)
+RING_PX = 6.0  # the black frame must lie this far outside the circle (px; its edge, found at half resolution, is 2-4 px soft) ...
+MIN_RING_OUTSIDE = 0.95  # ... on this share of the ring there inside the image
+
+
+def _consensus_circle(p: np.ndarray, shape: tuple[int, int], seed: int = 0) -> tuple[np.ndarray, float] | None:
+    """The circle through most of the edge pixels p (N, 2) of an image of ``shape`` (H, W): of
+    :data:`CONSENSUS_TRIES` circles through three of them (a fixed random draw) with a radius
+    of a fifth of the image's shorter side to twice its longer, the one with the most within
+    :data:`INLIER_PX`, fitted again to those; None where under :data:`MIN_ARC_PX` lie on it."""
+    H, W = shape
+    sub = p[:: max(1, len(p) // CONSENSUS_POINTS)]
+    tri = sub[np.random.default_rng(seed).integers(0, len(sub), (CONSENSUS_TRIES, 3))]  # (T, 3, 2)
+    # The centre c through three points: 2 (p_k - p_0) . c = |p_k|^2 - |p_0|^2, k = 1, 2.
+    A = 2 * (tri[:, 1:] - tri[:, :1])  # (T, 2, 2)
+    b = (tri[:, 1:] ** 2).sum(2) - (tri[:, :1] ** 2).sum(2)  # (T, 2)
+    ok = np.abs(np.linalg.det(A)) > 1e-6
+    c = np.linalg.solve(np.where(ok[:, None, None], A, np.eye(2)), np.where(ok[:, None], b, 0.0)[..., None])[..., 0]
+    r = np.linalg.norm(tri[:, 0] - c, axis=1)
+    ok &= (r > 0.2 * min(H, W)) & (r < 2 * max(H, W))
+    on = np.abs(np.linalg.norm(sub[None] - c[:, None], axis=2) - r[:, None]) < INLIER_PX  # (T, n)
+    score = np.where(ok, on.sum(1), -1)
+    k = int(np.argmax(score))
+    if score[k] < 3:
         return None
-    centre, radius = fit
-    keep = np.abs(np.linalg.norm(p - centre, axis=1) - radius) < INLIER_PX
-    if keep.sum() < MIN_ARC_PX or keep.mean() < MIN_INLIERS or not (0 <= centre[0] < W and 0 <= centre[1] < H):
-        return None
-    # The contour runs along the black frame's own pixels, half a pixel outside the boundary (the
-    # frame, found at half resolution and grown by a pixel, still comes out about a pixel wide).
-    return centre, radius - 0.5
+    centre, radius = c[k], r[k]
+    for _ in range(3):
+        keep = np.abs(np.linalg.norm(p - centre, axis=1) - radius) < INLIER_PX
+        if keep.sum() < MIN_ARC_PX:
+            return None
+        fit = _algebraic_circle(p[keep])
+        if fit is None:
+            return None
+        centre, radius = fit
+    return centre, radius
+
+
+def _black_all_around(outside: np.ndarray, centre: np.ndarray, radius: float) -> bool:
+    """Whether the black frame ``outside`` (H, W) bool lies all around the circle: on
+    :data:`MIN_RING_OUTSIDE` of 720 samples of a ring :data:`RING_PX` outside it that fall inside
+    the image (at least 36 of them). A dark scene's edge that happens to be round is not."""
+    H, W = outside.shape
+    a = np.linspace(0, 2 * np.pi, 720, endpoint=False)
+    x, y = centre[0] + (radius + RING_PX) * np.cos(a), centre[1] + (radius + RING_PX) * np.sin(a)
+    seen = (x >= 3) & (x < W - 3) & (y >= 3) & (y < H - 3)
+    return bool(seen.sum() >= 36 and outside[y[seen].astype(int), x[seen].astype(int)].mean() >= MIN_RING_OUTSIDE)
 
 
 def _algebraic_circle(p: np.ndarray) -> tuple[np.ndarray, float] | None:

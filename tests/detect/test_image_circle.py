@@ -110,13 +110,15 @@ def circle_frame(h: int, w: int, c: tuple[float, float], r: float, dark_sector: 
         ((640.0, 360.0), 340.0, 0.0, 0.0),
         ((640.0, 360.0), 340.0, 30.0, 0.0),
         ((640.0, 360.0), 340.0, 90.0, 0.02),
+        ((640.0, 360.0), 340.0, 150.0, 0.02),
         ((652.3, 371.8), 500.0, 0.0, 0.02),
         ((630.0, 355.0), 700.0, 0.0, 0.0),
     ],
 )
 def test_fit_image_circle_finds_the_circle_whole_or_cut_by_the_frame(c, r, dark_sector, noise):
     """A whole circle; with a black part of the scene joined to the frame over 30 or 90 degrees
-    (the fit narrows its band onto the circle); with a noisy black frame; cut at the top and
+    (the fit narrows its band onto the circle) or over 150 (too much of the edge off the circle for
+    that: the circle through most edge pixels); with a noisy black frame; cut at the top and
     bottom of the frame; and larger than the frame, with only the frame's corners black: the
     centre within half a pixel, the radius within 2.5 px (the black frame is found at half
     resolution and grown by a pixel: the radius comes out 1-2 px long, under 0.5 % of the
@@ -129,9 +131,9 @@ def test_fit_image_circle_finds_the_circle_whole_or_cut_by_the_frame(c, r, dark_
 
 
 def test_fit_image_circle_refuses_frames_without_a_black_circle():
-    """No black frame; a dark scene at the frame's edge (a straight edge); a circle whose black
-    frame runs into a dark part of the scene over 150 degrees (under MIN_INLIERS of the edge on
-    the circle): no circle, so tags are read through pixel homographies."""
+    """No black frame; a dark scene at the frame's edge (a straight edge); a dark disc cut by the
+    frame's edge (a round edge of 700 px, but the scene beyond it is not black all around): no
+    circle, so tags are read through pixel homographies."""
     rng = np.random.default_rng(2)
     grey = np.full((480, 640), 0.5, np.float32)
     assert fit_image_circle(outside_circle(grey)) is None
@@ -139,7 +141,10 @@ def test_fit_image_circle_refuses_frames_without_a_black_circle():
     dark[:, :200] = 0.0
     dark += rng.normal(0, 0.01, dark.shape).astype(np.float32)
     assert fit_image_circle(outside_circle(dark)) is None
-    assert fit_image_circle(outside_circle(circle_frame(720, 1280, (640.0, 360.0), 340.0, 150.0))) is None
+    yy, xx = np.mgrid[0:480, 0:640]
+    disc = np.where(np.hypot(xx - 100.0, yy - 240.0) < 150, 0.0, 0.5).astype(np.float32)
+    disc += rng.normal(0, 0.01, disc.shape).astype(np.float32)
+    assert fit_image_circle(outside_circle(disc)) is None
 
 
 def test_large_bent_tags_read_through_the_guessed_lens():
