@@ -41,7 +41,8 @@ from cotrain.targets import AprilGrid, Checkerboard, Target
 # 3: AprilGrid corners checked against the print; frames with few corners read at half resolution too.
 # 4: AprilGrid tags read through a lens guessed from the image circle; seeds that decode grow first;
 #    checkerboards completed from their identified corners.
-OUTPUT_VERSION = 4
+# 5: the image circle found where a dark scene joins the black frame (more frames read through the lens).
+OUTPUT_VERSION = 5
 
 
 @dataclass
