@@ -16,6 +16,7 @@ from cotrain.detect.tag_pass import (
     TagCell,
     TagConfig,
     _Board,
+    _seed_frames,
     _turn_index,
     consistent_boards,
     corner_rays,
@@ -357,6 +358,30 @@ def test_ray_step_takes_the_candidate_along_a_ray_in_the_steps_direction():
     relabelled = targets.copy()
     relabelled[0, 0, 0] = 3
     assert ray_step(p, options, np.array([28.0, -4.0]), xy, tree, set(), cfg, relabelled) == 3
+
+
+def test_seed_frames_name_the_candidates_their_long_steps_lead_to():
+    """Every step frame a seed gets is oriented (a x b > 0 in the image, a turned frame swaps its
+    axes) and names the candidates its two long steps end on; the surest frame, the nearest long
+    neighbours with the shorter neighbours the other way as gaps, comes first."""
+    cfg = TagConfig()
+    p0 = np.array([100.0, 100.0])
+    xy = np.array([p0, p0 + [30.0, 2.0], p0 + [-9.0, -0.5], p0 + [1.0, 29.0], p0 + [0.0, -10.0], p0 + [-31.0, 1.0]])
+    nbr = np.full((2, 2, cfg.ray_options, 2), np.nan)
+    index = np.full((2, 2, cfg.ray_options), -1)
+    for (axis, way, k), j in {(0, 0, 0): 1, (0, 1, 0): 2, (0, 1, 1): 5, (1, 0, 0): 3, (1, 1, 0): 4}.items():
+        nbr[axis, way, k] = xy[j] - p0
+        index[axis, way, k] = j
+    frames = _seed_frames(nbr, index, 0.3, cfg)
+    assert len(frames) == 6  # two options along -a, one along each other way: 2 + 2 + 1 + 1 quadrant pairs
+    for frame, ja, jb in frames:
+        np.testing.assert_allclose(frame[0, 0], xy[ja] - p0)
+        np.testing.assert_allclose(frame[1, 0], xy[jb] - p0)
+        assert frame[0, 0, 0] * frame[1, 0, 1] - frame[0, 0, 1] * frame[1, 0, 0] > 0
+    first, ja, jb = frames[0]
+    assert (ja, jb) == (1, 3)
+    np.testing.assert_allclose(first[:, 1], [[9.0, 0.5], [0.0, 10.0]])  # the gaps behind the corner, pointing +a and +b
+    assert {(a, b) for _, a, b in frames} >= {(4, 1), (3, 2)}  # turned quadrants: axes swapped to keep a x b > 0
 
 
 def test_edges_along_a_narrow_border_needs_a_shallow_look():
