@@ -34,7 +34,11 @@ import numpy as np
 MIN_ARC_PX = 200  # edge pixels of the black frame a circle needs (about 30 degrees of a 720 px circle)
 MIN_CONTOUR_PX = 40  # contours of the black frame shorter than this are specks of noise, not its edge
 INLIER_PX = 2.0  # px: edge pixels this close to the circle are on it (the frame's edge is found at half resolution)
-MIN_INLIERS = 0.6  # share of the black frame's edge pixels on the circle (else the dark frame runs into the scene)
+MIN_INLIERS = 0.6  # share of the black frame's edge on the narrowing fit's circle (else a dark scene joins it: the consensus fit)
+CONSENSUS_TRIES = 128  # circles through three edge pixels that the consensus fit tries ...
+CONSENSUS_POINTS = 600  # ... each scored on about this many of the edge pixels (every n-th)
+RING_PX = 6.0  # the black frame must lie this far outside the circle (px; its edge, found at half resolution, is 2-4 px soft) ...
+MIN_RING_OUTSIDE = 0.95  # ... on this share of the ring there inside the image
 
 
 @dataclass(frozen=True)
@@ -114,19 +118,20 @@ def fit_image_circle(outside: np.ndarray) -> tuple[np.ndarray, float] | None:
     p = p[inner]
     if len(p) < MIN_ARC_PX:
         return None
+
+    def passes(fit: tuple[np.ndarray, float] | None) -> bool:  # its centre in the image, the black frame all around it
+        return fit is not None and 0 <= fit[0][0] < W and 0 <= fit[0][1] < H and _black_all_around(outside, *fit)
+
     fit = _narrowing_circle(p)
     if fit is not None:
-        centre, radius = fit
-        keep = np.abs(np.linalg.norm(p - centre, axis=1) - radius) < INLIER_PX
+        keep = np.abs(np.linalg.norm(p - fit[0], axis=1) - fit[1]) < INLIER_PX
         if keep.sum() < MIN_ARC_PX or keep.mean() < MIN_INLIERS:
             fit = None
-    if fit is None:
+    if not passes(fit):
         fit = _consensus_circle(p, outside.shape)
-    if fit is None:
-        return None
+        if not passes(fit):
+            return None
     centre, radius = fit
-    if not (0 <= centre[0] < W and 0 <= centre[1] < H) or not _black_all_around(outside, centre, radius):
-        return None
     # The contour runs along the black frame's own pixels, half a pixel outside the boundary (the
     # frame, found at half resolution and grown by a pixel, still comes out about a pixel wide).
     return centre, radius - 0.5
@@ -145,12 +150,6 @@ def _narrowing_circle(p: np.ndarray) -> tuple[np.ndarray, float] | None:
             return None
         fit = _algebraic_circle(p[keep])
     return fit
-
-
-CONSENSUS_TRIES = 128  # circles through three edge pixels that :func:`_consensus_circle` tries ...
-CONSENSUS_POINTS = 600  # ... each scored on this many of the edge pixels (evenly taken)
-RING_PX = 6.0  # the black frame must lie this far outside the circle (px; its edge, found at half resolution, is 2-4 px soft) ...
-MIN_RING_OUTSIDE = 0.95  # ... on this share of the ring there inside the image
 
 
 def _consensus_circle(p: np.ndarray, shape: tuple[int, int], seed: int = 0) -> tuple[np.ndarray, float] | None:
@@ -193,7 +192,8 @@ def _black_all_around(outside: np.ndarray, centre: np.ndarray, radius: float) ->
     a = np.linspace(0, 2 * np.pi, 720, endpoint=False)
     x, y = centre[0] + (radius + RING_PX) * np.cos(a), centre[1] + (radius + RING_PX) * np.sin(a)
     seen = (x >= 3) & (x < W - 3) & (y >= 3) & (y < H - 3)
-    return bool(seen.sum() >= 36 and outside[y[seen].astype(int), x[seen].astype(int)].mean() >= MIN_RING_OUTSIDE)
+    xi, yi = np.rint(x[seen]).astype(int), np.rint(y[seen]).astype(int)
+    return bool(seen.sum() >= 36 and outside[yi, xi].mean() >= MIN_RING_OUTSIDE)
 
 
 def _algebraic_circle(p: np.ndarray) -> tuple[np.ndarray, float] | None:

@@ -327,12 +327,13 @@ def rays_along(sm: np.ndarray, q: np.ndarray, to_image: PlaneMaps, p: np.ndarray
 
 
 class Completion(NamedTuple):
-    """What :func:`complete_board` gives."""
+    """What :func:`complete_board` gives. With fewer than four corners given nothing is predicted,
+    and ``unfound`` is empty: it says nothing then."""
 
     ids: np.ndarray  # (K',) the corners identified, given and added, sorted
     xy: np.ndarray  # (K', 2) their pixels
     corr: np.ndarray  # (K',) the print correlation of the corners added; NaN for the corners given
-    unfound: np.ndarray  # (U,) corners beside identified ones, not predicted off the image or its circle, and not found
+    unfound: np.ndarray  # (U,) corners beside identified ones, not predicted off the view, not found (or not tried: rounds ran out)
 
 
 def complete_board(
@@ -394,6 +395,7 @@ def complete_board(
             res = np.linalg.norm(to_image(kP[near][None])[0] - kq[near], axis=1).max()
             if not (0 <= q0[0] <= Ww - 1 and 0 <= q0[1] <= Hh - 1) or _value(rim_dist, q0) < cfg.min_rim_px:
                 failed[t] = beside  # out of view (NaN: behind the horizon)
+                unfound.discard(t)
                 continue
             if not np.isfinite(g_px) or g_px < cfg.min_gap_px or not res <= cfg.max_residual * g_px:
                 failed[t] = beside
@@ -436,6 +438,15 @@ def complete_board(
                 added += 1
         if not added:
             break
+    else:
+        if cfg.rounds and len(known) >= 4:
+            # The rounds ran out with corners still to try: those beside the last ones added.
+            have = {(i % nx, i // nx) for i in known}
+            for t in range(board.n_corners):
+                c, r = t % nx, t // nx
+                beside = sum((c + a, r + b) in have for a, b in ((1, 0), (-1, 0), (0, 1), (0, -1)))
+                if t not in known and beside and failed.get(t, 0) < beside:
+                    unfound.add(t)
     if gaps:
         # Final positions as the tag pass's (lattice.final_fits): fitted once more in a small
         # window; where that fails the corner keeps the position it was found at.

@@ -158,7 +158,7 @@ class TagResult:
     dropped_tags: int = 0  # tags that decode alone to another place than the board's (not used), and second boards' tags
     foreign_tags: int = 0  # decoded tag36h11 tags that are not on the target (wild tags, other boards)
     scale: float = 1.0  # the factor the frame was read enlarged by (TagConfig.min_side_px); xy are in the frame's pixels
-    unfound: int | None = None  # corners completion predicted inside the image circle and found nothing at; None: no completion ran
+    unfound: int | None = None  # corners completion left unfound in view (the full-resolution pass); None: no completion ran
 
 
 # --------------------------------------------------------------------------------------------
@@ -203,10 +203,6 @@ def tag_candidates(
 def _norm(v: np.ndarray) -> float:
     """Length of one 2-vector (plain arithmetic: the growth asks this for every step)."""
     return math.sqrt(float(v[0]) * float(v[0]) + float(v[1]) * float(v[1]))
-
-
-def _cross(u: np.ndarray, v: np.ndarray) -> float:
-    return float(u[0] * v[1] - u[1] * v[0])
 
 
 def is_long(m: int, dm: int) -> bool:
@@ -358,9 +354,10 @@ def fourth_corner(
     i0, ja, jb = corners
     (x0, y0), (xa, ya), (xb, yb) = xy[i0].tolist(), xy[ja].tolist(), xy[jb].tolist()
     pred = None
-    if lens is not None and rays is not None:
+    if lens is not None:
         # The parallelogram in the three corners' own view of their rays: the lens's bend removed.
-        pred = parallelogram_corner(rays[i0], rays[ja], rays[jb], lens)
+        v0, va, vb = (rays[i0], rays[ja], rays[jb]) if rays is not None else lens.lift(xy[[i0, ja, jb]]).tolist()
+        pred = parallelogram_corner(v0, va, vb, lens)
     if pred is None:
         pred = (xa + xb - x0, ya + yb - y0)
     r = cfg.fourth_radius * min(math.hypot(xa - x0, ya - y0), math.hypot(xb - x0, yb - y0))
@@ -442,7 +439,9 @@ def _ring_weights(spacing: float) -> np.ndarray:
 
     uv = np.concatenate([on_sides(1.5 / CELLS), on_sides(-spacing / 2)])
     u, v = uv[:, 0], uv[:, 1]
-    return np.stack([(1 - u) * (1 - v), u * (1 - v), u * v, (1 - u) * v], 1)
+    w = np.stack([(1 - u) * (1 - v), u * (1 - v), u * v, (1 - u) * v], 1)
+    w.setflags(write=False)  # cached: shared by every call
+    return w
 
 
 def inside_cells(lat: Lattice, xy: np.ndarray, shape: tuple[int, int]) -> np.ndarray:

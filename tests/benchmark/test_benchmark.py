@@ -145,8 +145,9 @@ def test_tag_pass_timing_names_real_stages_and_times_both_detectors(tmp_path, ca
     row = bench_tags(runs=1, per_fov=1, every=1, root=tmp_path)
     assert row["images"] == 4
     assert row["tag_pass_ms"] > 0 and row["aruco_ms"] > 0
-    assert row["ratio_vs_aruco"] == row["tag_pass_ms"] / row["aruco_ms"]
+    assert 0 <= row["half_resolution_frames"] <= row["images"]
     shares = row["stage_share"]
     assert set(shares) == {label for label, _, _ in TAG_STAGES}
-    assert all(0 <= v <= 1 for v in shares.values()) and shares["candidates"] > 0
+    # No stage calls another: their shares add up to at most the whole (the rest is the table's last row).
+    assert all(0 <= v <= 1 for v in shares.values()) and shares["candidates"] > 0 and sum(shares.values()) <= 1
     assert "tag pass" in capsys.readouterr().out
