@@ -16,7 +16,8 @@ Double Sphere), since it is only used for the inside of one tag from its four co
 - :class:`EquidistantLens`: ``lift`` pixels to unit rays and ``project`` rays to pixels.
 - :func:`ray_homographies`: per tag, the homography from its unit square to its corners' rays.
 - :func:`local_views` and :class:`PlaneMaps`: a set of corners' own pinhole view of their rays,
-  and the maps from board points to pixels through such views (or straight homographies).
+  and the maps from board points to pixels through such views (or straight homographies);
+  :func:`parallelogram_corner`: a parallelogram closed in such a view, in scalar arithmetic.
 
 Functions and small value classes over numpy arrays; pixels follow docs/conventions.md (centre of
 the top-left pixel at (0, 0)), in whatever image the caller works on (the passes work on a crop
@@ -102,12 +103,12 @@ def fit_image_circle(outside: np.ndarray) -> tuple[np.ndarray, float] | None:
     leaves in it, under :data:`MIN_CONTOUR_PX`), an algebraic circle fit, and fits again to the edge pixels
     within a band around the last fit that narrows from a fifth of the radius to
     :data:`INLIER_PX` (so a dark part of the scene joined to the frame pulls only the first fit).
-    Where that leaves under :data:`MIN_INLIERS` of the edge on the circle (a dark scene joined to
-    much of the frame: the black borders of tags at the rim, a dark room), the circle with the
-    most edge pixels on it among circles through three of them (:func:`_consensus_circle`). Either
-    is kept where its centre lies in the image and the black frame lies all around outside it
-    (:func:`_black_all_around`). None where the edge is too short or no circle passes (no black
-    frame, or a dark scene's round edge)."""
+    A circle is kept where its centre lies in the image and the black frame lies all around
+    outside it (:func:`_black_all_around`). Where that fit fails this, or leaves under
+    :data:`MIN_INLIERS` of the edge on its circle (a dark scene joined to much of the frame: the
+    black borders of tags at the rim, a dark room), the circle with the most edge pixels on it
+    among circles through three of them (:func:`_consensus_circle`), if it passes. None where the
+    edge is too short or no circle passes (no black frame, or a dark scene's round edge)."""
     H, W = outside.shape
     contours, _ = cv2.findContours(outside.astype(np.uint8), cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
     contours = [c for c in contours if len(c) >= MIN_CONTOUR_PX]  # not the specks noise leaves in the frame
