@@ -356,8 +356,8 @@ def complete_board(
             distance to the image circle's rim; candidates: (C, 2) the tag pass's fitted saddles.
         ids: (K,) identified corner ids with positions xy (K, 2).
     Returns:
-        The :class:`Completion`: the corners, sorted by id, and those predicted in the image that
-        were not found (occluded, blurred, or the prediction off).
+        The :class:`Completion`: the corners, sorted by id, and those that may be in view and were
+        not found (occluded, blurred, the prediction off, or left untried when the rounds ran out).
     """
     P = board.points().numpy()[:, :2]
     gap = smallest_step(board)

@@ -348,9 +348,10 @@ def fourth_corner(
     :func:`ray_step`), where they agree or only one leads anywhere, within ``cfg.fourth_radius`` of
     the shorter side from the parallelogram's fourth corner; where neither does, the candidate
     there if it is the only one. Under perspective a crossing square's far corner may lie nearer the
-    parallelogram's corner than the tag's own. With ``lens`` (and the candidates' unit ``rays``
-    (K, 3), :meth:`EquidistantLens.lift`) the parallelogram is closed in the three corners' own
-    view of their rays (:func:`cotrain.detect.image_circle.parallelogram_corner`)."""
+    parallelogram's corner than the tag's own. With ``lens`` the parallelogram is closed in the
+    three corners' own view of their rays (:func:`cotrain.detect.image_circle.parallelogram_corner`;
+    ``rays`` (K, 3): the candidates' unit rays, :meth:`EquidistantLens.lift`, lifted here where not
+    given)."""
     i0, ja, jb = corners
     (x0, y0), (xa, ya), (xb, yb) = xy[i0].tolist(), xy[ja].tolist(), xy[jb].tolist()
     pred = None
