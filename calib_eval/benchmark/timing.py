@@ -300,7 +300,7 @@ def bench_tags(runs: int = 3, per_fov: int = 50, every: int = 2, root: Path = Pa
 
     import cv2
 
-    from calib_eval.detection.tags import TagEvalConfig, render_set
+    from calib_eval.detection.tags import PEERS, TagEvalConfig, render_set
     from cotrain.detect.buffers import keep_image_buffers
     from cotrain.detect.detector import AprilGridDetector
     from cotrain.targets import TargetConfig, make_target
@@ -312,7 +312,7 @@ def bench_tags(runs: int = 3, per_fov: int = 50, every: int = 2, root: Path = Pa
     labels = [lab for lab in render_set(cfg, board, out) if lab["fov"]][::every]
     images = [cv2.imread(str(out / "images" / lab["image"]), cv2.IMREAD_GRAYSCALE) for lab in labels]
     ours = AprilGridDetector(board)
-    aruco = _aruco_peer()
+    aruco = PEERS["aruco"]()  # as the AprilGrid evaluation runs it
     ours.detect(images[0])
     n = len(images)
     t_ours, t_aruco = [], []
@@ -353,13 +353,6 @@ def bench_tags(runs: int = 3, per_fov: int = 50, every: int = 2, root: Path = Pa
         f"{half} frames; share of the tag pass's time (profiled): {split}"
     )
     return row
-
-
-def _aruco_peer():
-    """cv2.aruco as the AprilGrid evaluation runs it (:mod:`calib_eval.detection.tags`)."""
-    from calib_eval.detection.tags import PEERS
-
-    return PEERS["aruco"]()
 
 
 def bench_calibration(config: str = "FoV220_90", frames: int = 480, repeats: int = 3) -> dict:

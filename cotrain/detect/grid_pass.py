@@ -52,7 +52,7 @@ from scipy.spatial import cKDTree
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.half_resolution import corners_at_half_resolution
 from cotrain.detect.identity import assign_ids, canonical_ids, cell_darkness, corner_votes, edge_evidence
-from cotrain.detect.image_circle import EquidistantLens, fit_image_circle
+from cotrain.detect.image_circle import guess_lens
 from cotrain.detect.lattice import STEPS, Lattice, grow_lattice, refine_positions, skipped_corners, verify_lattice
 from cotrain.detect.saddle import fit_saddles, outside_circle, saddle_candidates, saddle_response, smooth_cached, window_half
 from cotrain.detect.tag_completion import CompletionConfig, complete_board
@@ -403,8 +403,7 @@ def grid_pass(
         # Corners the growth did not reach (bent rows at the rim, a blurred stretch), predicted from
         # the identified ones and checked against the print (cotrain.detect.tag_completion); their
         # confidence is the placement's times that check's correlation.
-        circle = fit_image_circle(outside) if cfg.lens_fov > 0 else None
-        lens = None if circle is None else EquidistantLens.from_circle(circle[0] - offset, circle[1], cfg.lens_fov)
+        lens = guess_lens(outside, cfg.lens_fov, offset)
         # The crop's own edges (where they are not the frame's) cut fit windows as the rim does.
         inside = allowed.copy()
         inside[:, : int(x0 > 0)] = inside[:, inside.shape[1] - int(x1 < outside.shape[1]) :] = False

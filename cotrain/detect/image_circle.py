@@ -12,7 +12,7 @@ Double Sphere), since it is only used for the inside of one tag from its four co
 
 - :func:`fit_image_circle`: the circle (centre, radius) of the black frame's inner edge, or
   None where no such circle shows (a frame without a black frame: pixels are read through
-  homographies then).
+  homographies then); :func:`guess_lens`: the lens from it.
 - :class:`EquidistantLens`: ``lift`` pixels to unit rays and ``project`` rays to pixels.
 - :func:`ray_homographies`: per tag, the homography from its unit square to its corners' rays.
 - :func:`local_views` and :class:`PlaneMaps`: a set of corners' own pinhole view of their rays,
@@ -136,6 +136,17 @@ def fit_image_circle(outside: np.ndarray) -> tuple[np.ndarray, float] | None:
     # The contour runs along the black frame's own pixels, half a pixel outside the boundary (the
     # frame, found at half resolution and grown by a pixel, still comes out about a pixel wide).
     return centre, radius - 0.5
+
+
+def guess_lens(outside: np.ndarray, fov_deg: float, offset: tuple[float, float] = (0.0, 0.0)) -> EquidistantLens | None:
+    """The equidistant lens whose circle spans ``fov_deg`` degrees, guessed from the image circle
+    of the black frame ``outside`` (H, W) bool (:func:`fit_image_circle`), in the pixels of a
+    crop whose top-left corner is at ``offset`` (x, y) in the frame; None where ``fov_deg`` is 0
+    (pixel homographies wanted) or no circle shows."""
+    circle = fit_image_circle(outside) if fov_deg > 0 else None
+    if circle is None:
+        return None
+    return EquidistantLens.from_circle(circle[0] - np.asarray(offset, np.float64), circle[1], fov_deg)
 
 
 def _narrowing_circle(p: np.ndarray) -> tuple[np.ndarray, float] | None:

@@ -372,18 +372,26 @@ def complete_board(
     tree = cKDTree(candidates) if len(candidates) else None
     Hh, Ww = grey.shape
     nx = board.nx
-    for _ in range(cfg.rounds if len(known) >= 4 else 0):
-        kid = np.array(sorted(known))
-        kP, kq = P[kid], np.array([known[i] for i in kid])
+
+    def to_try() -> list[tuple[int, int]]:
+        """(corner, identified grid neighbours) of the corners beside identified ones, not found and
+        not failed with as many neighbours."""
         have = {(i % nx, i // nx) for i in known}
-        todo = []  # (t, prediction, local gap px, homography, identified neighbours)
+        out = []
         for t in range(board.n_corners):
             if t in known:
                 continue
             c, r = t % nx, t // nx
             beside = sum((c + a, r + b) in have for a, b in ((1, 0), (-1, 0), (0, 1), (0, -1)))
-            if not beside or failed.get(t, 0) >= beside:
-                continue
+            if beside and failed.get(t, 0) < beside:
+                out.append((t, beside))
+        return out
+
+    for _ in range(cfg.rounds if len(known) >= 4 else 0):
+        kid = np.array(sorted(known))
+        kP, kq = P[kid], np.array([known[i] for i in kid])
+        todo = []  # (t, prediction, local gap px, homography, identified neighbours)
+        for t, beside in to_try():
             near = np.argsort(np.linalg.norm(kP - P[t], axis=1))[: cfg.neighbours]
             to_image = local_map(kP[near], kq[near], lens)
             if to_image is None:
@@ -440,13 +448,7 @@ def complete_board(
             break
     else:
         if cfg.rounds and len(known) >= 4:
-            # The rounds ran out with corners still to try: those beside the last ones added.
-            have = {(i % nx, i // nx) for i in known}
-            for t in range(board.n_corners):
-                c, r = t % nx, t // nx
-                beside = sum((c + a, r + b) in have for a, b in ((1, 0), (-1, 0), (0, 1), (0, -1)))
-                if t not in known and beside and failed.get(t, 0) < beside:
-                    unfound.add(t)
+            unfound |= {t for t, _ in to_try()}  # the rounds ran out with these still to try
     if gaps:
         # Final positions as the tag pass's (lattice.final_fits): fitted once more in a small
         # window; where that fails the corner keeps the position it was found at.

@@ -71,7 +71,7 @@ from scipy.spatial import cKDTree
 
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.half_resolution import corners_at_half_resolution, halve
-from cotrain.detect.image_circle import EquidistantLens, fit_image_circle, parallelogram_corner, ray_homographies
+from cotrain.detect.image_circle import EquidistantLens, guess_lens, parallelogram_corner, ray_homographies
 from cotrain.detect.lattice import STEPS, Lattice, beside_points, corner_rays, final_fits, shortest_steps, values_at
 from cotrain.detect.saddle import fit_saddles, outside_circle, saddle_response, smooth_cached, window_half
 from cotrain.detect.tag_completion import CompletionConfig, complete_board, print_check
@@ -1576,7 +1576,6 @@ def _tag_pass_circle(grey: np.ndarray, board: AprilGrid, cfg: TagConfig) -> TagR
         grey = cv2.resize(grey, None, fx=f, fy=f, interpolation=cv2.INTER_LINEAR)
         cfg = replace(cfg, **{k: getattr(cfg, k) * f for k in ("small_tag_px", "small_gap_px", "keep_unfitted_px", "rim_strict_px")})
     outside = outside_circle(grey)
-    circle = fit_image_circle(outside) if cfg.lens_fov > 0 else None
     allowed = ~outside
     allowed[[0, -1], :] = False
     allowed[:, [0, -1]] = False
@@ -1584,7 +1583,7 @@ def _tag_pass_circle(grey: np.ndarray, board: AprilGrid, cfg: TagConfig) -> TagR
     H, W = grey.shape
     y0, y1 = (max(0, ys[0] - CIRCLE_PAD_PX), min(H, ys[-1] + 1 + CIRCLE_PAD_PX)) if len(ys) else (0, H)
     x0, x1 = (max(0, xs[0] - CIRCLE_PAD_PX), min(W, xs[-1] + 1 + CIRCLE_PAD_PX)) if len(xs) else (0, W)
-    lens = None if circle is None else EquidistantLens.from_circle(circle[0] - np.array([x0, y0]), circle[1], cfg.lens_fov)
+    lens = guess_lens(outside, cfg.lens_fov, (x0, y0))
     r = _tag_pass_in(grey[y0:y1, x0:x1], allowed[y0:y1, x0:x1], board, cfg, lens)
     xy = r.xy + np.array([x0, y0], np.float64)
     if f > 1:
