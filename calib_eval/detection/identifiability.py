@@ -11,8 +11,10 @@ geometric detector could observe:
 
 - every seen corner lands on the board;
 - the checker colour of every cell whose four corners are seen;
-- the white margin: where a seen corner's neighbour is off the board in truth, it must be off the
-  board in the other placement too;
+- the white margin: where a seen corner's neighbour is off the board in truth and that place is
+  in view (inside the image and its image circle: one step beyond the corner, extrapolated from
+  the labels), it must be off the board in the other placement too; a margin beyond the image's
+  edge is not seen, so it identifies nothing;
 - continuation: where a seen corner's neighbour is on the board and visible in the image but not
   among the seen corners, it must be on the board in the other placement too.
 
@@ -40,9 +42,36 @@ from cotrain.targets import (  # the board's in-plane turns, as the detector's p
 STEPS = ((1, 0), (-1, 0), (0, 1), (0, -1))
 
 
-def identifiable(seen: np.ndarray, visible: np.ndarray, nx: int, ny: int) -> bool:
+def off_board_in_view(
+    q: np.ndarray, nx: int, ny: int, size: tuple[int, int], centre: np.ndarray | None = None, radius: float | None = None
+) -> set[tuple[int, int]]:
+    """The off-board grid places (i, j) next to the board's edge corners whose place in the image
+    is in view, where an image could show that no corner follows.
+
+    q: (nx * ny, 2) every corner's pixel position (labels); size: (width, height); centre (2,) and
+    radius: the image circle, if any. A place's pixel position is one step beyond its edge corner,
+    extrapolated along the corner's inward neighbour: 2 q[edge] - q[inward].
+    """
+    w, h = size
+    places = set()
+    for k in range(nx * ny):
+        i, j = k % nx, k // nx
+        for di, dj in STEPS:
+            if 0 <= i + di < nx and 0 <= j + dj < ny:
+                continue
+            p = 2 * q[k] - q[(j - dj) * nx + (i - di)]
+            seen = bool(np.isfinite(p).all()) and 0 <= p[0] <= w - 1 and 0 <= p[1] <= h - 1
+            if seen and centre is not None and radius is not None:
+                seen = float(np.hypot(*(p - centre))) < radius
+            if seen:
+                places.add((i + di, j + dj))
+    return places
+
+
+def identifiable(seen: np.ndarray, visible: np.ndarray, nx: int, ny: int, margin_in_view: set[tuple[int, int]] | None = None) -> bool:
     """True when the seen corner ids (K,) admit no placement on the nx x ny corner grid other than
-    the true one; ``visible`` (nx * ny,) bool marks corners whose presence the image shows."""
+    the true one; ``visible`` (nx * ny,) bool marks corners whose presence the image shows;
+    ``margin_in_view``: the off-board places the image shows (``off_board_in_view``), None for all."""
     on = lambda t: (t[..., 0] >= 0) & (t[..., 0] < nx) & (t[..., 1] >= 0) & (t[..., 1] < ny)  # noqa: E731
     ij = np.stack([seen % nx, seen // nx], 1)
     have = set(seen.tolist())
@@ -54,7 +83,8 @@ def identifiable(seen: np.ndarray, visible: np.ndarray, nx: int, ny: int) -> boo
         for d in STEPS:
             n = np.array([i + d[0], j + d[1]])
             if not on(n):
-                must_off.append((i + d[0], j + d[1]))
+                if margin_in_view is None or (int(n[0]), int(n[1])) in margin_in_view:
+                    must_off.append((i + d[0], j + d[1]))
             elif visible[n[1] * nx + n[0]] and n[1] * nx + n[0] not in have:
                 must_on.append((i + d[0], j + d[1]))
     must_off, must_on = np.array(must_off, int).reshape(-1, 2), np.array(must_on, int).reshape(-1, 2)
@@ -75,9 +105,11 @@ def identifiable(seen: np.ndarray, visible: np.ndarray, nx: int, ny: int) -> boo
     return True
 
 
-def ceiling(labels: list[dict], nx: int, ny: int) -> dict:
+def ceiling(labels: list[dict], nx: int, ny: int, size: tuple[int, int] | None = None) -> dict:
     """Share of detectable corners in identifiable frames, per FoV (or hard condition) and over the
-    FoV rows ("all"), with the detectable corners or all visible ones as what is seen."""
+    FoV rows ("all"), with the detectable corners or all visible ones as what is seen. With the
+    image ``size`` (width, height), a margin counts only where it is in view (``off_board_in_view``,
+    the labels' corners and image circle); without it, everywhere."""
     acc: dict = {}
     for lab in labels:
         if not lab.get("has_target", True):
@@ -86,11 +118,15 @@ def ceiling(labels: list[dict], nx: int, ny: int) -> dict:
         n = int(det.sum())
         if not n:
             continue
+        in_view = None
+        if size is not None:
+            centre = np.asarray(lab["centre"], float) if lab.get("centre") is not None else None
+            in_view = off_board_in_view(np.asarray(lab["corners"], float), nx, ny, size, centre, lab.get("radius"))
         for key in (lab.get("condition") or lab.get("fov"), "all" if not lab.get("condition") else "all conditions"):
             a = acc.setdefault(key, [0, 0, 0])
             a[0] += n
-            a[1] += n * identifiable(np.nonzero(det)[0], vis, nx, ny)
-            a[2] += n * identifiable(np.nonzero(vis)[0], vis, nx, ny)
+            a[1] += n * identifiable(np.nonzero(det)[0], vis, nx, ny, in_view)
+            a[2] += n * identifiable(np.nonzero(vis)[0], vis, nx, ny, in_view)
     return {str(k): {"detectable": a[0], "from_detectable": a[1] / a[0], "from_visible": a[2] / a[0]} for k, a in acc.items()}
 
 
@@ -109,11 +145,17 @@ def main(argv: list[str] | None = None) -> int:
     if not isinstance(board, Checkerboard):
         print(f"error: identifiability is worked out for checkerboards, not {board.kind}", file=sys.stderr)
         return 2
-    res = ceiling(meta["labels"], board.nx, board.ny)
+    cfg = meta.get("config", {})
+    size = (cfg["width"], cfg["height"]) if "width" in cfg and "height" in cfg else None
+    res = ceiling(meta["labels"], board.nx, board.ny, size)
+    anywhere = ceiling(meta["labels"], board.nx, board.ny)
     print(f"identifiable from geometry alone ({Path(args.set) / 'labels.json'}): share of detectable corners")
-    print("| FoV | detectable corners | seen = detectable | seen = visible |\n|---|---|---|---|")
+    if size is None:
+        print("(the set names no image size: margins beyond the image count as seen)")
+    print("| FoV | detectable corners | seen = detectable | seen = visible | margins beyond the view counted too |")
+    print("|---|---|---|---|---|")
     for k, v in sorted(res.items(), key=lambda kv: (kv[0] == "all", kv[0])):
-        print(f"| {k} | {v['detectable']} | {v['from_detectable']:.3f} | {v['from_visible']:.3f} |")
+        print(f"| {k} | {v['detectable']} | {v['from_detectable']:.3f} | {v['from_visible']:.3f} | {anywhere[k]['from_detectable']:.3f} |")
     return 0
 
 

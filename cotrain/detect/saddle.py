@@ -9,7 +9,7 @@
   smaller windows;
 - :func:`window_half`, :func:`smooth_for`, :func:`smooth_cached`: the window size for a square
   size, and the image blurred for it (once per image and size);
-- :func:`outside_circle`: the black frame outside a fisheye's image circle.
+- :func:`outside_circle`: the black frame outside a fisheye's image circle (:func:`black_level`: its level).
 
 Pure functions over numpy arrays; pixels follow docs/conventions.md (centre of the top-left pixel at (0, 0)).
 """
@@ -345,13 +345,36 @@ def saddle_candidates(
     return np.stack([xs[order], ys[order]], 1).astype(np.float64), r[order].astype(np.float64)
 
 
+BLACK_AS_ZERO = 0.03  # a black frame up to this level is black (noise lifts it to 0.025 in dark, amplified frames) ...
+LIFTED_DARK = 0.03  # ... above it, a camera's lifted black: dark means under its level + this
+MAX_BLACK_LEVEL = 0.15  # a camera's black level is under this (16/255 = 0.063 is common); above it the border is scene
+BLACK_BAND = 0.03  # the black frame's pixels lie within this of its level ...
+MIN_BLACK_SHARE = 0.2  # ... over at least this share of the image border, where a black frame shows
+
+
+def black_level(small: np.ndarray) -> float:
+    """The level of the black frame outside a fisheye's image circle where a camera lifts it off
+    zero: the 5th percentile of the (H, W) image's outermost two pixels all around, where that
+    share of them lies within ``BLACK_BAND`` of it (a flat black frame, not a dark scene) and it is
+    under ``MAX_BLACK_LEVEL``; else 0."""
+    ring = np.concatenate([small[:2].ravel(), small[-2:].ravel(), small[2:-2, :2].ravel(), small[2:-2, -2:].ravel()])
+    if not len(ring):
+        return 0.0
+    level = float(np.percentile(ring, 5))
+    flat = float(np.mean(ring < level + BLACK_BAND))
+    return level if level <= MAX_BLACK_LEVEL and flat >= MIN_BLACK_SHARE else 0.0
+
+
 def outside_circle(grey: np.ndarray, dark: float = 0.04, grow_px: int = 1) -> np.ndarray:
     """(H, W) bool: the black frame outside a fisheye's image circle (dark regions connected to
     the image border, found at half resolution), grown by ``grow_px``. Corners there sit on the
-    rim, where the checker is cut and a saddle fit is pulled off the corner."""
+    rim, where the checker is cut and a saddle fit is pulled off the corner. Dark means under
+    ``dark``, or where the black frame's level (:func:`black_level`) is over ``BLACK_AS_ZERO`` (a
+    camera's lifted black, often 16/255), under that level + ``LIFTED_DARK``."""
     H, W = grey.shape
-    small = cv2.resize(grey, (max(1, W // 2), max(1, H // 2)), interpolation=cv2.INTER_AREA)
-    low = (cv2.GaussianBlur(small, (0, 0), 0.7) < dark).astype(np.uint8)
+    small = cv2.GaussianBlur(cv2.resize(grey, (max(1, W // 2), max(1, H // 2)), interpolation=cv2.INTER_AREA), (0, 0), 0.7)
+    level = black_level(small)
+    low = (small < (level + LIFTED_DARK if level > BLACK_AS_ZERO else dark)).astype(np.uint8)
     n, lab = cv2.connectedComponents(low, connectivity=4)
     border = np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]]))
     keep = np.zeros(n, np.uint8)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from cotrain.detect.image_circle import EquidistantLens, fit_image_circle, local_views, parallelogram_corner, ray_homographies
-from cotrain.detect.saddle import outside_circle
+from cotrain.detect.saddle import black_level, outside_circle
 from cotrain.detect.tag_pass import TagConfig, decode_bits, look_at_tag, shortest_side
 from cotrain.targets import TargetConfig, make_target
 from tests.detect.test_tag_pass import centre, render
@@ -128,6 +128,36 @@ def test_fit_image_circle_finds_the_circle_whole_or_cut_by_the_frame(c, r, dark_
     assert fit is not None
     np.testing.assert_allclose(fit[0], c, atol=0.5)
     assert fit[1] == pytest.approx(r, abs=2.5)
+
+
+@pytest.mark.parametrize("noise", [0.0, 0.004])
+def test_a_lifted_black_frame_is_still_the_frame(noise):
+    """A camera whose black is 16/255 (the whole image lifted and compressed to 16-255): the black
+    frame's level is measured from the image's border, the circle found as in a zero-black frame,
+    and a dark square beside the rim (0.05 over the lifted black) is not taken for the frame."""
+    c, r = (640.0, 360.0), 340.0
+    img = circle_frame(720, 1280, c, r, 0.0, 0.0)
+    yy, xx = np.mgrid[0:720, 0:1280]
+    img[(np.abs(xx - 320) < 20) & (np.abs(yy - 360) < 20)] = 0.05  # a dark square touching the rim at x = 300
+    lifted = (img * (239 / 255) + 16 / 255 + np.random.default_rng(3).normal(0, noise, img.shape)).astype(np.float32)
+    small = cv2.GaussianBlur(cv2.resize(lifted, (640, 360), interpolation=cv2.INTER_AREA), (0, 0), 0.7)
+    assert black_level(small) == pytest.approx(16 / 255, abs=0.01)
+    outside = outside_circle(lifted)
+    assert not outside[360, 320]  # the dark square, inside the circle
+    fit = fit_image_circle(outside)
+    assert fit is not None
+    np.testing.assert_allclose(fit[0], c, atol=0.5)
+    assert fit[1] == pytest.approx(r, abs=2.5)
+
+
+def test_black_level_is_zero_without_a_flat_dark_border():
+    """A full-frame image: a mid-grey border, a dark but varied one (a room): level 0, so dark
+    stays 0.04 above zero."""
+    rng = np.random.default_rng(4)
+    assert black_level(np.full((360, 640), 0.3, np.float32)) == 0.0
+    room = rng.uniform(0.05, 0.4, (360, 640)).astype(np.float32)
+    assert black_level(room) == 0.0
+    assert black_level(np.zeros((360, 640), np.float32)) == 0.0
 
 
 def test_fit_image_circle_refuses_frames_without_a_black_circle():
