@@ -59,11 +59,13 @@ def off_board_in_view(
         for di, dj in STEPS:
             if 0 <= i + di < nx and 0 <= j + dj < ny:
                 continue
+            if not (0 <= i - di < nx and 0 <= j - dj < ny):
+                continue  # a board one corner wide: no inward neighbour to extrapolate from
             p = 2 * q[k] - q[(j - dj) * nx + (i - di)]
-            seen = bool(np.isfinite(p).all()) and 0 <= p[0] <= w - 1 and 0 <= p[1] <= h - 1
-            if seen and centre is not None and radius is not None:
-                seen = float(np.hypot(*(p - centre))) < radius
-            if seen:
+            shown = bool(np.isfinite(p).all()) and 0 <= p[0] <= w - 1 and 0 <= p[1] <= h - 1
+            if shown and centre is not None and radius is not None:
+                shown = float(np.hypot(*(p - centre))) < radius
+            if shown:
                 places.add((i + di, j + dj))
     return places
 
@@ -119,7 +121,7 @@ def ceiling(labels: list[dict], nx: int, ny: int, size: tuple[int, int] | None =
         if not n:
             continue
         in_view = None
-        if size is not None:
+        if size is not None and lab.get("corners") is not None:
             centre = np.asarray(lab["centre"], float) if lab.get("centre") is not None else None
             in_view = off_board_in_view(np.asarray(lab["corners"], float), nx, ny, size, centre, lab.get("radius"))
         for key in (lab.get("condition") or lab.get("fov"), "all" if not lab.get("condition") else "all conditions"):
@@ -148,11 +150,11 @@ def main(argv: list[str] | None = None) -> int:
     cfg = meta.get("config", {})
     size = (cfg["width"], cfg["height"]) if "width" in cfg and "height" in cfg else None
     res = ceiling(meta["labels"], board.nx, board.ny, size)
-    anywhere = ceiling(meta["labels"], board.nx, board.ny)
+    anywhere = ceiling(meta["labels"], board.nx, board.ny) if size is not None else res
     print(f"identifiable from geometry alone ({Path(args.set) / 'labels.json'}): share of detectable corners")
     if size is None:
         print("(the set names no image size: margins beyond the image count as seen)")
-    print("| FoV | detectable corners | seen = detectable | seen = visible | margins beyond the view counted too |")
+    print("| FoV | detectable corners | seen = detectable | seen = visible | seen = detectable, margins beyond the view counted too |")
     print("|---|---|---|---|---|")
     for k, v in sorted(res.items(), key=lambda kv: (kv[0] == "all", kv[0])):
         print(f"| {k} | {v['detectable']} | {v['from_detectable']:.3f} | {v['from_visible']:.3f} | {anywhere[k]['from_detectable']:.3f} |")

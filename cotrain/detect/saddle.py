@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 
 from cotrain.detect.grid_config import GridConfig
+from cotrain.detect.image_circle import fit_image_circle
 
 
 # --------------------------------------------------------------------------------------------
@@ -345,11 +346,17 @@ def saddle_candidates(
     return np.stack([xs[order], ys[order]], 1).astype(np.float64), r[order].astype(np.float64)
 
 
-BLACK_AS_ZERO = 0.03  # a black frame up to this level is black (noise lifts it to 0.025 in dark, amplified frames) ...
-LIFTED_DARK = 0.03  # ... above it, a camera's lifted black: dark means under its level + this
+BLACK_AS_ZERO = 0.03  # a black frame up to this level is black (noise lifts it to 0.025 in dark, brightened frames) ...
+LIFTED_DARK = 0.03  # ... above it, a camera's lifted black: dark means under its level + this (a step: 0.031 -> 0.061)
 MAX_BLACK_LEVEL = 0.15  # a camera's black level is under this (16/255 = 0.063 is common); above it the border is scene
 BLACK_BAND = 0.03  # the black frame's pixels lie within this of its level ...
 MIN_BLACK_SHARE = 0.2  # ... over at least this share of the image border, where a black frame shows
+
+
+def half_blurred(grey: np.ndarray) -> np.ndarray:
+    """The (H, W) image at half resolution, blurred by 0.7 px: what the black frame is found on."""
+    H, W = grey.shape
+    return cv2.GaussianBlur(cv2.resize(grey, (max(1, W // 2), max(1, H // 2)), interpolation=cv2.INTER_AREA), (0, 0), 0.7)
 
 
 def black_level(small: np.ndarray) -> float:
@@ -369,13 +376,26 @@ def outside_circle(grey: np.ndarray, dark: float = 0.04, grow_px: int = 1) -> np
     """(H, W) bool: the black frame outside a fisheye's image circle (dark regions connected to
     the image border, found at half resolution), grown by ``grow_px``. Corners there sit on the
     rim, where the checker is cut and a saddle fit is pulled off the corner. Dark means under
-    ``dark``, or where the black frame's level (:func:`black_level`) is over ``BLACK_AS_ZERO`` (a
-    camera's lifted black, often 16/255), under that level + ``LIFTED_DARK``."""
+    ``dark``; where the image's border shows a flat level over ``BLACK_AS_ZERO``
+    (:func:`black_level`: a camera's lifted black, often 16/255), under that level +
+    ``LIFTED_DARK`` instead, if what that finds outlines an image circle
+    (:func:`cotrain.detect.image_circle.fit_image_circle`; a dim wall at a full frame's border
+    does not)."""
     H, W = grey.shape
-    small = cv2.GaussianBlur(cv2.resize(grey, (max(1, W // 2), max(1, H // 2)), interpolation=cv2.INTER_AREA), (0, 0), 0.7)
+    small = half_blurred(grey)
     level = black_level(small)
-    low = (small < (level + LIFTED_DARK if level > BLACK_AS_ZERO else dark)).astype(np.uint8)
-    n, lab = cv2.connectedComponents(low, connectivity=4)
+    if level > BLACK_AS_ZERO:
+        lifted = _dark_at_border(small, level + LIFTED_DARK, (H, W), grow_px)
+        if fit_image_circle(lifted) is not None:
+            return lifted
+    return _dark_at_border(small, dark, (H, W), grow_px)
+
+
+def _dark_at_border(small: np.ndarray, below: float, shape: tuple[int, int], grow_px: int) -> np.ndarray:
+    """(H, W) bool: the regions of the half-resolution ``small`` under ``below`` that touch its
+    border, at full resolution ``shape`` and grown by ``grow_px``."""
+    H, W = shape
+    n, lab = cv2.connectedComponents((small < below).astype(np.uint8), connectivity=4)
     border = np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]]))
     keep = np.zeros(n, np.uint8)
     keep[border[border > 0]] = 1

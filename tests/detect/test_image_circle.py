@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from cotrain.detect.image_circle import EquidistantLens, fit_image_circle, local_views, parallelogram_corner, ray_homographies
-from cotrain.detect.saddle import black_level, outside_circle
+from cotrain.detect.saddle import black_level, half_blurred, outside_circle
 from cotrain.detect.tag_pass import TagConfig, decode_bits, look_at_tag, shortest_side
 from cotrain.targets import TargetConfig, make_target
 from tests.detect.test_tag_pass import centre, render
@@ -140,8 +140,7 @@ def test_a_lifted_black_frame_is_still_the_frame(noise):
     yy, xx = np.mgrid[0:720, 0:1280]
     img[(np.abs(xx - 320) < 20) & (np.abs(yy - 360) < 20)] = 0.05  # a dark square touching the rim at x = 300
     lifted = (img * (239 / 255) + 16 / 255 + np.random.default_rng(3).normal(0, noise, img.shape)).astype(np.float32)
-    small = cv2.GaussianBlur(cv2.resize(lifted, (640, 360), interpolation=cv2.INTER_AREA), (0, 0), 0.7)
-    assert black_level(small) == pytest.approx(16 / 255, abs=0.01)
+    assert black_level(half_blurred(lifted)) == pytest.approx(16 / 255, abs=0.01)
     outside = outside_circle(lifted)
     assert not outside[360, 320]  # the dark square, inside the circle
     fit = fit_image_circle(outside)
@@ -151,13 +150,35 @@ def test_a_lifted_black_frame_is_still_the_frame(noise):
 
 
 def test_black_level_is_zero_without_a_flat_dark_border():
-    """A full-frame image: a mid-grey border, a dark but varied one (a room): level 0, so dark
-    stays 0.04 above zero."""
+    """A full-frame image: a mid-grey border, a dark but varied one (a room): level 0."""
     rng = np.random.default_rng(4)
     assert black_level(np.full((360, 640), 0.3, np.float32)) == 0.0
-    room = rng.uniform(0.05, 0.4, (360, 640)).astype(np.float32)
-    assert black_level(room) == 0.0
-    assert black_level(np.zeros((360, 640), np.float32)) == 0.0
+    assert black_level(rng.uniform(0.05, 0.4, (360, 640)).astype(np.float32)) == 0.0
+
+
+def test_a_dim_wall_at_the_border_is_no_black_frame():
+    """A full-frame image whose border is a dim, smooth wall (0.06-0.14, flat enough to read as a
+    lifted black level) beside a board's dark square at 0.08: what the lifted threshold finds
+    outlines no image circle, so nothing is marked outside."""
+    yy, xx = np.mgrid[0:720, 0:1280]
+    img = (0.06 + 0.08 * xx / 1280).astype(np.float32)
+    img[300:400, 500:600] = 0.08
+    assert black_level(half_blurred(img)) > 0.03
+    assert not outside_circle(img).any()
+
+
+def test_zero_black_frames_keep_the_fixed_threshold():
+    """A noisy black frame at zero: the same mask as dark regions under 0.04 touching the border,
+    worked out here with scipy's labelling instead of OpenCV's."""
+    from scipy import ndimage
+
+    img = circle_frame(720, 1280, (640.0, 360.0), 340.0, 90.0, 0.02)
+    low = half_blurred(img) < 0.04
+    lab, _ = ndimage.label(low)
+    touching = np.setdiff1d(np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]])), [0])
+    expected = cv2.resize(np.isin(lab, touching).astype(np.uint8), (1280, 720), interpolation=cv2.INTER_NEAREST)
+    expected = cv2.dilate(expected, np.ones((3, 3), np.uint8)) > 0
+    np.testing.assert_array_equal(outside_circle(img), expected)
 
 
 def test_fit_image_circle_refuses_frames_without_a_black_circle():

@@ -63,6 +63,13 @@ def test_off_board_places_in_view_known_values():
     assert circle == {(-1, 0), (-1, 1), (-1, 2), (0, -1), (1, -1), (2, -1)}
 
 
+def test_a_board_one_corner_deep_has_no_place_to_extrapolate_across():
+    """A row of 3 corners: the places beyond its ends are extrapolated along the row; above and
+    below there is no inward neighbour, so those places are not claimed to be in view."""
+    q = np.array([[100.0, 100.0], [140.0, 100.0], [180.0, 100.0]])
+    assert off_board_in_view(q, 3, 1, (800, 400)) == {(-1, 0), (3, 0)}
+
+
 def test_a_margin_beyond_the_image_identifies_nothing():
     """6 x 6 corners at the top-left corner span the board's height: the margin below the last row
     is what refutes the placement turned by 90 degrees onto the bottom-left corner. Where that
