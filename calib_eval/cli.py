@@ -17,7 +17,7 @@ from cotrain.targets import Target, load_target, target_from_flags
 
 
 def _target(path: str | None) -> Target | None:
-    """The target of a ``--target`` file (our config section or a Kalibr target yaml), if given."""
+    """The target of a ``--target`` file (our config section, a Kalibr or a BoofCV target yaml), if given."""
     return load_target(path) if path else None
 
 
@@ -299,7 +299,9 @@ def build_parser() -> argparse.ArgumentParser:
         )
         s.add_argument("--cache", help="with --bag: folder for the images and detections (default: OUT/sequence, or BAG.sequence)")
         s.add_argument("--detector", help="with --bag: ONNX model for the corners (default: the shipped model)")
-        s.add_argument("--target", help="target file (our target config or a Kalibr target yaml); only where the detections name none")
+        s.add_argument(
+            "--target", help="target file (our target config, a Kalibr or a BoofCV target yaml); only where the detections name none"
+        )
         s.add_argument("--tolerance-ms", type=float, default=10.0, help="time matching tolerance between cameras")
 
     def seq_args(s: argparse.ArgumentParser) -> None:
@@ -399,7 +401,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("opencv-detect", help="one-camera sequence folder from images, with OpenCV's (--learned: our) chessboard detections")
     s.add_argument("images", help="folder of images")
-    s.add_argument("--target", help="target file: our target config or a Kalibr target yaml")
+    s.add_argument("--target", help="target file: our target config, a Kalibr or a BoofCV target yaml")
     s.add_argument("--squares-x", type=int, help="or: squares along the board's x axis")
     s.add_argument("--squares-y", type=int, help="... and along its y axis")
     s.add_argument("--square-size", type=float, help="with --squares-x/-y: metres (default 1: any unit, it only scales the poses)")

@@ -190,7 +190,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--polish", action="store_true", help="with --slots: classical saddle-point polish of the corners")
     s.add_argument("--no-consistency", action="store_true", help="with --slots: keep corners that fail the grid-consistency check")
-    s.add_argument("--target", help="the board: our target config or a Kalibr target yaml (default: the model's board)")
+    s.add_argument("--target", help="the board: our target config, a Kalibr target yaml or a BoofCV one (default: the model's board)")
     s.add_argument("--squares-x", type=int, help="another checkerboard than the model's: squares along x (ids from geometry alone)")
     s.add_argument("--squares-y", type=int, help="... and along its y axis")
     s.add_argument("--square-size", type=float, help="side of a square, metres (written to the JSON's target)")

@@ -2,7 +2,14 @@
 
 from cotrain.targets.aprilgrid import AprilGrid
 from cotrain.targets.checkerboard import ROTATIONS, Checkerboard, board_symmetries
-from cotrain.targets.descriptions import load_target, make_target, target_from_flags, target_from_json, target_from_kalibr
+from cotrain.targets.descriptions import (
+    load_target,
+    make_target,
+    target_from_boofcv,
+    target_from_flags,
+    target_from_json,
+    target_from_kalibr,
+)
 from cotrain.targets.target import KINDS, Target, TargetConfig, TargetError, same_target, sees_print, square_px
 
 __all__ = [
@@ -19,6 +26,7 @@ __all__ = [
     "same_target",
     "sees_print",
     "square_px",
+    "target_from_boofcv",
     "target_from_flags",
     "target_from_json",
     "target_from_kalibr",

@@ -4,9 +4,12 @@
 - the detection JSON's ``"target"`` entry (:func:`target_from_json`; written by ``Target.to_json``);
 - a Kalibr target yaml (``target_type: checkerboard``, ``targetCols`` / ``targetRows`` counting
   inner corners, ``rowSpacingMeters`` / ``colSpacingMeters``; or ``target_type: aprilgrid``,
-  ``tagCols``, ``tagRows``, ``tagSize``, ``tagSpacing``; :func:`target_from_kalibr`).
+  ``tagCols``, ``tagRows``, ``tagSize``, ``tagSpacing``; :func:`target_from_kalibr`);
+- a BoofCV target yaml (a serialised ``ConfigCalibrationTarget`` of ``type: CHESSBOARD``, its
+  default: ``grid`` with ``numRows`` / ``numCols`` counting squares and ``shapeSize`` the square's
+  side; :func:`target_from_boofcv`).
 
-:func:`load_target` reads a file of either of the first and last kinds.
+:func:`load_target` reads a file of our config section, Kalibr's or BoofCV's kind.
 """
 
 from __future__ import annotations
@@ -93,6 +96,32 @@ def target_from_kalibr(data: dict, where: str = "target yaml") -> Target:
     raise TargetError(f"{where}: unsupported Kalibr target_type {kind!r} (supported: checkerboard, aprilgrid)")
 
 
+BOOFCV_KEY = "boofcv.alg.fiducial.calib.ConfigCalibrationTarget"  # the section a BoofCV target yaml keeps its target in
+
+
+def target_from_boofcv(data: dict, where: str = "target yaml") -> Target:
+    """The Target of a BoofCV target yaml (``ConfigCalibrationTarget``): a chessboard of
+    ``grid.numCols`` x ``grid.numRows`` squares (columns along x) of side ``grid.shapeSize``, taken
+    as metres."""
+    section = data.get(BOOFCV_KEY)
+    if not isinstance(section, dict):
+        raise TargetError(f"{where}: {BOOFCV_KEY} must be a mapping")
+    kind = str(section.get("type", "CHESSBOARD")).upper()
+    if kind != "CHESSBOARD":
+        raise TargetError(f"{where}: unsupported BoofCV target type {kind} (supported: CHESSBOARD)")
+    grid = section.get("grid")
+    if not isinstance(grid, dict):
+        raise TargetError(f"{where}: the BoofCV target has no 'grid' mapping")
+    cfg = TargetConfig(
+        squares_x=_number(grid, "numCols", where, int),
+        squares_y=_number(grid, "numRows", where, int),
+        square_size=_number(grid, "shapeSize", where),
+    )
+    if cfg.squares_x < 3 or cfg.squares_y < 3:
+        raise TargetError(f"{where}: a chessboard needs at least 3 x 3 squares, not {cfg.squares_x} x {cfg.squares_y}")
+    return make_target(cfg)
+
+
 def target_from_flags(
     path: str | None, squares_x: int | None, squares_y: int | None, square_size: float | None, base: Target | None = None
 ) -> Target | None:
@@ -118,7 +147,8 @@ def target_from_flags(
 
 
 def load_target(path: str | Path) -> Target:
-    """A target file: a Kalibr target yaml (``target_type: ...``), or our ``target:`` config section
+    """A target file: a Kalibr target yaml (``target_type: ...``), a BoofCV one
+    (``boofcv.alg.fiducial.calib.ConfigCalibrationTarget: ...``), or our ``target:`` config section
     (a file with a ``target:`` mapping, or the section's keys at the top level)."""
     try:
         data = load_yaml(path)
@@ -128,6 +158,8 @@ def load_target(path: str | Path) -> Target:
         raise TargetError(f"{path}: describes no target (empty file)")
     if "target_type" in data:
         return target_from_kalibr(data, str(path))
+    if BOOFCV_KEY in data:
+        return target_from_boofcv(data, str(path))
     section = data.get("target", data)
     if not isinstance(section, dict):
         raise TargetError(f"{path}: 'target' must be a mapping")

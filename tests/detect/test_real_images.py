@@ -7,6 +7,7 @@ import pytest
 import yaml
 
 from calib_eval.cli import run as calib_cli
+from cotrain.cli import run as cotrain_cli
 from cotrain.detect.detector import Detector
 from cotrain.detect.images import load_image
 from cotrain.targets import Checkerboard, TargetConfig
@@ -85,3 +86,15 @@ def test_learned_detector_on_real_frames_of_another_board(tmp_path):
     assert report["success"] and report["rms_px"]["cam0"] < 0.35
     cx, cy = cam["intrinsics"][3:5]
     assert abs(cx - 319.18) < 2.0 and abs(cy - 319.72) < 2.0
+
+
+def test_detect_reads_the_boofcv_target_yaml_beside_the_images(tmp_path):
+    """``cotrain detect --target calibration_target.yaml``, the BoofCV file the folder comes with:
+    the JSON names its 5 x 7 chessboard, and three frames give all 24 corners each."""
+    frames = sorted((REAL / "images").glob("*.jpg"))[:3]
+    out = tmp_path / "d.json"
+    args = ["detect", "--target", str(REAL / "calibration_target.yaml"), *map(str, frames), "--out", str(out)]
+    assert cotrain_cli(args) == 0
+    d = json.loads(out.read_text())
+    assert d["target"] == {"kind": "checkerboard", "squares_x": 5, "squares_y": 7, "square_size": 1.0}
+    assert [len(e["corners"]) for e in d["images"]] == [24, 24, 24]

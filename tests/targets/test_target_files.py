@@ -1,5 +1,5 @@
-"""The Target protocol and the three ways a target is described: config section, detection
-JSON, Kalibr target yaml."""
+"""The Target protocol and the ways a target is described: config section, detection JSON,
+Kalibr target yaml, BoofCV target yaml."""
 
 import numpy as np
 import pytest
@@ -13,6 +13,7 @@ from cotrain.targets import (
     TargetError,
     load_target,
     same_target,
+    target_from_boofcv,
     target_from_flags,
     target_from_json,
     target_from_kalibr,
@@ -122,3 +123,45 @@ def test_board_from_command_line_flags(tmp_path):
     ]:
         with pytest.raises(TargetError, match=msg):
             target_from_flags(*args)
+
+
+BOOFCV_YAML = """# Serialized boofcv.alg.fiducial.calib.ConfigCalibrationTarget
+BoofCV.GIT_SHA: a9ab9041d1703a9c09c31999043382e870554729
+boofcv.alg.fiducial.calib.ConfigCalibrationTarget:
+  grid:
+    numRows: 7
+    shapeSize: 0.03
+    numCols: 5
+BoofCV.Version: 0.39-SNAPSHOT
+"""
+
+
+def test_boofcv_chessboard_counts_squares(tmp_path):
+    """BoofCV's serialised ConfigCalibrationTarget (as BoofCV writes it, the chessboard its default
+    type): numCols x numRows squares, columns along x, shapeSize the square's side."""
+    f = tmp_path / "calibration_target.yaml"
+    f.write_text(BOOFCV_YAML)
+    b = load_target(f)
+    assert isinstance(b, Checkerboard)
+    assert (b.nx, b.ny, b.spacing) == (4, 6, 0.03)
+    assert same_target(b, Checkerboard(TargetConfig(squares_x=5, squares_y=7, square_size=0.03)))
+    typed = yaml.safe_load(BOOFCV_YAML)
+    typed["boofcv.alg.fiducial.calib.ConfigCalibrationTarget"]["type"] = "CHESSBOARD"
+    assert same_target(target_from_boofcv(typed), b)
+
+
+@pytest.mark.parametrize(
+    "section, message",
+    [
+        ({"type": "SQUARE_GRID", "grid": {"numRows": 7, "numCols": 5, "shapeSize": 1.0}}, "unsupported BoofCV target type SQUARE_GRID"),
+        ({"type": "CHESSBOARD"}, "no 'grid' mapping"),
+        ({"grid": {"numRows": 7.5, "numCols": 5, "shapeSize": 1.0}}, "numRows must be an integer"),
+        ({"grid": {"numRows": 7, "numCols": 2, "shapeSize": 1.0}}, "at least 3 x 3 squares"),
+        ({"grid": {"numRows": 7, "numCols": 5}}, "missing 'shapeSize'"),
+    ],
+)
+def test_boofcv_target_errors_name_the_problem(tmp_path, section, message):
+    f = tmp_path / "bad.yaml"
+    f.write_text(yaml.safe_dump({"boofcv.alg.fiducial.calib.ConfigCalibrationTarget": section}))
+    with pytest.raises(TargetError, match=message):
+        load_target(f)
