@@ -1,7 +1,10 @@
 """Ship a trained model: ``python -m export.ship CHECKPOINT [--name NAME]`` writes ``export/NAME.pt``
 (float16 weights and config only, no optimizer state) and ``export/NAME.onnx`` (with the parity
 check); NAME is ``default`` (the checkerboard model the detector loads) unless given, e.g.
-``aprilgrid`` for the AprilGrid network."""
+``aprilgrid`` for the AprilGrid network. A checkerboard model also gets ``export/NAME.int8.onnx``:
+its dense maps with int8 convolutions, the graph the grid pass runs by default
+(:func:`cotrain.detect.onnx_model.default_grid_model_path`). Check that graph's detections on the
+kept sets before shipping it (docs/results/size_curve.md)."""
 
 from __future__ import annotations
 
@@ -12,7 +15,7 @@ from pathlib import Path
 import torch
 
 from cotrain.model.train import load_checkpoint
-from export.onnx_export import export_onnx
+from export.onnx_export import export_onnx, quantize_dense
 
 HERE = Path(__file__).resolve().parent
 
@@ -30,6 +33,9 @@ def ship(checkpoint: str | Path, name: str = "default") -> dict:
     pt, onnx_path = HERE / f"{name}.pt", HERE / f"{name}.onnx"
     torch.save(slim, pt)
     r = export_onnx(pt, onnx_path)
+    if kind == "checkerboard":
+        q = quantize_dense(onnx_path, onnx_path.with_suffix(".int8.onnx"))
+        print(f"wrote {q['out']} (int8 dense maps for the grid pass)")
     sel = ck["config"]["train"].get("select_by", "recall")
     print(f"shipped step {ck['step']} (validation {sel} {ck['best_score']:.3f}) -> {pt}, {onnx_path}")
     return r

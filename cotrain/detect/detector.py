@@ -1,6 +1,6 @@
 """The onnxruntime detector: ``cotrain detect [--model M.onnx] IMAGES_OR_FOLDERS...`` and a Python API.
 
-    det = Detector()                      # the shipped default model
+    det = Detector()                      # the shipped default model (its int8 dense maps for the grid pass)
     found = det.detect(image)             # image: (H, W) or (H, W, 3|4), uint8 / uint16 / float
     found.ids, found.xy, found.confidence  # arrays, input-image pixels (docs/conventions.md)
 
@@ -28,7 +28,7 @@ from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.grid_pass import GridResult, grid_pass, merge_half_resolution
 from cotrain.detect.half_resolution import halve
 from cotrain.detect.images import MIN_SIDE, ImageError, brighten, to_grey_float
-from cotrain.detect.onnx_model import OnnxModel
+from cotrain.detect.onnx_model import OnnxModel, default_grid_model_path
 from cotrain.detect.saddle import saddle_fit, smooth_for, window_half
 from cotrain.detect.tag_pass import TagConfig, tag_pass
 from cotrain.geometry.letterbox import Letterbox
@@ -91,6 +91,8 @@ class Detector:
         grid: GridConfig | None = None,
         target: Target | None = None,
     ):
+        if model is None and mode == "grid":
+            model = default_grid_model_path()  # the int8 graph of the dense maps, where shipped
         self.net = OnnxModel(model, threads)
         self.path = self.net.path
         self.input_size = self.net.input_size  # (H, W)

@@ -29,6 +29,15 @@ def default_model_path() -> Path:
     return Path(str(files("export") / "default.onnx"))
 
 
+def default_grid_model_path() -> Path:
+    """The graph the grid pass runs by default: the shipped model's dense maps with int8
+    convolutions (``export/default.int8.onnx``, written by ``python -m export.ship``: the same
+    detections on every set we keep, 1.4x faster; docs/results/size_curve.md) where it is
+    installed, else :func:`default_model_path`."""
+    int8 = default_model_path().with_suffix(".int8.onnx")
+    return int8 if int8.is_file() else default_model_path()
+
+
 class OnnxModel:
     """An onnxruntime session on the CPU over a cotrain ONNX model, with its metadata.
 

@@ -29,6 +29,26 @@ def test_shipped_detector_finds_corners_without_wrong_ids():
     assert all(len(det.detect(empty["image"][k, 0].numpy()).ids) == 0 for k in range(2))
 
 
+def test_the_int8_graph_the_grid_pass_runs_finds_what_the_float_graph_finds():
+    """Detector() runs export/default.int8.onnx (the float model's dense maps with int8
+    convolutions, python -m export.ship): on rendered 230-degree frames it reports the same ids as
+    the float graph at the same positions (the corners come from full-resolution fits; the maps
+    only find the region and vote on identity). --slots still takes the float graph."""
+    from cotrain.detect.onnx_model import default_model_path
+
+    int8, float32 = Detector(), Detector(default_model_path())
+    assert int8.path.name == "default.int8.onnx" and float32.path.name == "default.onnx"
+    assert Detector(mode="slots").path.name == "default.onnx"
+    batch = render_batch(_render_cfg(230, EvalConfig(), ["kb4", "ucm", "eucm", "ds"]), list(range(4)), seed=31567)
+    found = 0
+    for k in range(4):
+        a, b = int8.detect(batch["image"][k, 0].numpy()), float32.detect(batch["image"][k, 0].numpy())
+        assert a.ids.tolist() == b.ids.tolist()
+        np.testing.assert_allclose(a.xy, b.xy, atol=0.01)
+        found += len(a.ids)
+    assert found > 100
+
+
 def test_shipped_aprilgrid_network_matches_its_checkpoint():
     """export/aprilgrid.onnx (the AprilGrid network, issue 17) is Kalibr's 6 x 6 AprilGrid model with
     its 144 slots and dense maps, and onnxruntime gives what its checkpoint export/aprilgrid.pt
