@@ -162,7 +162,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument(
         "--int8",
         action="store_true",
-        help="also write OUT.int8.onnx: the grid pass's maps with int8 convolutions (experimental: faster, but not at parity)",
+        help="also write OUT.int8.onnx: the grid pass's maps with int8 convolutions (as export.ship ships them)",
     )
     s.set_defaults(func=cmd_export)
 

@@ -18,6 +18,7 @@ import numpy as np
 import torch
 
 from cotrain.config import to_dict
+from cotrain.detect.onnx_model import SOURCE_KEY, file_sha256
 from cotrain.model.network import CornerNet
 from cotrain.model.outputs import INPUT, OUTPUTS
 from cotrain.model.train import TrainConfig, build_from_checkpoint, load_checkpoint
@@ -153,7 +154,9 @@ def quantize_dense(
     The graph is cut to :data:`~cotrain.model.outputs.DENSE_OUTPUTS` (the per-slot point heads
     are not part of it) and its convolutions are quantized statically (QDQ, int8 weights per
     channel, uint8 activations) with ranges calibrated on ``n_calib`` images rendered by the
-    model's own training config. The metadata is the model's, so the detector takes either file.
+    model's own training config. The metadata is the model's, so the detector takes either file,
+    with :data:`SOURCE_KEY` added: the float graph's sha256, so that a float graph written again
+    is not paired with a stale int8 one (:func:`cotrain.detect.onnx_model.default_grid_model_path`).
     Returns the largest differences of the maps against the float graph on other rendered images.
     """
     import tempfile
@@ -204,7 +207,7 @@ def quantize_dense(
         )
         qproto = onnx.load(str(q))
         del qproto.metadata_props[:]
-        for k, v in meta.items():
+        for k, v in {**meta, SOURCE_KEY: file_sha256(model)}.items():
             entry = qproto.metadata_props.add()
             entry.key, entry.value = k, v
         out.parent.mkdir(parents=True, exist_ok=True)

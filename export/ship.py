@@ -42,7 +42,9 @@ def ship(checkpoint: str | Path, name: str = "default") -> dict:
 
 
 if __name__ == "__main__":
-    ap = argparse.ArgumentParser(description="ship a checkpoint as export/NAME.pt and export/NAME.onnx")
+    ap = argparse.ArgumentParser(
+        description="ship a checkpoint as export/NAME.pt, export/NAME.onnx (and NAME.int8.onnx for a checkerboard model)"
+    )
     ap.add_argument("checkpoint")
     ap.add_argument("--name", default="default", help="file stem under export/ (default: the checkerboard model)")
     a = ap.parse_args()

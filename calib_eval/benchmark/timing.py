@@ -30,6 +30,7 @@ from calib_eval.calibration.calibrator import CalibConfig, calibrate
 from calib_eval.calibration.selector import SelectorConfig, select
 from cotrain.config import ConfigError, load_config
 from cotrain.detect.detector import Detector
+from cotrain.detect.onnx_model import default_grid_model_path
 from cotrain.model.losses import compute_losses
 from cotrain.model.network import CornerNet
 from cotrain.model.train import (
@@ -428,7 +429,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"wrote {out}")
         return 0
     if args.what == "detect":
-        results = {"detect": bench_detect(args.model, runs=args.runs), "model": args.model or "shipped"}
+        results = {"detect": bench_detect(args.model, runs=args.runs), "model": args.model or str(default_grid_model_path())}
         out = Path("report") / ("bench_detect.json" if not args.model else f"bench_detect_{Path(args.model).stem}.json")
         out.parent.mkdir(exist_ok=True)
         out.write_text(json.dumps(results, indent=1, default=str))

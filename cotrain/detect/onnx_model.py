@@ -21,6 +21,15 @@ import numpy as np
 from cotrain.model.outputs import DENSE_OUTPUTS, INPUT, SLOT_OUTPUTS
 from cotrain.targets import Checkerboard, Target, TargetError, target_from_json
 
+SOURCE_KEY = "cotrain.source_sha256"  # an int8 graph's metadata: the sha256 of the float graph it was made from
+
+
+def file_sha256(path: str | Path) -> str:
+    """The hex sha256 of a file's bytes."""
+    import hashlib
+
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
 
 def default_model_path() -> Path:
     """The shipped checkerboard model (``export/default.onnx``, installed with the package)."""
@@ -29,13 +38,24 @@ def default_model_path() -> Path:
     return Path(str(files("export") / "default.onnx"))
 
 
-def default_grid_model_path() -> Path:
+def default_grid_model_path(float_path: str | Path | None = None) -> Path:
     """The graph the grid pass runs by default: the shipped model's dense maps with int8
-    convolutions (``export/default.int8.onnx``, written by ``python -m export.ship``: the same
-    detections on every set we keep, 1.4x faster; docs/results/size_curve.md) where it is
-    installed, else :func:`default_model_path`."""
-    int8 = default_model_path().with_suffix(".int8.onnx")
-    return int8 if int8.is_file() else default_model_path()
+    convolutions (``export/default.int8.onnx``, written by ``python -m export.ship``; the same FoV
+    recall and wrong corners as the float graph on the kept sets, its network 1.5x faster;
+    docs/results/size_curve.md) where it is installed and made from the shipped float graph (its
+    :data:`SOURCE_KEY` metadata), else :func:`default_model_path`. ``float_path``: another float
+    graph than the shipped one, its int8 graph beside it (``NAME.int8.onnx``)."""
+    import onnx
+
+    float_path = Path(float_path) if float_path else default_model_path()
+    int8 = float_path.with_suffix(".int8.onnx")
+    if not (int8.is_file() and float_path.is_file()):
+        return float_path
+    try:
+        meta = {p.key: p.value for p in onnx.load(str(int8)).metadata_props}
+    except Exception:
+        return float_path
+    return int8 if meta.get(SOURCE_KEY) == file_sha256(float_path) else float_path
 
 
 class OnnxModel:

@@ -117,8 +117,6 @@ def target_from_boofcv(data: dict, where: str = "target yaml") -> Target:
         squares_y=_number(grid, "numRows", where, int),
         square_size=_number(grid, "shapeSize", where),
     )
-    if cfg.squares_x < 3 or cfg.squares_y < 3:
-        raise TargetError(f"{where}: a chessboard needs at least 3 x 3 squares, not {cfg.squares_x} x {cfg.squares_y}")
     return make_target(cfg)
 
 

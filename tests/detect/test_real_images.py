@@ -90,7 +90,9 @@ def test_learned_detector_on_real_frames_of_another_board(tmp_path):
 
 def test_detect_reads_the_boofcv_target_yaml_beside_the_images(tmp_path):
     """``cotrain detect --target calibration_target.yaml``, the BoofCV file the folder comes with:
-    the JSON names its 5 x 7 chessboard, and three frames give all 24 corners each."""
+    the JSON names its 5 x 7 chessboard, and three frames give all 24 corners each, with the ids
+    and positions of ``--squares-x 5 --squares-y 7`` (a board read turned would number them
+    otherwise)."""
     frames = sorted((REAL / "images").glob("*.jpg"))[:3]
     out = tmp_path / "d.json"
     args = ["detect", "--target", str(REAL / "calibration_target.yaml"), *map(str, frames), "--out", str(out)]
@@ -98,3 +100,6 @@ def test_detect_reads_the_boofcv_target_yaml_beside_the_images(tmp_path):
     d = json.loads(out.read_text())
     assert d["target"] == {"kind": "checkerboard", "squares_x": 5, "squares_y": 7, "square_size": 1.0}
     assert [len(e["corners"]) for e in d["images"]] == [24, 24, 24]
+    flags = tmp_path / "f.json"
+    assert cotrain_cli(["detect", "--squares-x", "5", "--squares-y", "7", *map(str, frames), "--out", str(flags)]) == 0
+    assert [e["corners"] for e in json.loads(flags.read_text())["images"]] == [e["corners"] for e in d["images"]]

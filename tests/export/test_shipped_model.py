@@ -1,5 +1,6 @@
-"""The shipped detector (export/default.onnx + grid pass) on fresh rendered 1280x720 fisheye frames:
-a regression guard for the model committed in the repository, on a seed the evaluation does not use."""
+"""The shipped detector (export/default.int8.onnx, the dense maps of export/default.onnx, + grid
+pass) on fresh rendered 1280x720 fisheye frames: a regression guard for the model committed in
+the repository, on a seed the evaluation does not use."""
 
 import numpy as np
 
@@ -47,6 +48,27 @@ def test_the_int8_graph_the_grid_pass_runs_finds_what_the_float_graph_finds():
         np.testing.assert_allclose(a.xy, b.xy, atol=0.01)
         found += len(a.ids)
     assert found > 100
+
+
+def test_an_int8_graph_is_run_only_beside_the_float_graph_it_was_made_from(tmp_path):
+    """The int8 graph records the float graph's sha256; a float graph written again (another
+    export, other weights) is not paired with a stale int8 graph: the grid pass then runs the float one."""
+    import shutil
+
+    import onnx
+
+    from cotrain.detect.onnx_model import default_grid_model_path, default_model_path
+
+    shipped = default_model_path()
+    f, q = tmp_path / "m.onnx", tmp_path / "m.int8.onnx"
+    shutil.copy(shipped, f)
+    assert default_grid_model_path(f) == f  # no int8 graph beside it
+    shutil.copy(shipped.with_suffix(".int8.onnx"), q)
+    assert default_grid_model_path(f) == q
+    proto = onnx.load(str(f))
+    proto.metadata_props.add().key = "another.export"
+    onnx.save(proto, str(f))
+    assert default_grid_model_path(f) == f
 
 
 def test_shipped_aprilgrid_network_matches_its_checkpoint():

@@ -143,7 +143,6 @@ def test_boofcv_chessboard_counts_squares(tmp_path):
     f.write_text(BOOFCV_YAML)
     b = load_target(f)
     assert isinstance(b, Checkerboard)
-    assert (b.nx, b.ny, b.spacing) == (4, 6, 0.03)
     assert same_target(b, Checkerboard(TargetConfig(squares_x=5, squares_y=7, square_size=0.03)))
     typed = yaml.safe_load(BOOFCV_YAML)
     typed["boofcv.alg.fiducial.calib.ConfigCalibrationTarget"]["type"] = "CHESSBOARD"
@@ -156,7 +155,6 @@ def test_boofcv_chessboard_counts_squares(tmp_path):
         ({"type": "SQUARE_GRID", "grid": {"numRows": 7, "numCols": 5, "shapeSize": 1.0}}, "unsupported BoofCV target type SQUARE_GRID"),
         ({"type": "CHESSBOARD"}, "no 'grid' mapping"),
         ({"grid": {"numRows": 7.5, "numCols": 5, "shapeSize": 1.0}}, "numRows must be an integer"),
-        ({"grid": {"numRows": 7, "numCols": 2, "shapeSize": 1.0}}, "at least 3 x 3 squares"),
         ({"grid": {"numRows": 7, "numCols": 5}}, "missing 'shapeSize'"),
     ],
 )
