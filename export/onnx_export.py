@@ -18,9 +18,8 @@ import numpy as np
 import torch
 
 from cotrain.config import to_dict
-from cotrain.detect.onnx_model import SOURCE_KEY, file_sha256
 from cotrain.model.network import CornerNet
-from cotrain.model.outputs import INPUT, OUTPUTS
+from cotrain.model.outputs import INPUT, OUTPUTS, SOURCE_KEY, file_sha256
 from cotrain.model.train import TrainConfig, build_from_checkpoint, load_checkpoint
 from cotrain.render.renderer import render_batch
 from cotrain.targets import make_target

@@ -18,17 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from cotrain.model.outputs import DENSE_OUTPUTS, INPUT, SLOT_OUTPUTS
+from cotrain.model.outputs import DENSE_OUTPUTS, INPUT, SLOT_OUTPUTS, SOURCE_KEY, file_sha256
 from cotrain.targets import Checkerboard, Target, TargetError, target_from_json
-
-SOURCE_KEY = "cotrain.source_sha256"  # an int8 graph's metadata: the sha256 of the float graph it was made from
-
-
-def file_sha256(path: str | Path) -> str:
-    """The hex sha256 of a file's bytes."""
-    import hashlib
-
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 def default_model_path() -> Path:

@@ -22,7 +22,21 @@ paper's read-out; the dense maps are what the detector's grid pass reads.
 
 from __future__ import annotations
 
+import hashlib
+from pathlib import Path
+
 INPUT = "image"
 SLOT_OUTPUTS = ("corners", "visibility", "confidence", "learnability")
 DENSE_OUTPUTS = ("corner_prob", "mask_prob", "col_logp", "row_logp")
 OUTPUTS = SLOT_OUTPUTS + DENSE_OUTPUTS
+
+
+# An int8 graph of the dense maps (export.onnx_export.quantize_dense) records in this metadata key
+# the sha256 of the float graph it was made from; the detector runs it only beside that graph
+# (cotrain.detect.onnx_model.default_grid_model_path).
+SOURCE_KEY = "cotrain.source_sha256"
+
+
+def file_sha256(path: str | Path) -> str:
+    """The hex sha256 of a file's bytes (:data:`SOURCE_KEY`)."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
