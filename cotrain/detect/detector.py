@@ -66,6 +66,17 @@ class Pending:
     out: dict[str, np.ndarray]  # the network's outputs by name (empty: no network)
 
 
+def _default_grid_model(threads: int) -> OnnxModel:
+    """The shipped graph the grid pass runs (:func:`default_grid_model_path`: the int8 dense maps),
+    or the float graph where onnxruntime here cannot run the int8 one."""
+    try:
+        net = OnnxModel(default_grid_model_path(), threads)
+        net.session  # noqa: B018 (an onnxruntime without these int8 kernels fails here)
+        return net
+    except ValueError:
+        return OnnxModel(None, threads)
+
+
 class Detector:
     """The network (onnxruntime, CPU) and the grid pass: identified corners at input resolution.
 
@@ -91,9 +102,7 @@ class Detector:
         grid: GridConfig | None = None,
         target: Target | None = None,
     ):
-        if model is None and mode == "grid":
-            model = default_grid_model_path()  # the int8 graph of the dense maps, where shipped
-        self.net = OnnxModel(model, threads)
+        self.net = _default_grid_model(threads) if model is None and mode == "grid" else OnnxModel(model, threads)
         self.path = self.net.path
         self.input_size = self.net.input_size  # (H, W)
         trained = self.net.target

@@ -71,6 +71,17 @@ def test_an_int8_graph_is_run_only_beside_the_float_graph_it_was_made_from(tmp_p
     assert default_grid_model_path(f) == f
 
 
+def test_the_float_graph_runs_where_the_int8_graph_cannot_be_loaded(tmp_path, monkeypatch):
+    """An onnxruntime that cannot run the int8 graph (here: a file it cannot load) leaves the
+    detector on the shipped float graph, not on an error."""
+    import cotrain.detect.detector as detector_module
+
+    broken = tmp_path / "default.int8.onnx"
+    broken.write_bytes(b"not an onnx graph")
+    monkeypatch.setattr(detector_module, "default_grid_model_path", lambda: broken)
+    assert Detector().path.name == "default.onnx"
+
+
 def test_shipped_aprilgrid_network_matches_its_checkpoint():
     """export/aprilgrid.onnx (the AprilGrid network, issue 17) is Kalibr's 6 x 6 AprilGrid model with
     its 144 slots and dense maps, and onnxruntime gives what its checkpoint export/aprilgrid.pt
