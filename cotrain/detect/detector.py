@@ -42,7 +42,8 @@ from cotrain.targets import AprilGrid, Checkerboard, Target
 # 4: AprilGrid tags read through a lens guessed from the image circle; seeds that decode grow first;
 #    checkerboards completed from their identified corners.
 # 5: the image circle found where a dark scene joins the black frame (more frames read through the lens).
-OUTPUT_VERSION = 5
+# 6: the black frame found where a camera lifts its black level (saddle.black_level).
+OUTPUT_VERSION = 6
 
 
 @dataclass
