@@ -142,7 +142,11 @@ def export_onnx(
     return {"out": str(out), "max_corner_diff_px": dq, "max_prob_diff": dp, "opset": got_opset, "images": n_check}
 
 
-KEEP_FLOAT = ("model.head_", "model.dec2", "model.side.0")  # int8 there moved column / row votes enough to flip a board's identity
+# Convolutions kept in float: int8 in the heads and the first side output moved column / row votes
+# enough to flip a board's identity. (The decoder stage dec2, a third of the network's time in float,
+# is int8: with it the detector keeps its FoV recall and wrong corners on every kept set,
+# docs/results/size_curve.md.)
+KEEP_FLOAT = ("model.head_", "model.side.0")
 
 
 def quantize_dense(
