@@ -73,13 +73,20 @@ def detect_files(
     def front(p: Path):
         return detector.network(load_image(p))
 
-    with ThreadPoolExecutor(max_workers=1) as pool:
-        ahead = [pool.submit(front, p) for p in paths[:LOOKAHEAD]]
-        for k, p in enumerate(tqdm(paths, **bar)):
-            if k + LOOKAHEAD < len(paths):
-                ahead.append(pool.submit(front, paths[k + LOOKAHEAD]))
-            entries.append(_entry(detector, p, ahead[k].result, draw_dir))
-            ahead[k] = None  # the image is not kept once it is done
+    # The second thread keeps a core busy with reading and the network: OpenCV's own threads in
+    # the grid pass would only contend with it (measured: 34.5 -> 32.9 ms per 1280x720 file).
+    cv_threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        with ThreadPoolExecutor(max_workers=1) as pool:
+            ahead = [pool.submit(front, p) for p in paths[:LOOKAHEAD]]
+            for k, p in enumerate(tqdm(paths, **bar)):
+                if k + LOOKAHEAD < len(paths):
+                    ahead.append(pool.submit(front, paths[k + LOOKAHEAD]))
+                entries.append(_entry(detector, p, ahead[k].result, draw_dir))
+                ahead[k] = None  # the image is not kept once it is done
+    finally:
+        cv2.setNumThreads(cv_threads)
     return {"model": str(detector.path), "target": detector.target.to_json(), "images": entries}
 
 
@@ -107,9 +114,10 @@ _worker_detector: Detector | AprilGridDetector | None = None  # a worker process
 
 def _start_worker(detector: Detector | AprilGridDetector, threads: int) -> None:
     """A worker process's start in :func:`detect_files`: keep its copy of the detector (sent once
-    per process, not per file), its network at ``threads`` onnxruntime threads."""
+    per process, not per file), its network at ``threads`` onnxruntime threads and OpenCV at as many."""
     global _worker_detector
     keep_image_buffers()
+    cv2.setNumThreads(threads)  # the processes share the cores: OpenCV's threads would contend across them
     if isinstance(detector, Detector):
         detector.net.threads = threads
     _worker_detector = detector
