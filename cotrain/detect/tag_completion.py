@@ -84,12 +84,9 @@ def print_patches(board: Target, cfg: CompletionConfig) -> tuple[np.ndarray, np.
     printed = getattr(board, "printed", None)
     key = (repr(board.cfg), b"" if printed is None else printed.tobytes(), cfg.patch, cfg.patch_samples)
     if key not in _PATCHES:
-        import torch
-
         g = np.linspace(-cfg.patch, cfg.patch, cfg.patch_samples) * board.spacing
         U = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
-        P = board.points().numpy()[:, :2]
-        _PATCHES[key] = U, board.intensity(torch.from_numpy(P[:, None] + U[None]))[0].numpy()
+        _PATCHES[key] = U, board.intensity(board.board_xy()[:, None] + U[None])[0]
     return _PATCHES[key]
 
 
@@ -113,7 +110,7 @@ def local_homography(P: np.ndarray, q: np.ndarray) -> np.ndarray | None:
 def smallest_step(board: Target) -> float:
     """The shortest step (metres) between neighbouring corners along the board's x axis: an
     AprilGrid's gap between tags (the crossing square's side), a checkerboard's square."""
-    xs = np.unique(np.round(board.points().numpy()[:, 0], 9))
+    xs = np.unique(np.round(board.board_xy()[:, 0], 9))
     return float(np.diff(xs).min())
 
 
@@ -173,7 +170,7 @@ def _print_correlations(
     checkerboard's diagonal neighbours are printed alike), and whether a fifth of the samples
     lie inside the image circle (``rim_dist`` over 1.5 px) (K,)."""
     U, printed = print_patches(board, cfg)
-    p = board.points().numpy()[:, :2][ids]
+    p = board.board_xy()[ids]
     q = to_image(p[:, None] + U[None]) + shift[:, None]
     q = np.where(np.isfinite(q), q, -1e6)  # behind the horizon: outside the image
     vals = values_at(sm, q)  # (K, M), NaN outside the image
@@ -292,7 +289,7 @@ def _uncontradicted(
     ``support`` (K,) bool other than itself."""
     K = len(ids)
     n = min(cfg.neighbours, int(support.sum()) - 1)
-    kP = board.points().numpy()[:, :2][ids]
+    kP = board.board_xy()[ids]
     sup = np.nonzero(support)[0]
     _, near = cKDTree(kP[sup]).query(kP, k=n + 1)
     near = sup[near.reshape(K, -1)]
@@ -359,7 +356,7 @@ def complete_board(
         The :class:`Completion`: the corners, sorted by id, and those that may be in view and were
         not found (occluded, blurred, the prediction off, or left untried when the rounds ran out).
     """
-    P = board.points().numpy()[:, :2]
+    P = board.board_xy()
     gap = smallest_step(board)
     known = {int(i): np.asarray(p, np.float64) for i, p in zip(ids, xy)}
     score = {int(i): np.nan for i in ids}

@@ -28,7 +28,7 @@ if TYPE_CHECKING:  # torch loads on first use: the detector path imports targets
     import torch
     from torch import Tensor
 
-from cotrain.targets.target import TargetConfig, TargetError
+from cotrain.targets.target import TargetConfig, TargetError, array_module, clip
 
 BORDER_BITS = 2  # Kalibr's black border, in cells
 DATA_BITS = 6  # tag36h11: 6 x 6 data cells
@@ -54,6 +54,16 @@ def printed_bits(n: int) -> np.ndarray:
     its left edge (x right); 1 = white. Kalibr draws OpenCV's marker turned by a half turn, so
     page cell (i, j) shows marker cell (row j, column 5 - i)."""
     return np.ascontiguousarray(tag_bits(n)[:, :, ::-1])
+
+
+def _as_index(x):
+    """Whole-number floats (numpy or torch) as integer indices."""
+    return x.astype(np.int64) if isinstance(x, np.ndarray) else x.long()
+
+
+def _as_type(x, like):
+    """``x`` (numpy or torch) in the dtype of ``like``."""
+    return x.astype(like.dtype) if isinstance(x, np.ndarray) else x.to(like.dtype)
 
 
 class AprilGrid:
@@ -143,14 +153,17 @@ class AprilGrid:
         b = (t // self.tc) * 4 * self.tc + (t % self.tc) * 2
         return np.stack([b, b + 1, b + self.nx + 1, b + self.nx], -1)
 
+    def board_xy(self) -> np.ndarray:
+        """(N, 2) float64 board-frame x, y (metres) of corner ids 0..N-1 (Kalibr's createGridPoints; numpy)."""
+        r, c = np.divmod(np.arange(self.n_corners), self.nx)
+        cr = np.stack([c, r], -1)
+        return (cr // 2) * self.P + (cr % 2) * self.S
+
     def points(self, dtype: torch.dtype | None = None) -> Tensor:
-        """(N, 3) board-frame coordinates (metres) of corner ids 0..N-1 (Kalibr's createGridPoints)."""
+        """(N, 3) board-frame coordinates (metres) of corner ids 0..N-1 (:meth:`board_xy` with z = 0)."""
         import torch
 
-        dtype = torch.float64 if dtype is None else dtype
-        cr = self.grid_ij().to(torch.int64)
-        xy = (cr // 2) * self.P + (cr % 2) * self.S
-        xy = xy.to(dtype)
+        xy = torch.from_numpy(self.board_xy()).to(torch.float64 if dtype is None else dtype)
         return torch.cat([xy, torch.zeros_like(xy[:, :1])], dim=-1)
 
     def _axis_grid(self, x: Tensor) -> Tensor:
@@ -177,10 +190,9 @@ class AprilGrid:
         return (-self.gap - m, -self.gap - m, self.tc * self.P + m, self.tr * self.P + m)
 
     def _value(self, x: Tensor, y: Tensor, bits: Tensor) -> Tensor:
-        """Point-sampled print at board points: 0 black, 1 white."""
-        import torch
-
-        kx, ky = torch.floor(x / self.P), torch.floor(y / self.P)
+        """Point-sampled print at board points: 0 black, 1 white (numpy or torch, as ``bits``)."""
+        xp = array_module(x)
+        kx, ky = xp.floor(x / self.P), xp.floor(y / self.P)
         fx, fy = x - kx * self.P, y - ky * self.P
         in_tag_x, in_tag_y = fx < self.S, fy < self.S
         col_ok = (kx >= 0) & (kx < self.tc)
@@ -191,23 +203,23 @@ class AprilGrid:
         gy = ~in_tag_y & (ky >= -1) & (ky < self.tr)
         crossing = gx & gy
         cell = self.S / CELLS
-        bx = torch.clamp(torch.floor(fx / cell), 0, CELLS - 1).long()
-        by = torch.clamp(torch.floor(fy / cell), 0, CELLS - 1).long()
+        bx = _as_index(clip(xp.floor(fx / cell), 0, CELLS - 1))
+        by = _as_index(clip(xp.floor(fy / cell), 0, CELLS - 1))
         data = (bx >= BORDER_BITS) & (bx < CELLS - BORDER_BITS) & (by >= BORDER_BITS) & (by < CELLS - BORDER_BITS)
-        t = (torch.clamp(ky, 0, self.tr - 1) * self.tc + torch.clamp(kx, 0, self.tc - 1)).long()
-        row = torch.clamp(by - BORDER_BITS, 0, DATA_BITS - 1)  # page data cell, counted from the bottom (see printed_bits)
-        col = torch.clamp(bx - BORDER_BITS, 0, DATA_BITS - 1)
-        bit = bits[t, row, col].to(x.dtype)
-        inside_tag = torch.where(data, bit, torch.zeros_like(x))  # the border is black
-        value = torch.ones_like(x)
-        value = torch.where(tag, inside_tag, value)
-        return torch.where(crossing, torch.zeros_like(x), value)
+        t = _as_index(clip(ky, 0, self.tr - 1) * self.tc + clip(kx, 0, self.tc - 1))
+        row = clip(by - BORDER_BITS, 0, DATA_BITS - 1)  # page data cell, counted from the bottom (see printed_bits)
+        col = clip(bx - BORDER_BITS, 0, DATA_BITS - 1)
+        bit = _as_type(bits[t, row, col], x)
+        inside_tag = xp.where(data, bit, xp.zeros_like(x))  # the border is black
+        value = xp.ones_like(x)
+        value = xp.where(tag, inside_tag, value)
+        return xp.where(crossing, xp.zeros_like(x), value)
 
     def intensity(self, xy: Tensor, footprint: Tensor | None = None, samples: int = 4) -> tuple[Tensor, Tensor]:
         """Appearance at board-plane points, averaged over a pixel footprint.
 
         Args:
-            xy: (..., 2) board-frame x, y in metres.
+            xy: (..., 2) board-frame x, y in metres (torch, or numpy for point samples: numpy out).
             footprint: (..., 2) width of the pixel's footprint along board x and y, metres;
                 ``None`` gives point samples.
             samples: sub-samples per axis over the footprint (a box filter).
@@ -215,15 +227,17 @@ class AprilGrid:
             intensity (...) in [0, 1] (0 black, 1 white) and coverage (...) in [0, 1], the fraction
             of the footprint on the printed sheet.
         """
-        import torch
-
-        bits = torch.from_numpy(self.printed).to(xy.device)
         x, y = xy[..., 0], xy[..., 1]
         x0, y0, x1, y1 = self.extent()
         if footprint is None:
+            xp = array_module(xy)
+            bits = self.printed if xp is np else xp.from_numpy(self.printed).to(xy.device)
             v = self._value(x, y, bits)
-            cover = ((x >= x0) & (x <= x1) & (y >= y0) & (y <= y1)).to(x.dtype)
-            return torch.where(cover > 0, v, torch.ones_like(v)), cover
+            cover = _as_type((x >= x0) & (x <= x1) & (y >= y0) & (y <= y1), x)
+            return xp.where(cover > 0, v, xp.ones_like(v)), cover
+        import torch
+
+        bits = torch.from_numpy(self.printed).to(xy.device)
         xy, footprint = torch.broadcast_tensors(xy, footprint)
         x, y = xy[..., 0], xy[..., 1]
         # Only points whose footprint reaches the sheet are sampled (the rest are white, uncovered).

@@ -16,7 +16,7 @@ if TYPE_CHECKING:  # torch loads on first use: the detector path imports targets
     import torch
     from torch import Tensor
 
-from cotrain.targets.target import TargetConfig, TargetError
+from cotrain.targets.target import TargetConfig, TargetError, array_module, clip
 
 # The board's in-plane quarter turns (lattice coordinates (a, b) -> R @ (a, b)).
 ROTATIONS = [np.array([[1, 0], [0, 1]]), np.array([[0, -1], [1, 0]]), np.array([[-1, 0], [0, -1]]), np.array([[0, 1], [-1, 0]])]
@@ -96,13 +96,17 @@ class Checkerboard:
         on = (ij[..., 0] >= 0) & (ij[..., 0] < self.nx) & (ij[..., 1] >= 0) & (ij[..., 1] < self.ny)
         return np.where(on, ij[..., 1] * self.nx + ij[..., 0], -1)
 
+    def board_xy(self) -> np.ndarray:
+        """(N, 2) float64 board-frame x, y (metres) of the inner corners, row i = corner id i (numpy)."""
+        j, i = np.divmod(np.arange(self.n_corners), self.nx)
+        return (np.stack([i, j], -1) + 1) * self.s
+
     def points(self, dtype: torch.dtype | None = None) -> Tensor:
-        """(N, 3) board-frame coordinates (metres) of the inner corners, row i = corner id i."""
+        """(N, 3) board-frame coordinates (metres) of the inner corners, row i = corner id i
+        (:meth:`board_xy` with z = 0)."""
         import torch
 
-        dtype = torch.float64 if dtype is None else dtype
-        ij = self.grid_ij().to(dtype)
-        xy = (ij + 1) * self.s
+        xy = torch.from_numpy(self.board_xy()).to(torch.float64 if dtype is None else dtype)
         return torch.cat([xy, torch.zeros_like(xy[:, :1])], dim=-1)
 
     def grid_coordinates(self, xy: Tensor) -> tuple[Tensor, Tensor]:
@@ -124,7 +128,7 @@ class Checkerboard:
         """Appearance at board-plane points, area-filtered over a pixel footprint.
 
         Args:
-            xy: (..., 2) board-frame x, y in metres.
+            xy: (..., 2) board-frame x, y in metres (torch, or numpy: numpy out).
             footprint: (..., 2) width of the pixel's footprint along board x and y, metres.
                 ``None`` gives point samples (a hard-edged pattern).
         Returns:
@@ -135,16 +139,15 @@ class Checkerboard:
         and every inner corner stays exactly at its saddle point (the filtered waves cross zero
         at the grid lines).
         """
-        import torch
-
+        xp = array_module(xy)
         u = xy[..., 0] / self.s
         v = xy[..., 1] / self.s
         if footprint is None:
-            wu = torch.full_like(u, 1e-6)
-            wv = torch.full_like(v, 1e-6)
+            wu = xp.full_like(u, 1e-6)
+            wv = xp.full_like(v, 1e-6)
         else:
-            wu = (footprint[..., 0] / self.s).clamp_min(1e-6)
-            wv = (footprint[..., 1] / self.s).clamp_min(1e-6)
+            wu = clip(footprint[..., 0] / self.s, 1e-6)
+            wv = clip(footprint[..., 1] / self.s, 1e-6)
         # Square wave sign: +1 on even cells, -1 on odd cells; filtered over a box of width w.
         su = _filtered_square_wave(u, wu)
         sv = _filtered_square_wave(v, wv)
@@ -169,22 +172,19 @@ def _filtered_square_wave(u: Tensor, w: Tensor) -> Tensor:
 
     Inside a box narrower than a cell there is at most one edge, at distance ``d`` from ``u``;
     the filtered value is ``sign * min(2 d / w, 1)``, a linear ramp through 0 exactly on the
-    grid line. Footprints wider than a cell fade to the mean (0).
+    grid line. Footprints wider than a cell fade to the mean (0). (numpy or torch.)
     """
-    import torch
-
-    r = torch.remainder(u, 2.0)
-    sign = torch.where(r < 1.0, 1.0, -1.0).to(u.dtype)
-    frac = torch.remainder(u, 1.0)
-    d = torch.minimum(frac, 1.0 - frac)
-    return sign * torch.clamp(2 * d / w, max=1.0) * torch.clamp(2.0 - w, 0.0, 1.0)
+    xp = array_module(u)
+    r = xp.remainder(u, 2.0)
+    sign = xp.where(r < 1.0, xp.ones_like(u), -xp.ones_like(u))
+    frac = xp.remainder(u, 1.0)
+    d = xp.minimum(frac, 1.0 - frac)
+    return sign * clip(2 * d / w, hi=1.0) * clip(2.0 - w, 0.0, 1.0)
 
 
 def _box_coverage(u: Tensor, lo: float, hi: float, w: Tensor) -> Tensor:
-    """Fraction of the box [u - w/2, u + w/2] inside [lo, hi] (for w below hi - lo)."""
-    import torch
-
-    return torch.clamp((u - lo) / w + 0.5, 0.0, 1.0) * torch.clamp((hi - u) / w + 0.5, 0.0, 1.0)
+    """Fraction of the box [u - w/2, u + w/2] inside [lo, hi] (for w below hi - lo; numpy or torch)."""
+    return clip((u - lo) / w + 0.5, 0.0, 1.0) * clip((hi - u) / w + 0.5, 0.0, 1.0)
 
 
 @functools.lru_cache(maxsize=8)

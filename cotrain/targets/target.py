@@ -56,8 +56,12 @@ class Target(Protocol):
     def spacing(self) -> float:
         """Distance between neighbouring corners on the board, metres (the local 'square')."""
 
+    def board_xy(self) -> np.ndarray:
+        """(N, 2) float64 board-frame x, y of corner ids 0 .. N - 1, metres (numpy: the detector's)."""
+
     def points(self, dtype: torch.dtype | None = None) -> Tensor:
-        """(N, 3) board-frame coordinates of corner ids 0 .. N - 1, metres (z = 0); ``dtype`` default torch.float64."""
+        """(N, 3) board-frame coordinates of corner ids 0 .. N - 1, metres (z = 0): :meth:`board_xy`
+        with z; ``dtype`` default torch.float64."""
 
     def extent(self) -> tuple[float, float, float, float]:
         """(x_min, y_min, x_max, y_max) of the printed sheet, metres."""
@@ -66,7 +70,8 @@ class Target(Protocol):
         """Board points (..., 2) -> corner-grid coordinates (..., 2) and (...) bool: on the pattern."""
 
     def intensity(self, xy: Tensor, footprint: Tensor | None = None) -> tuple[Tensor, Tensor]:
-        """Printed texture at board points (..., 2): intensity in [0, 1] and coverage (on the sheet)."""
+        """Printed texture at board points (..., 2): intensity in [0, 1] and coverage (on the sheet).
+        Numpy points (point samples, ``footprint`` None) give numpy arrays, without torch."""
 
     def symmetries(self) -> tuple[np.ndarray, ...]:
         """Corner-id permutations (N,) under which the target looks the same (empty: every id is unique)."""
@@ -76,6 +81,21 @@ class Target(Protocol):
 
     def to_kalibr(self) -> dict:
         """The target as a Kalibr target yaml mapping."""
+
+
+def array_module(x):
+    """numpy for a numpy array, torch for a tensor (torch is imported only then): a target's
+    point-sampled print takes either, so that the detector runs without torch."""
+    if isinstance(x, np.ndarray):
+        return np
+    import torch
+
+    return torch
+
+
+def clip(x, lo: float | None = None, hi: float | None = None):
+    """``x`` (numpy or torch) clipped to [lo, hi] (None: unbounded)."""
+    return np.clip(x, lo, hi) if isinstance(x, np.ndarray) else x.clamp(lo, hi)
 
 
 def same_target(a: Target, b: Target) -> bool:
