@@ -159,8 +159,10 @@ class Detector:
 
     def _grid(self, grey: np.ndarray, box: Letterbox, out: dict[str, np.ndarray], cfg: GridConfig) -> GridResult:
         """The grid pass on ``grey`` (its letterbox ``box``, the network's outputs ``out``); where
-        it finds fewer than ``cfg.half_below`` corners, also at half resolution with the same
-        network outputs (:func:`cotrain.detect.grid_pass.merge_half_resolution`)."""
+        it finds fewer than ``cfg.half_below`` corners and the network sees a board over
+        ``cfg.half_min_board_share`` of its map, also at half resolution with the same network
+        outputs (:func:`cotrain.detect.grid_pass.merge_half_resolution`: a board whose corners are
+        too blurred at full resolution)."""
         logp_col, logp_row = out["col_logp"][0], out["row_logp"][0]
         if not self.board_votes:
             logp_col = np.zeros((self.nx + 2, *logp_col.shape[1:]), np.float32)
@@ -170,6 +172,8 @@ class Detector:
         h, w = grey.shape
         if len(g.ids) >= cfg.half_below or min(h, w) < cfg.half_min_side:
             return g
+        if np.mean(maps[1] > 0.5) < cfg.half_min_board_share:
+            return g  # measured: no board under 0.4 % of the map was found at half resolution alone
         g_half = grid_pass(halve(grey), Letterbox(w // 2, h // 2, self.input_size), *maps, self.target, cfg)
         return merge_half_resolution(grey, g, g_half, self.target, cfg)
 

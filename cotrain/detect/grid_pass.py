@@ -362,6 +362,8 @@ def grid_pass(
         if lat is None:
             continue
         covered |= cKDTree(lat.xy).query(xy)[0] < cfg.merge_radius_px
+        if len(lat.ab) < cfg.min_corners:
+            continue  # (the verification only drops corners)
         lat = verify_lattice(lat, grey, cfg, smoothed, rim_dist)
         if len(lat.ab) < cfg.min_corners or skipped_corners(lat, response, cfg) > cfg.max_skipped:
             continue

@@ -395,10 +395,10 @@ def _dark_at_border(small: np.ndarray, below: float, shape: tuple[int, int], gro
     """(H, W) bool: the regions of the half-resolution ``small`` under ``below`` that touch its
     border, at full resolution ``shape`` and grown by ``grow_px``."""
     H, W = shape
-    n, lab = cv2.connectedComponents((small < below).astype(np.uint8), connectivity=4)
-    border = np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]]))
-    keep = np.zeros(n, np.uint8)
-    keep[border[border > 0]] = 1
-    out = cv2.resize(keep[lab], (W, H), interpolation=cv2.INTER_NEAREST)
+    # Framed by one more dark pixel all round, every region that touches the border joins the frame's.
+    dark = cv2.copyMakeBorder((small < below).astype(np.uint8), 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=1)
+    _, lab = cv2.connectedComponents(dark, connectivity=4)
+    at_border = (lab[1:-1, 1:-1] == lab[0, 0]).view(np.uint8)
+    out = cv2.resize(at_border, (W, H), interpolation=cv2.INTER_NEAREST)
     k = 2 * grow_px + 1
     return cv2.dilate(out, np.ones((k, k), np.uint8)) > 0

@@ -311,3 +311,36 @@ def test_completion_recovers_corners_the_growth_did_not_reach(monkeypatch):
     added = ~np.isin(full.ids, cut.ids)
     assert added.sum() >= 10
     assert (full.confidence[added] <= full.confidence[~added].max() + 1e-9).all()  # the placement's, times the print's correlation
+
+
+def test_half_resolution_pass_only_where_the_network_sees_a_board(monkeypatch):
+    """A frame where the full-resolution pass finds nothing is read at half resolution too only
+    where the network's board map covers GridConfig.half_min_board_share of its cells (the spy
+    wraps the real grid pass and records the image sizes it ran on)."""
+    import cotrain.detect.detector as detector_module
+    from cotrain.detect.detector import Detector
+
+    seen = []
+    real = detector_module.grid_pass
+
+    def spy(grey, *args):
+        seen.append(grey.shape)
+        return real(grey, *args)
+
+    monkeypatch.setattr(detector_module, "grid_pass", spy)
+    det = Detector()
+    grey = np.full((720, 1280), 0.5, np.float32)  # nothing to find, big enough for the half pass
+    box = det.letterbox(grey)
+    h, w = det.input_size[0] // 4, det.input_size[1] // 4
+    out = {
+        "corner_prob": np.zeros((1, 1, h, w), np.float32),
+        "col_logp": np.zeros((1, NX + 2, h, w), np.float32),
+        "row_logp": np.zeros((1, NY + 2, h, w), np.float32),
+    }
+    share = det.grid.half_min_board_share
+    for cells, runs in ((0, [(720, 1280)]), (int(1.5 * share * h * w) + 1, [(720, 1280), (360, 640)])):
+        mask = np.zeros((h, w), np.float32)
+        mask.ravel()[:cells] = 0.9
+        seen.clear()
+        assert len(det._grid(grey, box, {**out, "mask_prob": mask[None, None]}, det.grid).ids) == 0
+        assert seen == runs
