@@ -43,7 +43,8 @@ from cotrain.targets import AprilGrid, Checkerboard, Target
 #    checkerboards completed from their identified corners.
 # 5: the image circle found where a dark scene joins the black frame (more frames read through the lens).
 # 6: the black frame found where a camera lifts its black level (saddle.black_level).
-OUTPUT_VERSION = 6
+# 7: AprilGrid board coordinates in exact float64 (Target.board_xy; they were float32-rounded).
+OUTPUT_VERSION = 7
 
 
 @dataclass
