@@ -71,7 +71,7 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 def cmd_detect(args: argparse.Namespace) -> int:
     from cotrain.detect.detector import make_detector
-    from cotrain.detect.images import expand_inputs
+    from cotrain.detect.images import expand_inputs, image_folders_below
     from cotrain.detect.onnx_model import OnnxModel
     from cotrain.io.detections import detect_files, write_json_atomic
     from cotrain.targets import target_from_flags
@@ -86,7 +86,9 @@ def cmd_detect(args: argparse.Namespace) -> int:
         raise ValueError("--bag and --topics go together")
     paths = expand_inputs(args.inputs) if args.inputs else []
     if args.inputs and not paths:
-        raise FileNotFoundError("no images found in the given paths")
+        below = [f for d in args.inputs if Path(d).is_dir() for f in image_folders_below(Path(d))]
+        hint = f" (folders below hold images: {', '.join(map(str, below[:3]))}{' ...' if len(below) > 3 else ''})" if below else ""
+        raise FileNotFoundError("no images found in the given paths" + hint)
     base = OnnxModel(args.model).target if args.square_size is not None and args.squares_x is None else None
     target = target_from_flags(args.target, args.squares_x, args.squares_y, args.square_size, base)
     det = make_detector(

@@ -76,6 +76,18 @@ def load_image(path: str | Path) -> np.ndarray:
     return to_grey_float(img)
 
 
+def image_folders_below(folder: Path, depth: int = 2) -> list[Path]:
+    """Folders under ``folder`` (up to ``depth`` levels down, sorted) that hold images: what a user
+    who named a recording's top folder meant (``cotrain detect`` reads a folder's own images only)."""
+    out = []
+    for sub in sorted(q for q in folder.iterdir() if q.is_dir()):
+        if any(f.suffix.lower() in IMAGE_SUFFIXES and f.is_file() for f in sub.iterdir()):
+            out.append(sub)
+        elif depth > 1:
+            out.extend(image_folders_below(sub, depth - 1))
+    return out
+
+
 def expand_inputs(items: list[str]) -> list[Path]:
     """Files as given; folders expanded to their images (sorted). Missing paths are kept (they
     become error entries)."""

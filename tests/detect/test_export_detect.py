@@ -314,3 +314,21 @@ def test_detect_target_from_a_kalibr_yaml(tmp_path, tiny_onnx, capsys):
     assert cotrain_cli([*args, "--target", str(kalibr), "--squares-x", "7", "--squares-y", "5"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and "not found" in err[0] and "either" in err[1]
+
+
+def test_detect_on_a_recording_folder_names_the_image_folders_below(tmp_path, capsys):
+    """A recording's top folder (images one or two levels down) is an error that names those
+    folders; a folder without any images anywhere says only that none were found."""
+    top = tmp_path / "recording"
+    for sub in ("cam0/images", "cam1/images"):
+        (top / sub).mkdir(parents=True)
+        cv2.imwrite(str(top / sub / "000.png"), np.zeros((32, 32), np.uint8))
+    (top / "notes").mkdir()
+    (top / "notes" / "readme.txt").write_text("not an image")
+    assert cotrain_cli(["detect", str(top), "--out", str(tmp_path / "d.json")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err
+    assert f"{top / 'cam0' / 'images'}, {top / 'cam1' / 'images'}" in err
+    assert cotrain_cli(["detect", str(top / "notes"), "--out", str(tmp_path / "d.json")]) == 2
+    assert capsys.readouterr().err.strip().endswith("no images found in the given paths")
+    assert not (tmp_path / "d.json").exists()
