@@ -219,8 +219,8 @@ def assign_ids(
     lr = np.maximum(logp_row, cfg.logp_floor)
     cells = np.array(list(dark.keys()), int).reshape(-1, 2)
     dsign = np.array(list(dark.values()))
-    results = []  # (score, rot, oi, oj)
-    for r, R in enumerate(ROTATIONS):
+    scored = []  # per turn r: (total (n_oi, n_oj), geometry's part (n_oi, n_oj), ois, ojs)
+    for R in ROTATIONS:
         ij0 = ab @ R.T  # (K, 2) before the offset
         # Column score for every offset oi: sum_k lc[k, i_k + 1], i_k = ij0[k, 0] + oi (off-board -> floor).
         ois = np.arange(-ij0[:, 0].max() - 1, nx - ij0[:, 0].min() + 1)
@@ -252,27 +252,32 @@ def assign_ids(
             margin_term = cfg.edge_weight * (ev[:, None, None] * np.where(off, 1.0, -1.0)).sum(0)
             total = total + margin_term
             geo = geo + margin_term
-        for a, oi in enumerate(ois):
-            for b, oj in enumerate(ojs):
-                results.append((float(total[a, b]), r, int(oi), int(oj), float(geo[a, b])))
-    results.sort(key=lambda t: -t[0])
-    best = results[0]
+        scored.append((total, geo, ois, ojs))
+    # Every placement (turn r, offsets oi, oj) in the order turn, oi, oj, then best score first (a
+    # stable sort: ties keep that order).
+    totals = np.concatenate([t.ravel() for t, _, _, _ in scored])
+    geos = np.concatenate([g.ravel() for _, g, _, _ in scored])
+    turns = np.concatenate([np.full(t.size, r) for r, (t, _, _, _) in enumerate(scored)])
+    offs_i = np.concatenate([np.repeat(oi, len(oj)) for _, _, oi, oj in scored])
+    offs_j = np.concatenate([np.tile(oj, len(oi)) for _, _, oi, oj in scored])
+    order = np.argsort(-totals, kind="stable")
+    best = int(order[0])
 
-    def ids_of(res: tuple[float, int, int, int]) -> np.ndarray:
-        return board.id_of(ab @ ROTATIONS[res[1]].T + [res[2], res[3]])
+    def ids_of(n: int) -> np.ndarray:
+        return board.id_of(ab @ ROTATIONS[turns[n]].T + [offs_i[n], offs_j[n]])
 
     ids = ids_of(best)
     # On a symmetric board the turned placements give the same view: they are not competitors.
     on = ids >= 0
     same = [ids] + [np.where(on, perm[np.where(on, ids, 0)], -1) for perm in board.symmetries()]
-    runner = next((r for r in results[1:] if not any(np.array_equal(ids_of(r), v) for v in same)), None)
-    margin = best[0] - runner[0] if runner is not None else np.inf
+    runner = next((int(n) for n in order[1:] if not any(np.array_equal(ids_of(n), v) for v in same)), None)
+    margin = float(totals[best] - totals[runner]) if runner is not None else np.inf
     # The same margin from the geometry alone (colours, margin evidence, extent; no network votes).
-    by_geo = sorted(results[1:], key=lambda t: -t[4])
-    geo_runner = next((r for r in by_geo if not any(np.array_equal(ids_of(r), v) for v in same)), None)
-    geo_margin = best[4] - geo_runner[4] if geo_runner is not None else np.inf
+    by_geo = order[1:][np.argsort(-geos[order[1:]], kind="stable")]
+    geo_runner = next((int(n) for n in by_geo if not any(np.array_equal(ids_of(n), v) for v in same)), None)
+    geo_margin = float(geos[best] - geos[geo_runner]) if geo_runner is not None else np.inf
     violated = 0.0
     for k, da, db, e in edges or []:
-        i, j = (ab[k] + [da, db]) @ ROTATIONS[best[1]].T + [best[2], best[3]]
+        i, j = (ab[k] + [da, db]) @ ROTATIONS[turns[best]].T + [offs_i[best], offs_j[best]]
         violated += e if (0 <= i < nx and 0 <= j < ny) else 0.0
-    return Placement(ids, best[0], margin, violated, geo_margin)
+    return Placement(ids, float(totals[best]), margin, violated, geo_margin)
