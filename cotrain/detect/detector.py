@@ -88,9 +88,9 @@ class Detector:
     grid pass places the lattice from the geometry alone (colours, extent, margin; docs/detector.md).
     """
 
-    # Files per worker process below which detect_files keeps them in one process: starting the
-    # processes costs about 1.3 s on two cores, and a worker wins back 5-9 ms per file (this
-    # process's two threads already overlap half the work; break-even measured at 220 files).
+    # Files per worker process below which detect_files keeps them in one process: starting two
+    # costs about 1.1 s, and once started they win back 6-7 ms per 1280x720 file over this
+    # process's two threads (the same time at 160 files; docs/benchmarks.md).
     files_per_worker = 100
 
     def __init__(

@@ -80,8 +80,16 @@ def image_folders_below(folder: Path, depth: int = 2) -> list[Path]:
     """Folders under ``folder`` (up to ``depth`` levels down, sorted) that hold images: what a user
     who named a recording's top folder meant (``cotrain detect`` reads a folder's own images only)."""
     out = []
-    for sub in sorted(q for q in folder.iterdir() if q.is_dir()):
-        if any(f.suffix.lower() in IMAGE_SUFFIXES and f.is_file() for f in sub.iterdir()):
+    try:
+        subs = sorted(q for q in folder.iterdir() if q.is_dir())
+    except OSError:  # unreadable: nothing to suggest there
+        return out
+    for sub in subs:
+        try:
+            holds = any(f.suffix.lower() in IMAGE_SUFFIXES and f.is_file() for f in sub.iterdir())
+        except OSError:
+            continue
+        if holds:
             out.append(sub)
         elif depth > 1:
             out.extend(image_folders_below(sub, depth - 1))

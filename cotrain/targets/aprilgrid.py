@@ -58,12 +58,12 @@ def printed_bits(n: int) -> np.ndarray:
 
 def _as_index(x):
     """Whole-number floats (numpy or torch) as integer indices."""
-    return x.astype(np.int64) if isinstance(x, np.ndarray) else x.long()
+    return x.astype(np.int64) if isinstance(x, (np.ndarray, np.generic)) else x.long()
 
 
 def _as_type(x, like):
     """``x`` (numpy or torch) in the dtype of ``like``."""
-    return x.astype(like.dtype) if isinstance(x, np.ndarray) else x.to(like.dtype)
+    return x.astype(like.dtype) if isinstance(x, (np.ndarray, np.generic)) else x.to(like.dtype)
 
 
 class AprilGrid:

@@ -86,7 +86,7 @@ class Target(Protocol):
 def array_module(x):
     """numpy for a numpy array, torch for a tensor (torch is imported only then): a target's
     point-sampled print takes either, so that the detector runs without torch."""
-    if isinstance(x, np.ndarray):
+    if isinstance(x, (np.ndarray, np.generic)):
         return np
     import torch
 
@@ -95,7 +95,7 @@ def array_module(x):
 
 def clip(x, lo: float | None = None, hi: float | None = None):
     """``x`` (numpy or torch) clipped to [lo, hi] (None: unbounded)."""
-    return np.clip(x, lo, hi) if isinstance(x, np.ndarray) else x.clamp(lo, hi)
+    return np.clip(x, lo, hi) if isinstance(x, (np.ndarray, np.generic)) else x.clamp(lo, hi)
 
 
 def same_target(a: Target, b: Target) -> bool:

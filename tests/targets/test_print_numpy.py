@@ -26,6 +26,27 @@ def test_numpy_print_and_corners_are_the_torch_ones(board):
     assert isinstance(v_np, np.ndarray) and v_np.dtype == np.float64
     np.testing.assert_array_equal(v_np, v_t.numpy())
     np.testing.assert_array_equal(c_np, c_t.numpy())
+    # One point alone (its coordinates numpy scalars) is read the same way, without torch types.
+    v1, c1 = board.intensity(P[7])
+    assert float(v1) == v_np[7] and float(c1) == c_np[7]
     assert board.board_xy().dtype == np.float64
-    np.testing.assert_array_equal(board.points()[:, :2].numpy(), board.board_xy())
     np.testing.assert_array_equal(board.points()[:, 2].numpy(), 0.0)
+
+
+def test_board_coordinates_known_values():
+    """Corner ids and board coordinates, worked out by hand: the checkerboard's corner (i, j) (id
+    j nx + i) at ((i + 1) s, (j + 1) s); Kalibr's AprilGrid point (r, c) (id 2 tagCols r + c) at
+    x = floor(c / 2) (1 + tagSpacing) tagSize + (c mod 2) tagSize, y likewise, in exact float64."""
+    b = Checkerboard(TargetConfig(squares_x=7, squares_y=5, square_size=0.03))
+    xy = b.board_xy()
+    assert xy.shape == (24, 2)
+    for i, j in ((0, 0), (5, 0), (0, 3), (2, 1), (5, 3)):
+        assert xy[j * 6 + i].tolist() == [(i + 1) * 0.03, (j + 1) * 0.03]
+    g = AprilGrid(TargetConfig(kind="aprilgrid", tag_cols=2, tag_rows=3, tag_size=0.055, tag_spacing=0.3))
+    xy = g.board_xy()
+    assert xy.shape == (24, 2)
+    for r, c in ((0, 0), (0, 1), (0, 2), (0, 3), (5, 3), (3, 2), (4, 1)):
+        x = (c // 2) * (0.055 + 0.3 * 0.055) + (c % 2) * 0.055
+        y = (r // 2) * (0.055 + 0.3 * 0.055) + (r % 2) * 0.055
+        assert xy[r * 4 + c].tolist() == pytest.approx([x, y], abs=1e-15)
+    np.testing.assert_array_equal(g.points()[:, :2].numpy(), xy)
