@@ -183,17 +183,22 @@ def beside_points(p: np.ndarray, step: np.ndarray, offset: np.ndarray) -> np.nda
     return p[:, None] + t * step[:, None] + offset[:, None]
 
 
-def edge_contrasts(img: np.ndarray, p: np.ndarray, q: np.ndarray, o: np.ndarray, depth: float) -> np.ndarray:
-    """Brightness ``depth`` px to the ``+o`` side of segment p -> q (2,) minus the ``-o`` side, at a
-    quarter, half and three quarters of the way: (3,) (``o`` (2,) a unit vector; NaN outside the image)."""
+def edge_sample_points(p: np.ndarray, q: np.ndarray, o: np.ndarray, depth: float) -> np.ndarray:
+    """(6, 2): the points ``depth`` px to the ``+o`` side of segment p -> q (2,) at a quarter, half
+    and three quarters of the way, then the same to the ``-o`` side (:func:`beside_points`' points
+    for one segment, in scalar arithmetic: it runs per step tried)."""
     px, py, dx, dy = float(p[0]), float(p[1]), float(q[0] - p[0]), float(q[1] - p[1])
     sx, sy = float(depth * o[0]), float(depth * o[1])
-    # The points of beside_points, in scalar arithmetic (it runs per step tried): +o side, then -o side.
-    pts = np.array(
+    return np.array(
         [[px + t * dx + sx, py + t * dy + sy] for t in (0.25, 0.5, 0.75)]
         + [[px + t * dx - sx, py + t * dy - sy] for t in (0.25, 0.5, 0.75)]
     )
-    vals = values_at(img, pts)
+
+
+def edge_contrasts(img: np.ndarray, p: np.ndarray, q: np.ndarray, o: np.ndarray, depth: float) -> np.ndarray:
+    """Brightness ``depth`` px to the ``+o`` side of segment p -> q (2,) minus the ``-o`` side, at a
+    quarter, half and three quarters of the way: (3,) (``o`` (2,) a unit vector; NaN outside the image)."""
+    vals = values_at(img, edge_sample_points(p, q, o, depth))
     return vals[:3] - vals[3:]
 
 

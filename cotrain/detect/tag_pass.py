@@ -72,7 +72,7 @@ from scipy.spatial import cKDTree
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.half_resolution import corners_at_half_resolution, halve
 from cotrain.detect.image_circle import EquidistantLens, guess_lens, parallelogram_corner, ray_homographies
-from cotrain.detect.lattice import STEPS, Lattice, beside_points, corner_rays, final_fits, shortest_steps, values_at
+from cotrain.detect.lattice import STEPS, Lattice, beside_points, corner_rays, edge_sample_points, final_fits, shortest_steps, values_at
 from cotrain.detect.saddle import fit_saddles, outside_circle, saddle_response, smooth_cached, window_half
 from cotrain.detect.tag_completion import CompletionConfig, complete_board, print_check
 from cotrain.targets.aprilgrid import BORDER_BITS, CELLS, DATA_BITS, N_CODES, AprilGrid, printed_bits
@@ -317,13 +317,7 @@ def edge_contrast(img: np.ndarray, p: np.ndarray, q: np.ndarray, normal: np.ndar
     """Mean brightness on the ``+normal`` side of segment p -> q minus the ``-normal`` side, sampled
     at a quarter, half and three quarters of the way, ``depth`` px to each side; NaN where no
     sample pair lies inside the image circle (``rim_dist`` (H, W) > 1)."""
-    px, py, dx, dy = float(p[0]), float(p[1]), float(q[0] - p[0]), float(q[1] - p[1])
-    sx, sy = float(depth * normal[0]), float(depth * normal[1])
-    # The points of beside_points, in scalar arithmetic (it runs per step tried): +side, then -side.
-    pts = np.array(
-        [[px + t * dx + sx, py + t * dy + sy] for t in (0.25, 0.5, 0.75)]
-        + [[px + t * dx - sx, py + t * dy - sy] for t in (0.25, 0.5, 0.75)]
-    )
+    pts = edge_sample_points(p, q, normal, depth)
     vals = values_at(img, pts)
     rd = values_at(rim_dist, pts)
     ok = (rd[:3] > 1) & (rd[3:] > 1) & np.isfinite(vals[:3]) & np.isfinite(vals[3:])
