@@ -32,7 +32,7 @@ def default_model_path() -> Path:
 def default_grid_model_path(float_path: str | Path | None = None) -> Path:
     """The graph the grid pass runs by default: the shipped model's dense maps with int8
     convolutions (``export/default.int8.onnx``, written by ``python -m export.ship``; the same FoV
-    recall and wrong corners as the float graph on the kept sets, its network 1.5x faster;
+    recall and wrong corners as the float graph on the kept sets, its network about twice as fast;
     docs/results/size_curve.md) where it is installed and made from the shipped float graph (its
     :data:`SOURCE_KEY` metadata), else :func:`default_model_path`. ``float_path``: another float
     graph than the shipped one, its int8 graph beside it (``NAME.int8.onnx``)."""

@@ -123,13 +123,6 @@ class AprilGrid:
         """None: every tag names itself."""
         return ()
 
-    def grid_ij(self) -> Tensor:
-        """(N, 2) grid indices (c, r) of corner ids 0..N-1 (id = r * 2 tag_cols + c)."""
-        import torch
-
-        r, c = torch.meshgrid(torch.arange(self.ny), torch.arange(self.nx), indexing="ij")
-        return torch.stack([c.reshape(-1), r.reshape(-1)], dim=-1)
-
     def ij_of(self, ids):
         """(...) corner ids -> (..., 2) grid indices (c, r) (numpy or torch)."""
         c, r = ids % self.nx, ids // self.nx
@@ -155,8 +148,7 @@ class AprilGrid:
 
     def board_xy(self) -> np.ndarray:
         """(N, 2) float64 board-frame x, y (metres) of corner ids 0..N-1 (Kalibr's createGridPoints; numpy)."""
-        r, c = np.divmod(np.arange(self.n_corners), self.nx)
-        cr = np.stack([c, r], -1)
+        cr = self.ij_of(np.arange(self.n_corners))
         return (cr // 2) * self.P + (cr % 2) * self.S
 
     def points(self, dtype: torch.dtype | None = None) -> Tensor:

@@ -74,13 +74,6 @@ class Checkerboard:
         """Corner-id permutations under which the board looks the same (see :func:`board_symmetries`)."""
         return board_symmetries(self.nx, self.ny)
 
-    def grid_ij(self) -> Tensor:
-        """(N, 2) integer grid indices (i, j) of corner ids 0..N-1 (id = j * nx + i)."""
-        import torch
-
-        j, i = torch.meshgrid(torch.arange(self.ny), torch.arange(self.nx), indexing="ij")
-        return torch.stack([i.reshape(-1), j.reshape(-1)], dim=-1)
-
     def ij_of(self, ids):
         """(...) corner ids -> (..., 2) grid indices (i, j) (numpy or torch)."""
         i, j = ids % self.nx, ids // self.nx
@@ -98,8 +91,7 @@ class Checkerboard:
 
     def board_xy(self) -> np.ndarray:
         """(N, 2) float64 board-frame x, y (metres) of the inner corners, row i = corner id i (numpy)."""
-        j, i = np.divmod(np.arange(self.n_corners), self.nx)
-        return (np.stack([i, j], -1) + 1) * self.s
+        return (self.ij_of(np.arange(self.n_corners)) + 1) * self.s
 
     def points(self, dtype: torch.dtype | None = None) -> Tensor:
         """(N, 3) board-frame coordinates (metres) of the inner corners, row i = corner id i
