@@ -20,6 +20,7 @@ import functools
 import math
 
 import cv2
+import numba
 import numpy as np
 
 from cotrain.detect.grid_config import GridConfig
@@ -48,44 +49,211 @@ def _design(half: int) -> np.ndarray:
     return np.linalg.pinv(A * w[:, None]) * w[None, :]
 
 
-def _masked_coefficients(patch: np.ndarray, valid: np.ndarray, half: int) -> tuple[np.ndarray, np.ndarray]:
-    """Quadratic coefficients (K, 6) fitted to the valid pixels of each window (K, n^2) only
-    (``valid`` (K, n^2) in [0, 1]), and whether the fit is posed (K,): at least half the Gaussian
-    weight valid."""
-    A, w = _basis(half)
-    wv = valid * w[None]  # (K, n^2)
-    M = np.einsum("ki,ip,iq->kpq", wv, A, A)  # A^T W A per window (K, 6, 6)
-    rhs = np.einsum("ki,ip,ki->kp", wv, A, patch)
-    posed = wv.sum(1) >= 0.5 * w.sum()
-    M[~posed] = np.eye(6)
-    M += 1e-9 * np.eye(6)  # half a window of a quadratic is well posed; this only guards the solve
-    return np.linalg.solve(M, rhs[..., None])[..., 0], posed
-
-
-def _patches(img: np.ndarray, p: np.ndarray, half: int, border: int = cv2.BORDER_REPLICATE) -> np.ndarray:
-    """Bilinear (2 half + 1)^2 windows of ``img`` (H, W) centred on points p (K, 2) -> (K, n * n)."""
-    n = 2 * half + 1
-    g = np.arange(n, dtype=np.float32) - half
-    mx = (p[:, 0, None, None] + g[None, None, :]).astype(np.float32) + np.zeros((1, n, 1), np.float32)
-    my = (p[:, 1, None, None] + g[None, :, None]).astype(np.float32) + np.zeros((1, 1, n), np.float32)
-    out = cv2.remap(img, mx.reshape(-1, n), my.reshape(-1, n), cv2.INTER_LINEAR, borderMode=border, borderValue=0)
-    return out.reshape(len(p), n * n).astype(np.float64)
-
-
 def pixel_index(q: np.ndarray, W: int, H: int) -> np.ndarray:
     """The nearest pixel (K, 2) int of points q (K, 2), clamped into a W x H image."""
     qi = np.rint(q).astype(int)
     return np.minimum(np.maximum(qi, 0), np.array([W - 1, H - 1]))
 
 
-def _window(img: np.ndarray, x: float, y: float, half: int, border: int = cv2.BORDER_REPLICATE) -> np.ndarray:
-    """One bilinear window (n^2,) float64 of ``img`` (H, W) centred on (x, y), as :func:`_patches`
-    cuts it (one C call when the window lies inside the image)."""
-    n = 2 * half + 1
+# The fit itself is compiled (numba): the grid pass, the growth and the tag pass fit a few hundred
+# to a few thousand small windows per frame, one point or a few dozen at a time, and as array
+# operations each window cost ten times its arithmetic (measured: 8 ms of a 1280x720 frame's 26).
+# The kernels release the GIL, so the reading thread of detect_files runs beside them.
+@numba.njit(cache=True, nogil=True)
+def _sample_window(img, x, y, half, replicate, out):
+    """Bilinear (2 half + 1)^2 window of ``img`` (H, W) centred on (x, y), row-major, into
+    ``out`` (n^2,) float64. Outside the image: the nearest pixel (``replicate``) or 0."""
     H, W = img.shape
-    if half + 1 < x < W - half - 2 and half + 1 < y < H - half - 2:
-        return cv2.getRectSubPix(img, (n, n), (x, y)).ravel().astype(np.float64)
-    return _patches(img, np.array([[x, y]]), half, border)[0]
+    n = 2 * half + 1
+    fx0, fy0 = math.floor(x), math.floor(y)
+    fx, fy = x - fx0, y - fy0
+    ix0, iy0 = int(fx0) - half, int(fy0) - half
+    w00, w01, w10, w11 = (1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy
+    inside = ix0 >= 0 and iy0 >= 0 and ix0 + n < W and iy0 + n < H
+    k = 0
+    for r in range(n):
+        ya = iy0 + r
+        for c in range(n):
+            xa = ix0 + c
+            if inside:
+                v00, v01, v10, v11 = img[ya, xa], img[ya, xa + 1], img[ya + 1, xa], img[ya + 1, xa + 1]
+            else:
+                v00 = _pixel(img, xa, ya, replicate)
+                v01 = _pixel(img, xa + 1, ya, replicate)
+                v10 = _pixel(img, xa, ya + 1, replicate)
+                v11 = _pixel(img, xa + 1, ya + 1, replicate)
+            out[k] = w00 * v00 + w01 * v01 + w10 * v10 + w11 * v11
+            k += 1
+
+
+@numba.njit(cache=True, nogil=True)
+def _pixel(img, x, y, replicate):
+    """Pixel (x, y) of ``img`` (H, W) as float64; outside: the nearest one (``replicate``) or 0."""
+    H, W = img.shape
+    if 0 <= x < W and 0 <= y < H:
+        return float(img[y, x])
+    if not replicate:
+        return 0.0
+    return float(img[min(max(y, 0), H - 1), min(max(x, 0), W - 1)])
+
+
+@numba.njit(cache=True, nogil=True)
+def _solve(M, rhs, out):
+    """out = M^-1 rhs for a small square M (n, n) (Gaussian elimination, partial pivoting; M and
+    rhs are overwritten)."""
+    n = M.shape[0]
+    for col in range(n):
+        piv = col
+        for r in range(col + 1, n):
+            if abs(M[r, col]) > abs(M[piv, col]):
+                piv = r
+        if piv != col:
+            for c in range(n):
+                M[col, c], M[piv, c] = M[piv, c], M[col, c]
+            rhs[col], rhs[piv] = rhs[piv], rhs[col]
+        for r in range(col + 1, n):
+            f = M[r, col] / M[col, col]
+            for c in range(col, n):
+                M[r, c] -= f * M[col, c]
+            rhs[r] -= f * rhs[col]
+    for r in range(n - 1, -1, -1):
+        s = rhs[r]
+        for c in range(r + 1, n):
+            s -= M[r, c] * out[c]
+        out[r] = s / M[r, r]
+
+
+@numba.njit(cache=True, nogil=True)
+def _fit_window(img, rim, use_rim, x, y, half, pinv, A, w, patch, valid, coef, M, rhs):
+    """The window quadratic at (x, y): ``coef`` (6,) fitted to ``patch`` (n^2,), the window of
+    ``img``, through ``pinv`` (:func:`_design`: least squares weighted by the Gaussian w squared).
+    With ``use_rim``, window pixels the blur has mixed with unusable ones (``rim`` (H, W), the
+    distance to them, under 1 + 0.8 half) are left out (``valid`` (n^2,) 0 there, else 1); where
+    any are, the quadratic is fitted to the others by least squares weighted by w itself
+    (A^T diag(w valid) A). Returns whether the fit is posed: at least half of w valid."""
+    _sample_window(img, x, y, half, True, patch)
+    n2 = patch.shape[0]
+    for p in range(6):
+        s = 0.0
+        for i in range(n2):
+            s += pinv[p, i] * patch[i]
+        coef[p] = s
+    valid[:] = 1.0
+    if not use_rim:
+        return True
+    H, W = rim.shape
+    reach = 1.0 + 0.8 * half
+    ix = int(min(max(np.rint(x), 0.0), W - 1.0))
+    iy = int(min(max(np.rint(y), 0.0), H - 1.0))
+    if not rim[iy, ix] < reach + 1.5 * half + 1:  # the window cannot reach the rim
+        return True
+    _sample_window(rim, x, y, half, False, valid)
+    cut = False
+    for i in range(n2):
+        if valid[i] > reach:
+            valid[i] = 1.0
+        else:
+            valid[i] = 0.0
+            cut = True
+    if not cut:
+        return True
+    M[:, :] = 0.0
+    rhs[:] = 0.0
+    w_all, w_valid = 0.0, 0.0
+    for i in range(n2):
+        w_all += w[i]
+        wv = valid[i] * w[i]
+        if wv == 0.0:
+            continue
+        w_valid += wv
+        for p in range(6):
+            ap = wv * A[i, p]
+            rhs[p] += ap * patch[i]
+            for q in range(6):
+                M[p, q] += ap * A[i, q]
+    posed = w_valid >= 0.5 * w_all
+    if not posed:
+        M[:, :] = 0.0
+        for p in range(6):
+            M[p, p] = 1.0
+    for p in range(6):
+        M[p, p] += 1e-9  # half a window of a quadratic is well posed; this only guards the solve
+    _solve(M, rhs, coef)
+    return posed
+
+
+@numba.njit(cache=True, nogil=True)
+def _fit_points(img, rim, use_rim, xy, half, iterations, pinv, A, w, thresholds, out_xy, out_ok, out_axes):
+    """:func:`saddle_fit` of every point of ``xy`` (K, 2) into ``out_xy`` (K, 2), ``out_ok`` (K,)
+    and ``out_axes`` (K, 2, 2) (zero where the fit fails). ``thresholds``: min_symmetry,
+    min_symmetric_share, min_saddle_contrast, min_saddle_ratio, min_rim_px."""
+    H, W = img.shape
+    n2 = (2 * half + 1) ** 2
+    min_symmetry, min_share, min_contrast, min_ratio, min_rim_px = thresholds[0], thresholds[1], thresholds[2], thresholds[3], thresholds[4]
+    patch, valid, coef = np.empty(n2), np.empty(n2), np.empty(6)
+    M, rhs = np.empty((6, 6)), np.empty(6)
+    for k in range(xy.shape[0]):
+        x0, y0 = xy[k, 0], xy[k, 1]
+        out_xy[k, 0], out_xy[k, 1] = x0, y0
+        out_ok[k] = False
+        out_axes[k, :, :] = 0.0
+        if not (np.isfinite(x0) and np.isfinite(y0)):
+            continue
+        # Newton steps to the saddle of the window quadratic.
+        x, y = x0, y0
+        alive = True
+        for _ in range(iterations):
+            posed = _fit_window(img, rim, use_rim, x, y, half, pinv, A, w, patch, valid, coef, M, rhs)
+            a, b, c, d, e = coef[0], coef[1], coef[2], coef[3], coef[4]
+            det = 4 * a * c - b * b  # of [[2a, b], [b, 2c]]; a saddle has det < 0
+            safe = det if det < 0 else -1.0
+            sx, sy = -(2 * c * d - b * e) / safe, -(-b * d + 2 * a * e) / safe
+            if det >= 0 or math.hypot(sx, sy) > half or not posed:
+                alive = False
+                break
+            x, y = x + sx, y + sy
+        if not alive:
+            continue
+        if use_rim:
+            inside = 0 <= x <= W - 1 and 0 <= y <= H - 1
+            inside = inside and rim[int(np.rint(y)), int(np.rint(x))] >= min_rim_px
+        else:
+            inside = half <= x < W - 1 - half and half <= y < H - 1 - half
+        if not inside or math.hypot(x - x0, y - y0) > half:
+            continue
+        # The saddle's own window: contrast, X shape, point symmetry.
+        posed = _fit_window(img, rim, use_rim, x, y, half, pinv, A, w, patch, valid, coef, M, rhs)
+        a, b, c = coef[0], coef[1], coef[2]
+        # Point symmetry over the pixel pairs seen on both sides (a 180 deg turn = reversed order).
+        seen, total = 0.0, 0.0
+        for i in range(n2):
+            seen += valid[i]
+            total += patch[i] * valid[i]
+        mean = total / max(seen, 1.0)
+        num, den, pairs = 0.0, 0.0, 0.0
+        for i in range(n2):
+            pair = valid[i] * valid[n2 - 1 - i]
+            zi, zj = patch[i] - mean, patch[n2 - 1 - i] - mean
+            num += zi * zj * pair
+            den += zi * zi * pair
+            pairs += pair
+        sym = num >= min_symmetry * max(den, 1e-12) and pairs >= min_share * n2
+        # Eigenvalues of the Hessian / 2 [[a, b / 2], [b / 2, c]]: one of each sign at a saddle.
+        mid, rad = (a + c) / 2, math.hypot((a - c) / 2, b / 2)
+        neg, pos = rad - mid, mid + rad
+        big = max(neg, pos, 1e-12)
+        if not (posed and sym and neg > 0 and pos > 0 and big * half * half >= min_contrast and min(neg, pos) / big >= min_ratio):
+            continue
+        th = 0.5 * math.atan2(b, a - c)  # e_pos = (cos th, sin th), e_neg = (-sin th, cos th)
+        t = math.atan(math.sqrt(pos / neg))  # zero lines: cos t e_pos +- sin t e_neg
+        ct, st, cth, sth = math.cos(t), math.sin(t), math.cos(th), math.sin(th)
+        out_axes[k, 0, 0], out_axes[k, 0, 1] = ct * cth - st * sth, ct * sth + st * cth
+        out_axes[k, 1, 0], out_axes[k, 1, 1] = ct * cth + st * sth, ct * sth - st * cth
+        out_xy[k, 0], out_xy[k, 1] = x, y
+        out_ok[k] = True
+
+
+_NO_RIM = np.zeros((1, 1), np.float32)  # the rim argument of the kernels where there is none
 
 
 # --------------------------------------------------------------------------------------------
@@ -100,7 +268,7 @@ def saddle_fit(
     rim_dist: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Move points to the saddle of a quadratic fitted in a (2 half + 1)^2 window (Newton steps,
-    a fixed number of them, all points at once).
+    a fixed number of them; compiled, :func:`_fit_points`).
 
     Args:
         smoothed: (H, W) float32 grey image, already blurred for this window size.
@@ -114,148 +282,23 @@ def saddle_fit(
     Returns:
         xy: (K, 2) saddle points (start point where the fit failed);
         ok: (K,) bool, a saddle with enough contrast and X shape, converged within half a window;
-        axes: (K, 2, 2) unit edge directions (the quadratic's zero lines) per point.
+        axes: (K, 2, 2) unit edge directions (the quadratic's zero lines) per point (zero where
+            the fit failed).
     """
     cfg = cfg or GridConfig()
-    xy = np.asarray(xy, np.float64).reshape(-1, 2)
+    xy = np.ascontiguousarray(xy, np.float64).reshape(-1, 2)
+    img = np.asarray(smoothed, np.float32)
+    rim = _NO_RIM if rim_dist is None else np.asarray(rim_dist, np.float32)
+    if rim_dist is not None and rim.shape != img.shape:
+        raise ValueError(f"rim_dist {rim.shape} and the image {img.shape} differ in size")
+    A, w = _basis(int(half))
+    thresholds = np.array(
+        [cfg.min_symmetry, cfg.min_symmetric_share, cfg.min_saddle_contrast, cfg.min_saddle_ratio, cfg.min_rim_px], np.float64
+    )
     K = len(xy)
-    if K == 1:  # the lattice growth's single spots: the same fit in scalar arithmetic
-        return _saddle_fit_one(smoothed, xy[0], half, iterations, cfg, rim_dist)
-    pinv = _design(half)
-    H, W = smoothed.shape
-    reach = 1.0 + 0.8 * half
-
-    def fit(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Coefficients (k, 6), patches (k, n^2), valid weights (k, n^2), posed (k,) at points q (k, 2)."""
-        patch = _patches(smoothed, q, half)
-        if rim_dist is None:
-            return patch @ pinv.T, patch, np.ones_like(patch), np.ones(len(q), bool)
-        coef, valid, posed = patch @ pinv.T, np.ones_like(patch), np.ones(len(q), bool)
-        qi = pixel_index(q, W, H)
-        near = rim_dist[qi[:, 1], qi[:, 0]] < reach + 1.5 * half + 1  # the window may reach the rim
-        if near.any():
-            valid[near] = (_patches(rim_dist, q[near], half, cv2.BORDER_CONSTANT) > reach).astype(np.float64)
-            cut = near & (valid.min(1) < 1)  # only windows that reach the rim need the masked solve
-            if cut.any():
-                coef[cut], posed[cut] = _masked_coefficients(patch[cut], valid[cut], half)
-        return coef, patch, valid, posed
-
-    p = xy.copy()
-    alive = np.ones(K, bool)
-    for _ in range(iterations):
-        idx = np.nonzero(alive)[0]
-        if not len(idx):
-            break
-        coef, _, _, posed = fit(p[idx])
-        a, b, c, d, e, _ = coef.T
-        det = 4 * a * c - b * b  # of [[2a, b], [b, 2c]]; a saddle has det < 0
-        safe = np.where(det < 0, det, -1.0)
-        step = -np.stack([2 * c * d - b * e, -b * d + 2 * a * e], 1) / safe[:, None]
-        bad = (det >= 0) | (np.linalg.norm(step, axis=1) > half) | ~posed
-        p[idx[~bad]] += step[~bad]
-        alive[idx[bad]] = False
-    if rim_dist is None:
-        inside = (p[:, 0] >= half) & (p[:, 0] < W - 1 - half) & (p[:, 1] >= half) & (p[:, 1] < H - 1 - half)
-    else:
-        pi = pixel_index(p, W, H)
-        inside = (p[:, 0] >= 0) & (p[:, 0] <= W - 1) & (p[:, 1] >= 0) & (p[:, 1] <= H - 1)
-        inside &= rim_dist[pi[:, 1], pi[:, 0]] >= cfg.min_rim_px
-    ok = alive & inside & (np.linalg.norm(p - xy, axis=1) <= half)
-    axes = np.zeros((K, 2, 2))
-    idx = np.nonzero(ok)[0]
-    if len(idx):
-        coef, patch, valid, posed = fit(p[idx])
-        a, b, c = coef.T[:3]
-        # Point symmetry over the pixel pairs seen on both sides (a 180 deg turn = reversed ravel).
-        pair = valid * valid[:, ::-1]
-        mean = (patch * valid).sum(1, keepdims=True) / np.maximum(valid.sum(1, keepdims=True), 1)
-        z = patch - mean
-        sym = (z * z[:, ::-1] * pair).sum(1) >= cfg.min_symmetry * np.maximum((z * z * pair).sum(1), 1e-12)
-        sym &= pair.sum(1) >= cfg.min_symmetric_share * pair.shape[1]
-        lam, vec = np.linalg.eigh(np.stack([np.stack([a, b / 2], -1), np.stack([b / 2, c], -1)], -2))  # lam[:, 0] <= lam[:, 1]
-        neg, pos = -lam[:, 0], lam[:, 1]
-        big = np.maximum(np.maximum(neg, pos), 1e-12)
-        good = posed & sym & (neg > 0) & (pos > 0) & (big * half * half >= cfg.min_saddle_contrast)
-        good &= np.minimum(neg, pos) / big >= cfg.min_saddle_ratio
-        t = np.arctan(np.sqrt(np.maximum(pos, 0) / np.maximum(neg, 1e-12)))  # zero lines: cos t e_pos +- sin t e_neg
-        e_pos, e_neg = vec[:, :, 1], vec[:, :, 0]
-        axes[idx, 0] = np.cos(t)[:, None] * e_pos + np.sin(t)[:, None] * e_neg
-        axes[idx, 1] = np.cos(t)[:, None] * e_pos - np.sin(t)[:, None] * e_neg
-        ok[idx] = good
-    return np.where(ok[:, None], p, xy), ok, axes
-
-
-def _saddle_fit_one(
-    smoothed: np.ndarray, xy: np.ndarray, half: int, iterations: int, cfg: GridConfig, rim_dist: np.ndarray | None
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`saddle_fit` of one point xy (2,), in scalar arithmetic: the lattice growth fits one
-    predicted spot at a time, and the batched path's array operations on one point cost ten
-    times the arithmetic. Same steps, thresholds and outputs ((1, 2), (1,), (1, 2, 2)); the
-    tests hold the two paths to the same results."""
-    pinv = _design(half)
-    H, W = smoothed.shape
-    reach = 1.0 + 0.8 * half
-    n2 = (2 * half + 1) ** 2
-
-    def fit(x: float, y: float) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, bool]:
-        """Coefficients (6,), patch (n^2,), valid weights (n^2,) or None (all valid), posed."""
-        patch = _window(smoothed, x, y, half)
-        coef = pinv @ patch
-        if rim_dist is None:
-            return coef, patch, None, True
-        ix, iy = min(max(round(x), 0), W - 1), min(max(round(y), 0), H - 1)
-        if not rim_dist[iy, ix] < reach + 1.5 * half + 1:
-            return coef, patch, None, True
-        valid = (_window(rim_dist, x, y, half, cv2.BORDER_CONSTANT) > reach).astype(np.float64)
-        if valid.min() < 1:
-            c, posed = _masked_coefficients(patch[None], valid[None], half)
-            return c[0], patch, valid, bool(posed[0])
-        return coef, patch, valid, True
-
-    x0, y0 = float(xy[0]), float(xy[1])
-    x, y = x0, y0
-    alive = True
-    for _ in range(iterations):
-        coef, _, _, posed = fit(x, y)
-        a, b, c, d, e, _ = coef.tolist()
-        det = 4 * a * c - b * b  # of [[2a, b], [b, 2c]]; a saddle has det < 0
-        safe = det if det < 0 else -1.0
-        sx, sy = -(2 * c * d - b * e) / safe, -(-b * d + 2 * a * e) / safe
-        if det >= 0 or math.hypot(sx, sy) > half or not posed:
-            alive = False
-            break
-        x, y = x + sx, y + sy
-    if rim_dist is None:
-        inside = half <= x < W - 1 - half and half <= y < H - 1 - half
-    else:
-        ix, iy = min(max(round(x), 0), W - 1), min(max(round(y), 0), H - 1)
-        inside = 0 <= x <= W - 1 and 0 <= y <= H - 1 and rim_dist[iy, ix] >= cfg.min_rim_px
-    axes = np.zeros((1, 2, 2))
-    if not (alive and inside and math.hypot(x - x0, y - y0) <= half):
-        return xy[None].copy(), np.zeros(1, bool), axes
-    coef, patch, valid, posed = fit(x, y)
-    a, b, c = coef[:3].tolist()
-    # Point symmetry over the pixel pairs seen on both sides (a 180 deg turn = reversed order).
-    if valid is None:
-        z = patch - patch.mean()
-        sym = float(z @ z[::-1]) >= cfg.min_symmetry * max(float(z @ z), 1e-12) and cfg.min_symmetric_share <= 1
-    else:
-        pair = valid * valid[::-1]
-        z = patch - (patch * valid).sum() / max(valid.sum(), 1)
-        sym = float((z * z[::-1] * pair).sum()) >= cfg.min_symmetry * max(float((z * z * pair).sum()), 1e-12)
-        sym = sym and pair.sum() >= cfg.min_symmetric_share * n2
-    lam, vec = np.linalg.eigh(np.array([[a, b / 2], [b / 2, c]]))  # lam[0] <= lam[1]
-    neg, pos = -float(lam[0]), float(lam[1])
-    big = max(neg, pos, 1e-12)
-    good = posed and sym and neg > 0 and pos > 0 and big * half * half >= cfg.min_saddle_contrast
-    good = good and min(neg, pos) / big >= cfg.min_saddle_ratio
-    if not good:
-        return xy[None].copy(), np.zeros(1, bool), axes
-    t = math.atan(math.sqrt(pos / neg))  # zero lines: cos t e_pos +- sin t e_neg
-    e_pos, e_neg = vec[:, 1], vec[:, 0]
-    axes[0, 0] = math.cos(t) * e_pos + math.sin(t) * e_neg
-    axes[0, 1] = math.cos(t) * e_pos - math.sin(t) * e_neg
-    return np.array([[x, y]]), np.ones(1, bool), axes
+    out_xy, ok, axes = np.empty((K, 2)), np.zeros(K, bool), np.zeros((K, 2, 2))
+    _fit_points(img, rim, rim_dist is not None, xy, int(half), int(iterations), _design(int(half)), A, w, thresholds, out_xy, ok, axes)
+    return out_xy, ok, axes
 
 
 def fit_saddles(

@@ -1162,13 +1162,21 @@ def decode_many(white: np.ndarray) -> list[tuple[int, int, int]]:
     lowest id, where several are as near)."""
     if not len(white):
         return []
-    bits = np.where(white, 1.0, -1.0)
-    # Hamming distance = (36 - bits . code) / 2 for +-1 vectors: (T, turns, codes).
-    dot = np.stack([page_order(bits, m) @ _codes().T for m in range(len(TURNS))], 1)
-    dist = np.rint((36 - dot) / 2).astype(int)
-    flat = dist.reshape(len(bits), -1).argmin(1)  # turn-major: the first turn's nearest code first
+    # Each turn's page-order bits packed into one integer: Hamming distance = popcount(xor),
+    # (T, turns, codes) in integer arithmetic (a +-1 matrix product took BLAS threads: 1-60 ms
+    # for a frame's few dozen tags, as busy as the machine was).
+    turns = np.stack([page_order(np.asarray(white, bool), m) for m in range(len(TURNS))], 1)  # (T, turns, 36)
+    packed = (turns.astype(np.uint64) << np.arange(36, dtype=np.uint64)).sum(-1, dtype=np.uint64)
+    dist = np.bitwise_count(packed[:, :, None] ^ _packed_codes()[None, None, :])
+    flat = dist.reshape(len(turns), -1).argmin(1)  # turn-major: the first turn's nearest code first
     turn, tag = np.divmod(flat, dist.shape[2])
     return [(int(t), int(m), int(dist[r, m, t])) for r, (m, t) in enumerate(zip(turn.tolist(), tag.tolist()))]
+
+
+@functools.lru_cache(maxsize=1)
+def _packed_codes() -> np.ndarray:
+    """(N_CODES,) uint64: :func:`_codes` as bits, page cell k (white) at bit k."""
+    return ((_codes() > 0).astype(np.uint64) << np.arange(36, dtype=np.uint64)).sum(-1, dtype=np.uint64)
 
 
 def decode_bits(white: np.ndarray) -> tuple[int, int, int]:

@@ -3,6 +3,7 @@
 import cv2
 import numpy as np
 import pytest
+from scipy.ndimage import map_coordinates
 
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.saddle import fit_saddles, saddle_fit, smooth_for
@@ -65,10 +66,78 @@ def test_saddle_fit_next_to_the_rim_uses_the_part_that_is_seen():
     assert not fit_saddles(img, {}, start, 8, GridConfig(), rim_dist)[1][0]
 
 
-def test_one_point_fit_equals_the_batched_fit():
-    """The lattice growth fits one spot at a time through a scalar path; it must give what the
-    batched path gives for the same point: X-junctions in the open, cut by the rim (masked fit),
-    at the image border, and points with no saddle (L-corner, flat)."""
+def _reference_fit(
+    sm: np.ndarray, q0: np.ndarray, half: int, cfg: GridConfig, rim_dist: np.ndarray | None
+) -> tuple[bool, np.ndarray, np.ndarray]:
+    """saddle_fit's contract for one point, written independently of its compiled kernel: windows
+    sampled by scipy's map_coordinates, the weighted quadratic solved by LAPACK's least squares,
+    the saddle's directions from numpy's eigh. Returns ok, the saddle (2,), its axes (2, 2)."""
+    n = 2 * half + 1
+    g = np.arange(n) - half
+    gx, gy = np.meshgrid(g, g)
+    gx, gy = gx.ravel().astype(float), gy.ravel().astype(float)
+    A = np.stack([gx * gx, gx * gy, gy * gy, gx, gy, np.ones_like(gx)], 1)
+    w = np.exp(-(gx**2 + gy**2) / (2 * (0.6 * half) ** 2))
+    reach = 1 + 0.8 * half
+
+    def fit(x: float, y: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+        patch = map_coordinates(sm.astype(float), [y + gy, x + gx], order=1, mode="nearest")
+        valid = np.ones_like(patch)
+        if rim_dist is not None:
+            near = rim_dist[min(max(round(y), 0), sm.shape[0] - 1), min(max(round(x), 0), sm.shape[1] - 1)] < reach + 1.5 * half + 1
+            if near:
+                valid = (map_coordinates(rim_dist.astype(float), [y + gy, x + gx], order=1, mode="constant", cval=0.0) > reach) * 1.0
+        # Weights: w^2 over a whole window (the design matrix pinv(w A) w), w where part of it is
+        # masked (A^T diag(w valid) A): two Gaussians, as the fit has always had them.
+        sw = w if valid.all() else np.sqrt(w * valid)
+        coef = np.linalg.lstsq(A * sw[:, None], patch * sw, rcond=None)[0]
+        return coef, patch, valid, (w * valid).sum() >= 0.5 * w.sum()
+
+    x, y = q0
+    for _ in range(4):
+        (a, b, c, d, e, _), _, _, posed = fit(x, y)
+        det = 4 * a * c - b * b
+        if det >= 0 or not posed:
+            return False, q0, np.zeros((2, 2))
+        step = -np.array([2 * c * d - b * e, -b * d + 2 * a * e]) / det
+        if np.hypot(*step) > half:
+            return False, q0, np.zeros((2, 2))
+        x, y = x + step[0], y + step[1]
+    H, W = sm.shape
+    if rim_dist is None:
+        inside = half <= x < W - 1 - half and half <= y < H - 1 - half
+    else:
+        inside = 0 <= x <= W - 1 and 0 <= y <= H - 1 and rim_dist[round(y), round(x)] >= cfg.min_rim_px
+    if not inside or np.hypot(x - q0[0], y - q0[1]) > half:
+        return False, q0, np.zeros((2, 2))
+    (a, b, c, *_), patch, valid, posed = fit(x, y)
+    pair = valid * valid[::-1]
+    z = patch - (patch * valid).sum() / max(valid.sum(), 1)
+    sym = (z * z[::-1] * pair).sum() >= cfg.min_symmetry * max(
+        (z * z * pair).sum(), 1e-12
+    ) and pair.sum() >= cfg.min_symmetric_share * n * n
+    lam, vec = np.linalg.eigh([[a, b / 2], [b / 2, c]])
+    neg, pos = -lam[0], lam[1]
+    big = max(neg, pos, 1e-12)
+    good = (
+        posed
+        and sym
+        and neg > 0
+        and pos > 0
+        and big * half * half >= cfg.min_saddle_contrast
+        and min(neg, pos) / big >= cfg.min_saddle_ratio
+    )
+    if not good:
+        return False, q0, np.zeros((2, 2))
+    t = np.arctan(np.sqrt(pos / neg))
+    axes = np.stack([np.cos(t) * vec[:, 1] + np.sin(t) * vec[:, 0], np.cos(t) * vec[:, 1] - np.sin(t) * vec[:, 0]])
+    return True, np.array([x, y]), axes
+
+
+def test_saddle_fit_equals_an_independent_reference():
+    """The compiled fit against :func:`_reference_fit`, point by point and in one call: X-junctions
+    in the open, cut by the rim (masked fit), at the image border, and points with no saddle
+    (L-corner, flat); one point at a time (the growth) gives what a batch gives."""
     rng = np.random.default_rng(3)
     size = 61
     g = np.arange(size) - 30.0
@@ -85,7 +154,7 @@ def test_one_point_fit_equals_the_batched_fit():
         for j in range(-3, 4)
     ]
     pts = np.array([c for c in corners if -2 < c[0] < size + 1 and -2 < c[1] < size + 1]) + rng.uniform(-1.2, 1.2, (1, 2))
-    pts = np.concatenate([pts, [[50.0, 50.0], [1.0, 30.0], [30.0, 59.5]]])  # flat, at the border
+    pts = np.concatenate([pts, [[50.0, 50.0], [1.0, 30.0], [30.0, 59.5], [-3.0, 70.0], [np.nan, 3.0]]])  # flat, border, outside, NaN
     cfg = GridConfig()
     for half in (2, 4):
         sm = smooth_for(img, half)
@@ -93,8 +162,25 @@ def test_one_point_fit_equals_the_batched_fit():
             q, ok, axes = saddle_fit(sm, pts, half, cfg=cfg, rim_dist=rd)
             assert 3 < ok.sum() < len(pts)  # both outcomes are exercised
             for k in range(len(pts)):
+                ok_ref, q_ref, axes_ref = _reference_fit(sm, pts[k], half, cfg, rd) if np.isfinite(pts[k]).all() else (False, pts[k], 0)
                 q1, ok1, axes1 = saddle_fit(sm, pts[k : k + 1], half, cfg=cfg, rim_dist=rd)
-                assert ok1[0] == ok[k]
-                assert np.abs(q1[0] - q[k]).max() < 1e-3
+                assert ok1[0] == ok[k] == ok_ref
+                assert np.array_equal(q1[0], q[k], equal_nan=True)
                 if ok[k]:  # the same two edge directions (up to sign and order)
-                    assert np.abs(np.abs(axes1[0] @ axes[k].T).max(1) - 1).max() < 1e-4
+                    assert np.abs(q[k] - q_ref).max() < 1e-5
+                    assert np.abs(np.abs(axes[k] @ axes_ref.T).max(1) - 1).max() < 1e-6
+                else:
+                    assert np.array_equal(q[k], pts[k], equal_nan=True) and not axes[k].any()
+
+
+def test_saddle_fit_takes_thousands_of_points_and_checks_the_rim_size():
+    """A tag pass's thousands of candidates in one call (cv2.remap, which the fit once sampled
+    with, refused windows of over 32767 rows), and a rim distance of another size than the image
+    is an error, not a read outside it."""
+    img = _x_junction(20.3, 19.65)
+    sm = smooth_for(img, 5)
+    pts = np.tile([[19.0, 21.0]], (4000, 1))
+    xy, ok, _ = saddle_fit(sm, pts, 5)
+    assert ok.all() and np.abs(xy - [20.3, 19.65]).max() < 0.05
+    with pytest.raises(ValueError, match="differ in size"):
+        saddle_fit(sm, pts[:1], 5, rim_dist=np.ones((10, 10), np.float32))
