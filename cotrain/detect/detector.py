@@ -44,7 +44,8 @@ from cotrain.targets import AprilGrid, Checkerboard, Target
 # 5: the image circle found where a dark scene joins the black frame (more frames read through the lens).
 # 6: the black frame found where a camera lifts its black level (saddle.black_level).
 # 7: AprilGrid board coordinates in exact float64 (Target.board_xy; they were float32-rounded).
-OUTPUT_VERSION = 7
+# 8: saddle fits compiled, with exact bilinear windows (positions move by up to 1e-4 px; a few frames flip).
+OUTPUT_VERSION = 8
 
 
 @dataclass
