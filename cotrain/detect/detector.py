@@ -90,9 +90,11 @@ class Detector:
     """
 
     # Files per worker process below which detect_files keeps them in one process: starting two
-    # costs about 1.1 s, and once started they win back 6-7 ms per 1280x720 file over this
-    # process's two threads (the same time at 160 files; docs/benchmarks.md).
-    files_per_worker = 100
+    # costs about 2.5 s (imports, numba's kernels from its cache, the onnxruntime session), and
+    # once started they win back about 7 ms per 1280x720 file over this process's two threads
+    # (threads faster over 220 files, processes over 608; the same time near 360;
+    # docs/benchmarks.md).
+    files_per_worker = 180
 
     def __init__(
         self,
