@@ -44,7 +44,7 @@ from cotrain.targets import AprilGrid, Checkerboard, Target
 # 5: the image circle found where a dark scene joins the black frame (more frames read through the lens).
 # 6: the black frame found where a camera lifts its black level (saddle.black_level).
 # 7: AprilGrid board coordinates in exact float64 (Target.board_xy; they were float32-rounded).
-# 8: saddle fits compiled, with exact bilinear windows (positions move by up to 1e-4 px; a few frames flip).
+# 8: saddle fits compiled, with exact bilinear windows (fits move by up to 1e-4 px; a few growths and frames go otherwise).
 OUTPUT_VERSION = 8
 
 
@@ -240,7 +240,10 @@ class AprilGridDetector:
     corners, one placement per board). Same ``detect`` as :class:`Detector`."""
 
     path = "tag-pass"  # written as the detection JSON's "model": no network is involved
-    files_per_worker = 4  # a worker wins back about 70 ms per file (see Detector.files_per_worker)
+    # Two spawned workers cost about 1.5 s to start and then take half the time of one process (about
+    # 120 ms per 1280x720 file): over 8 / 16 / 32 / 64 evaluation frames 1.95 / 2.22 / 3.61 / 5.31 s
+    # against 0.82 / 1.93 / 3.78 / 7.68 s, the same time near 28 files (see Detector.files_per_worker).
+    files_per_worker = 14
 
     def __init__(self, target: AprilGrid, cfg: TagConfig | None = None):
         if not isinstance(target, AprilGrid):

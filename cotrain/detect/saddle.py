@@ -55,9 +55,13 @@ def pixel_index(q: np.ndarray, W: int, H: int) -> np.ndarray:
     return np.minimum(np.maximum(qi, 0), np.array([W - 1, H - 1]))
 
 
+MAX_COORD = 1e9  # points farther out than this (px) are not fitted: their pixel indices would overflow
+
+
 # The fit itself is compiled (numba): the grid pass, the growth and the tag pass fit a few hundred
 # to a few thousand small windows per frame, one point or a few dozen at a time, and as array
-# operations each window cost ten times its arithmetic (measured: 8 ms of a 1280x720 frame's 26).
+# operations each window cost ten times its arithmetic (measured: 9.7-11.5 ms of a 1280x720
+# frame's grid pass, 1.0 ms compiled).
 # The kernels release the GIL, so the reading thread of detect_files runs beside them.
 @numba.njit(cache=True, nogil=True)
 def _sample_window(img, x, y, half, replicate, out):
@@ -65,6 +69,9 @@ def _sample_window(img, x, y, half, replicate, out):
     ``out`` (n^2,) float64. Outside the image: the nearest pixel (``replicate``) or 0."""
     H, W = img.shape
     n = 2 * half + 1
+    if not (abs(x) < MAX_COORD and abs(y) < MAX_COORD):  # NaN, or so far out that an int would wrap
+        out[:] = np.nan
+        return
     fx0, fy0 = math.floor(x), math.floor(y)
     fx, fy = x - fx0, y - fy0
     ix0, iy0 = int(fx0) - half, int(fy0) - half
@@ -197,7 +204,7 @@ def _fit_points(img, rim, use_rim, xy, half, iterations, pinv, A, w, thresholds,
         out_xy[k, 0], out_xy[k, 1] = x0, y0
         out_ok[k] = False
         out_axes[k, :, :] = 0.0
-        if not (np.isfinite(x0) and np.isfinite(y0)):
+        if not (abs(x0) < MAX_COORD and abs(y0) < MAX_COORD):  # NaN, inf, or absurdly far
             continue
         # Newton steps to the saddle of the window quadratic.
         x, y = x0, y0
@@ -208,7 +215,7 @@ def _fit_points(img, rim, use_rim, xy, half, iterations, pinv, A, w, thresholds,
             det = 4 * a * c - b * b  # of [[2a, b], [b, 2c]]; a saddle has det < 0
             safe = det if det < 0 else -1.0
             sx, sy = -(2 * c * d - b * e) / safe, -(-b * d + 2 * a * e) / safe
-            if det >= 0 or math.hypot(sx, sy) > half or not posed:
+            if det >= 0 or not math.hypot(sx, sy) <= half or not posed:  # (a NaN step fails too)
                 alive = False
                 break
             x, y = x + sx, y + sy
@@ -287,8 +294,9 @@ def saddle_fit(
     """
     cfg = cfg or GridConfig()
     xy = np.ascontiguousarray(xy, np.float64).reshape(-1, 2)
-    img = np.asarray(smoothed, np.float32)
-    rim = _NO_RIM if rim_dist is None else np.asarray(rim_dist, np.float32)
+    # Contiguous float32, as the kernels were compiled for (another layout would compile anew, seconds).
+    img = np.ascontiguousarray(smoothed, np.float32)
+    rim = _NO_RIM if rim_dist is None else np.ascontiguousarray(rim_dist, np.float32)
     if rim_dist is not None and rim.shape != img.shape:
         raise ValueError(f"rim_dist {rim.shape} and the image {img.shape} differ in size")
     A, w = _basis(int(half))

@@ -154,7 +154,8 @@ def test_saddle_fit_equals_an_independent_reference():
         for j in range(-3, 4)
     ]
     pts = np.array([c for c in corners if -2 < c[0] < size + 1 and -2 < c[1] < size + 1]) + rng.uniform(-1.2, 1.2, (1, 2))
-    pts = np.concatenate([pts, [[50.0, 50.0], [1.0, 30.0], [30.0, 59.5], [-3.0, 70.0], [np.nan, 3.0]]])  # flat, border, outside, NaN
+    # Flat, at the border, outside, NaN, infinite, and so far out that a pixel index would overflow.
+    pts = np.concatenate([pts, [[50.0, 50.0], [1.0, 30.0], [30.0, 59.5], [-3.0, 70.0], [np.nan, 3.0], [np.inf, 3.0], [1e19, -1e19]]])
     cfg = GridConfig()
     for half in (2, 4):
         sm = smooth_for(img, half)
@@ -162,13 +163,15 @@ def test_saddle_fit_equals_an_independent_reference():
             q, ok, axes = saddle_fit(sm, pts, half, cfg=cfg, rim_dist=rd)
             assert 3 < ok.sum() < len(pts)  # both outcomes are exercised
             for k in range(len(pts)):
-                ok_ref, q_ref, axes_ref = _reference_fit(sm, pts[k], half, cfg, rd) if np.isfinite(pts[k]).all() else (False, pts[k], 0)
+                far = not (np.abs(pts[k]) < 1e9).all()
+                ok_ref, q_ref, axes_ref = (False, pts[k], 0) if far else _reference_fit(sm, pts[k], half, cfg, rd)
                 q1, ok1, axes1 = saddle_fit(sm, pts[k : k + 1], half, cfg=cfg, rim_dist=rd)
                 assert ok1[0] == ok[k] == ok_ref
                 assert np.array_equal(q1[0], q[k], equal_nan=True)
-                if ok[k]:  # the same two edge directions (up to sign and order)
+                if ok[k]:  # the same two edge directions (up to sign and order): each matches one, and both are matched
                     assert np.abs(q[k] - q_ref).max() < 1e-5
-                    assert np.abs(np.abs(axes[k] @ axes_ref.T).max(1) - 1).max() < 1e-6
+                    cos = np.abs(axes[k] @ axes_ref.T)
+                    assert np.abs(cos.max(1) - 1).max() < 1e-6 and np.abs(cos.max(0) - 1).max() < 1e-6
                 else:
                     assert np.array_equal(q[k], pts[k], equal_nan=True) and not axes[k].any()
 

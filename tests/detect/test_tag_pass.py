@@ -727,7 +727,7 @@ def test_candidates_of_small_tags_pass_the_looser_symmetry_test():
     assert found(TagConfig(candidate_min_symmetry=TagConfig().grid.min_symmetry)) < 0.75
 
 
-def test_detect_files_runs_the_tag_pass_in_processes_with_the_same_output(tmp_path, worker_pools):
+def test_detect_files_runs_the_tag_pass_in_processes_with_the_same_output(tmp_path, worker_pools, monkeypatch):
     """``detect_files`` over AprilGrid renders and one file that is no image: in two worker
     processes the detection JSON is the same as in this process, entry for entry and in the
     files' order; the bad file is an entry with its error, and the corners are found."""
@@ -744,7 +744,7 @@ def test_detect_files_runs_the_tag_pass_in_processes_with_the_same_output(tmp_pa
             cv2.imwrite(str(files[-1]), img)
     (tmp_path / "broken.png").write_bytes(b"not an image")
     files.insert(3, tmp_path / "broken.png")
-    assert len(files) >= 2 * AprilGridDetector.files_per_worker  # enough for the process pool
+    monkeypatch.setattr(AprilGridDetector, "files_per_worker", 4)  # a pool for these few files
     det = AprilGridDetector(g)
     serial = detect_files(files, det, progress=False, workers=1)
     parallel = detect_files(files, det, progress=False, workers=2)
@@ -762,7 +762,7 @@ class _Unpicklable(AprilGridDetector):
         raise RuntimeError("no detector in this process")
 
 
-def test_a_dead_worker_process_is_a_one_line_error(tmp_path):
+def test_a_dead_worker_process_is_a_one_line_error(tmp_path, monkeypatch):
     """A worker process that cannot start stops ``detect_files`` with a ChildProcessError (an
     OSError: the commands print it as one line), not a traceback of the process pool."""
     from cotrain.io.detections import detect_files
@@ -771,6 +771,7 @@ def test_a_dead_worker_process_is_a_one_line_error(tmp_path):
     for k in range(8):
         files.append(tmp_path / f"blank{k}.png")
         cv2.imwrite(str(files[-1]), np.full((64, 64), 128, np.uint8))
+    monkeypatch.setattr(AprilGridDetector, "files_per_worker", 4)  # a pool for these few files
     with pytest.raises(ChildProcessError, match="--workers 1"):
         detect_files(files, _Unpicklable(make_target(TargetConfig(kind="aprilgrid"))), progress=False, workers=2)
 
