@@ -215,9 +215,12 @@ def _fits_the_union(ij: tuple[int, int], q: np.ndarray, union: dict[tuple[int, i
     """Whether point q (2,) fits at coordinates ij among the corners ``union`` has placed (board
     (i, j), or lattice (a, b), -> pixels (2,)): every prediction of ij, by the line of two corners
     behind it or by the parallelogram of a cell it completes, within ``cfg.match_radius`` of that
-    prediction's step; None where nothing predicts it yet."""
+    prediction's step, and within ``cfg.match_radius`` of the distance from that prediction to
+    the nearest corner placed (where the board is seen obliquely, a cell is a thin rhombus and the
+    corner one row across lies nearer than half a step); None where nothing predicts it yet."""
     i, j = ij
     ok = None
+    placed = np.array(list(union.values())).reshape(-1, 2)
     for di, dj in STEPS:
         p1, p2 = union.get((i - di, j - dj)), union.get((i - 2 * di, j - 2 * dj))
         preds = []
@@ -228,7 +231,8 @@ def _fits_the_union(ij: tuple[int, int], q: np.ndarray, union: dict[tuple[int, i
             if p1 is not None and p3 is not None and p4 is not None:
                 preds.append((p1 + p3 - p4, p3 - p4))
         for pred, step in preds:
-            if np.hypot(*(q - pred)) > cfg.match_radius * np.hypot(*step):
+            spacing = min(np.hypot(*step), np.hypot(*(placed - pred).T).min())
+            if np.hypot(*(q - pred)) > cfg.match_radius * spacing:
                 return False
             ok = True
     return ok

@@ -233,6 +233,34 @@ def test_join_lattices_joins_parts_of_one_lattice():
     assert len(joined.ab) == NX * NY - 1 and (NX - 1, 2) not in joined.where
 
 
+def test_join_lattices_refuses_the_next_row_of_a_thin_rhombus():
+    """A board seen so obliquely that its cells are thin rhombi (sides 30 px, one diagonal 6.7 px):
+    a corner of the smaller part that sits where its diagonal neighbour is (a row off) lies within
+    0.45 of a step of its prediction, but nearer to a placed corner than that: it is left out, and
+    every other corner joins."""
+    from cotrain.detect.grid_pass import join_lattices
+    from cotrain.detect.lattice import Lattice
+
+    cfg = GridConfig()
+    ids = np.arange(NX * NY)
+    i, j = ids % NX, ids // NX
+    q = np.stack([300.0 + 30 * i - 27 * j, 100.0 + 6 * j], 1)  # steps (30, 0) and (-27, 6)
+    assert np.isclose(np.hypot(3, 6), min(np.hypot(*(q[a] - q[b])) for a in range(len(q)) for b in range(a)))
+    left = i <= 5
+    big = Lattice(q[left], np.stack([i[left], j[left]], 1), np.zeros(left.sum(), bool))
+    right = (i >= 4) & ~((i == NX - 1) & (j == 3))  # the spot (NX - 1, 3) is not in the smaller part
+    wrong = right & (i == NX - 2) & (j == 2)
+    q_small = q[right].copy()
+    q_small[wrong[right]] = q[(i == NX - 1) & (j == 3)][0]  # (NX - 2, 2) taken at its diagonal neighbour's spot
+    assert np.hypot(*(q_small[wrong[right]][0] - q[wrong][0])) < cfg.match_radius * 30  # the step alone would let it in
+    small = Lattice(q_small, np.stack([i[right], j[right]], 1), np.zeros(right.sum(), bool))
+    joined = join_lattices([big, small], cfg)[0]
+    assert (NX - 2, 2) not in joined.where
+    assert len(joined.ab) == NX * NY - 2  # all the others, at their own spots
+    for (a, b), k in joined.where.items():
+        np.testing.assert_allclose(joined.xy[k], q[b * NX + a])
+
+
 def test_merge_half_resolution_completes_an_empty_result_and_refuses_slips():
     """A flat board and a half-resolution result at the true corners (half their positions):
     where the full-resolution pass found nothing and the margin is sure, the corners are taken,
