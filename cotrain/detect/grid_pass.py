@@ -214,10 +214,10 @@ def join_lattices(lattices: list[Lattice], cfg: GridConfig) -> list[Lattice]:
 def _fits_the_union(ij: tuple[int, int], q: np.ndarray, union: dict[tuple[int, int], np.ndarray], cfg: GridConfig) -> bool | None:
     """Whether point q (2,) fits at coordinates ij among the corners ``union`` has placed (board
     (i, j), or lattice (a, b), -> pixels (2,)): every prediction of ij, by the line of two corners
-    behind it or by the parallelogram of a cell it completes, within ``cfg.match_radius`` of that
-    prediction's step, and within ``cfg.match_radius`` of the distance from that prediction to
-    the nearest corner placed (where the board is seen obliquely, a cell is a thin rhombus and the
-    corner one row across lies nearer than half a step); None where nothing predicts it yet."""
+    behind it or by the parallelogram of a cell it completes, within ``cfg.match_radius`` of the
+    distance from that prediction to the nearest corner placed. That is at most a step (the
+    corner behind lies a step away); where the board is seen obliquely, a cell is a thin rhombus
+    and the corner one row across lies nearer. None where nothing predicts it yet."""
     i, j = ij
     ok = None
     placed = np.array(list(union.values())).reshape(-1, 2)
@@ -225,14 +225,13 @@ def _fits_the_union(ij: tuple[int, int], q: np.ndarray, union: dict[tuple[int, i
         p1, p2 = union.get((i - di, j - dj)), union.get((i - 2 * di, j - 2 * dj))
         preds = []
         if p1 is not None and p2 is not None:
-            preds.append((2 * p1 - p2, p1 - p2))
+            preds.append(2 * p1 - p2)
         for ei, ej in ((dj, di), (-dj, -di)):  # the cell that (i - di, j - dj), ij and their neighbours across close
             p3, p4 = union.get((i + ei, j + ej)), union.get((i - di + ei, j - dj + ej))
             if p1 is not None and p3 is not None and p4 is not None:
-                preds.append((p1 + p3 - p4, p3 - p4))
-        for pred, step in preds:
-            spacing = min(np.hypot(*step), np.hypot(*(placed - pred).T).min())
-            if np.hypot(*(q - pred)) > cfg.match_radius * spacing:
+                preds.append(p1 + p3 - p4)
+        for pred in preds:
+            if np.hypot(*(q - pred)) > cfg.match_radius * np.hypot(*(placed - pred).T).min():
                 return False
             ok = True
     return ok

@@ -1166,17 +1166,15 @@ def decode_many(white: np.ndarray) -> list[tuple[int, int, int]]:
     # (T, turns, codes) in integer arithmetic (a +-1 matrix product took BLAS threads: 1-60 ms
     # for a frame's few dozen tags, as busy as the machine was).
     turns = np.stack([page_order(np.asarray(white, bool), m) for m in range(len(TURNS))], 1)  # (T, turns, 36)
-    packed = (turns.astype(np.uint64) << np.arange(36, dtype=np.uint64)).sum(-1, dtype=np.uint64)
-    dist = np.bitwise_count(packed[:, :, None] ^ _packed_codes()[None, None, :])
+    dist = np.bitwise_count(_packed(turns)[:, :, None] ^ _packed(_codes() > 0)[None, None, :])
     flat = dist.reshape(len(turns), -1).argmin(1)  # turn-major: the first turn's nearest code first
     turn, tag = np.divmod(flat, dist.shape[2])
     return [(int(t), int(m), int(dist[r, m, t])) for r, (m, t) in enumerate(zip(turn.tolist(), tag.tolist()))]
 
 
-@functools.lru_cache(maxsize=1)
-def _packed_codes() -> np.ndarray:
-    """(N_CODES,) uint64: :func:`_codes` as bits, page cell k (white) at bit k."""
-    return ((_codes() > 0).astype(np.uint64) << np.arange(36, dtype=np.uint64)).sum(-1, dtype=np.uint64)
+def _packed(bits: np.ndarray) -> np.ndarray:
+    """36 data cells (..., 36) bool (True: white) as one integer (...) uint64, cell k at bit k."""
+    return (bits.astype(np.uint64) << np.arange(36, dtype=np.uint64)).sum(-1, dtype=np.uint64)
 
 
 def decode_bits(white: np.ndarray) -> tuple[int, int, int]:
