@@ -282,7 +282,8 @@ def test_merge_half_resolution_completes_an_empty_result_and_refuses_slips():
     out = merge_half_resolution(img, none, half, BOARD, cfg)
     assert set(out.ids.tolist()) == set(ids[keep].tolist()) - {20}
     assert np.linalg.norm(out.xy - q[out.ids], axis=1).max() < 0.1  # refitted at full resolution
-    assert len(merge_half_resolution(img, none, replace(half, margin=30.0), BOARD, cfg).ids) == 0
+    assert len(merge_half_resolution(img, none, replace(half, margin=20.0), BOARD, cfg).ids) == 0
+    assert len(merge_half_resolution(img, none, replace(half, margin=30.0), BOARD, cfg).ids) == len(out.ids)
     few = GridResult(ids[:3], q[:3], np.ones(3), 40.0)
     assert merge_half_resolution(img, few, half, BOARD, cfg) is few
     elsewhere = GridResult(ids[:8], q[:8] + [3.0, 0.0], np.ones(8), 40.0)
