@@ -297,7 +297,7 @@ def test_completion_recovers_corners_the_growth_did_not_reach(monkeypatch):
     """A board at the side of a 200-degree lens whose lattices all stop halfway across the image
     (as a growth stopped by a bent row or a blurred stretch would leave them): with completion
     (GridConfig's shipped settings: the lens guessed from the image circle, edge rays always
-    asked, a correlation of 0.7, 8 px from the rim) the grid pass reports most of the visible
+    asked, a correlation of 0.7, 3 px from the rim) the grid pass reports most of the visible
     corners, each within 0.5 px of its label, those added with a confidence no higher than the
     placed ones'; without it, only the corners the lattices kept."""
     import cotrain.detect.grid_pass as gp
