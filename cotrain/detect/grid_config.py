@@ -73,10 +73,10 @@ class GridConfig:
     min_margin: float = 25.0  # the best placement must beat the runner-up by this (nats) to be reported ...
     min_margin_backed: float = 15.0  # ... or by this, where the geometry alone (no network votes) puts it ahead ...
     min_geometry_margin: float = 15.0  # ... by this much (colours, margin evidence, extent; see identity.Placement)
-    min_margin_votes_alone: float = 35.0  # where the geometry cannot tell the placement from another, the votes must win by this
+    min_margin_votes_alone: float = float("inf")  # where the geometry cannot tell the placement from another, the votes must win by this (inf: never reported)
     min_votes_per_corner: float = 1.2  # ... and by this much per lattice corner (a network biased on a whole view adds up with its size)
     logp_floor: float = -3.0  # network log-probabilities are clamped here (one corner cannot veto a board)
-    offboard_penalty: float = 10.0  # per lattice corner a placement puts off the board (they are verified X-junctions)
+    offboard_penalty: float = 15.0  # per lattice corner a placement puts off the board (verified X-junctions: one is min_geometry_margin)
     edge_weight: float = 8.0  # per lattice corner whose outward neighbour is the board's white margin
     min_edge_contrast: float = 0.1  # intensity difference of the two outward profiles half a step out that margin evidence needs
     edge_end_min: float = 0.7  # steps out: the last squares must end (both profiles turn white) no closer than this ...

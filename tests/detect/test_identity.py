@@ -138,13 +138,17 @@ def test_geometry_margin_leaves_out_the_network_votes():
 
 def test_votes_alone_must_be_surer_than_votes_with_geometry():
     """The grid pass's acceptance: where the geometry cannot tell the best placement from another
-    (a patch that fits the board turned as well), the network's votes must win by
-    ``min_margin_votes_alone``, and by ``min_votes_per_corner`` per lattice corner (a network
-    biased on a whole view, a dark frame, adds its bias up over every corner); where the geometry
-    backs it, ``min_margin_backed`` is enough."""
+    (a patch that fits the board turned as well), the shipped settings report nothing, however
+    sure the network's votes; turned on, the votes must win by ``min_margin_votes_alone``, and by
+    ``min_votes_per_corner`` per lattice corner (a network biased on a whole view, a dark frame,
+    adds its bias up over every corner); where the geometry backs it, ``min_margin_backed`` is
+    enough."""
     from cotrain.detect.grid_pass import placement_is_sure
 
-    cfg = GridConfig()
+    shipped = GridConfig()
+    assert not placement_is_sure(1e6, 0.0, 12, shipped) and not placement_is_sure(1e6, -3.0, 40, shipped)
+    assert placement_is_sure(shipped.min_margin + 1, 5.0, 12, shipped)
+    cfg = GridConfig(min_margin_votes_alone=35.0)
     assert placement_is_sure(cfg.min_margin + 1, 5.0, 12, cfg)
     assert not placement_is_sure(cfg.min_margin + 1, 0.0, 12, cfg)  # votes alone, under their own threshold
     assert placement_is_sure(cfg.min_margin_votes_alone + 1, 0.0, 12, cfg)
