@@ -73,7 +73,8 @@ class GridConfig:
     min_margin: float = 25.0  # the best placement must beat the runner-up by this (nats) to be reported ...
     min_margin_backed: float = 15.0  # ... or by this, where the geometry alone (no network votes) puts it ahead ...
     min_geometry_margin: float = 15.0  # ... by this much (colours, margin evidence, extent; see identity.Placement)
-    min_margin_votes_alone: float = float("inf")  # where the geometry cannot tell the placement from another, the votes must win by this (inf: never reported)
+    # Where the geometry cannot tell the placement from another, the votes must win by this (inf: nothing is reported there).
+    min_margin_votes_alone: float = float("inf")
     min_votes_per_corner: float = 1.2  # ... and by this much per lattice corner (a network biased on a whole view adds up with its size)
     logp_floor: float = -3.0  # network log-probabilities are clamped here (one corner cannot veto a board)
     offboard_penalty: float = 15.0  # per lattice corner a placement puts off the board (verified X-junctions: one is min_geometry_margin)
@@ -98,7 +99,7 @@ class GridConfig:
         0.004  # ... and the network's board map is over 0.5 on this share of its cells (a board too small for it gains nothing) ...
     )
     half_min_shared: int = 4  # ... and taken where both find this many corners at the same places ...
-    half_min_margin_alone: float = 25.0  # ... or where only the half-resolution pass finds a board, with this identity margin (min_margin: the geometry's backing is not enough there)
+    half_min_margin_alone: float = 25.0  # ... or where only the half-resolution pass finds a board, with this identity margin (min_margin)
     half_min_corr: float = 0.5  # a corner only the half-resolution pass finds must correlate with its print this much ...
     half_rim_px: float = 12.0  # ... and lie this far from the image circle's rim (px)
     # --- completion of a placed board ---
