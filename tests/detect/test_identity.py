@@ -187,3 +187,33 @@ def test_margin_evidence_where_the_squares_shrink_towards_the_edge():
     right = {k for k, da, db, e in ev if (da, db) == (1, 0) and e > 0.8}
     assert right == set(np.nonzero(cols[keep] == 8)[0])
     assert not [e for e in ev if (e[1], e[2]) == (-1, 0)]
+
+
+def test_one_verified_corner_off_the_board_backs_a_placement():
+    """A corner patch of 16 corners, 7 columns at its widest and 4 rows, with the board's white
+    margin seen below and left of it (an over-exposed frame's lattice): turned by a quarter it
+    fits the board too, with one corner off it and every margin where the board ends. That one
+    corner is all the geometry has against the turned placement: with the shipped settings it is
+    enough to back the placement (``offboard_penalty`` = ``min_geometry_margin``), so network
+    votes that beat the runner-up by ``min_margin_backed`` report it; at the former 10 per
+    corner it was not."""
+    from cotrain.detect.grid_pass import placement_is_sure
+
+    ids = np.array([18, 27, 28, 29, 36, 37, 38, 39, 40, 45, 46, 47, 48, 49, 50, 51])
+    ab = np.stack([ids % NX, ids // NX], 1)
+    seen = {tuple(x) for x in ab.tolist()}
+    dark = {(i, j): (1.0 if (i + j) % 2 == 0 else -1.0) for i, j in seen if {(i + 1, j), (i, j + 1), (i + 1, j + 1)} <= seen}
+    edges = [(k, 0, 1, 1.0) for k, (i, j) in enumerate(ab) if j == NY - 1 and i < 6]  # the margin below (51: a tip)
+    edges += [(k, -1, 0, 1.0) for k, (i, j) in enumerate(ab) if i == 0]  # and left
+    flat_c = np.full((len(ab), NX + 2), -np.log(NX + 2))
+    flat_r = np.full((len(ab), NY + 2), -np.log(NY + 2))
+    shipped = GridConfig()
+    placed = assign_ids(ab, flat_c, flat_r, dark, BOARD, shipped, edges)
+    np.testing.assert_array_equal(placed.ids, ids)
+    assert placed.geometry_margin == pytest.approx(shipped.offboard_penalty)
+    assert placed.geometry_margin >= shipped.min_geometry_margin
+    assert placement_is_sure(shipped.min_margin_backed + 1, placed.geometry_margin, len(ab), shipped)
+    former = GridConfig(offboard_penalty=10.0)
+    before = assign_ids(ab, flat_c, flat_r, dark, BOARD, former, edges)
+    assert before.geometry_margin == pytest.approx(10.0)
+    assert not placement_is_sure(former.min_margin_backed + 1, before.geometry_margin, len(ab), former)
