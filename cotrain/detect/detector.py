@@ -48,6 +48,20 @@ from cotrain.targets import AprilGrid, Checkerboard, Target
 OUTPUT_VERSION = 8
 
 
+def settings(cfg) -> dict:
+    """A settings dataclass as plain values for a cache key written as strict JSON: a limit that
+    is off (an infinite threshold, ``GridConfig.min_margin_votes_alone``) is its string, "inf"."""
+
+    def plain(v):
+        if isinstance(v, dict):
+            return {k: plain(x) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [plain(x) for x in v]
+        return repr(v) if isinstance(v, float) and not np.isfinite(v) else v
+
+    return plain(dataclasses.asdict(cfg))
+
+
 @dataclass
 class Detection:
     ids: np.ndarray  # (K,) corner ids
@@ -146,7 +160,7 @@ class Detector:
             "threshold": self.threshold,
             "consistency": self.consistency,
             "polish": self.polish,
-            "grid": dataclasses.asdict(self.grid),
+            "grid": settings(self.grid),
         }
 
     def letterbox(self, grey: np.ndarray) -> Letterbox:
@@ -253,7 +267,7 @@ class AprilGridDetector:
 
     def cache_key(self) -> dict:
         """What decides this detector's output: its settings (see :meth:`Detector.cache_key`)."""
-        return {"version": OUTPUT_VERSION, "tag_pass": dataclasses.asdict(self.cfg)}
+        return {"version": OUTPUT_VERSION, "tag_pass": settings(self.cfg)}
 
     def detect(self, image: np.ndarray) -> Detection:
         """Detect corners in one image (any size, 8/16-bit or float, grey or colour)."""

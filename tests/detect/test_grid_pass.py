@@ -373,3 +373,19 @@ def test_half_resolution_pass_only_where_the_network_sees_a_board(monkeypatch):
         seen.clear()
         assert len(det._grid(grey, box, {**out, "mask_prob": mask[None, None]}, det.grid).ids) == 0
         assert seen == runs
+
+
+def test_cache_keys_are_strict_json_and_tell_settings_apart():
+    """The detectors' cache keys (written to a recording's bag.json) are strict JSON although a
+    shipped limit is off (an infinite ``min_margin_votes_alone``), and a limit turned on gives
+    another key."""
+    import json
+
+    from cotrain.detect.detector import AprilGridDetector, Detector
+    from cotrain.targets import AprilGrid
+
+    off = Detector().cache_key()
+    on = Detector(grid=GridConfig(min_margin_votes_alone=35.0)).cache_key()
+    for key in (off, on, AprilGridDetector(AprilGrid()).cache_key()):
+        assert json.loads(json.dumps(key, allow_nan=False)) == key
+    assert off["grid"]["min_margin_votes_alone"] == "inf" and on != off
