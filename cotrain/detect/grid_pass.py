@@ -52,7 +52,7 @@ from scipy.spatial import cKDTree
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.half_resolution import corners_at_half_resolution
 from cotrain.detect.identity import assign_ids, canonical_ids, cell_darkness, corner_votes, edge_evidence
-from cotrain.detect.image_circle import guess_lens
+from cotrain.detect.image_circle import beyond_circle, fit_image_circle, lens_of_circle
 from cotrain.detect.lattice import STEPS, Lattice, grow_lattice, refine_positions, skipped_corners, verify_lattice
 from cotrain.detect.saddle import fit_saddles, outside_circle, saddle_candidates, saddle_response, smooth_cached, window_half
 from cotrain.detect.tag_completion import CompletionConfig, complete_board
@@ -328,7 +328,10 @@ def grid_pass(
     # Work on the crop around the network's corner / board region (all full-resolution filtering
     # scales with its area); crop pixels + offset = input pixels.
     roi = search_region(np.maximum(corner_prob, mask_prob), box, cfg)
+    # The black frame beyond the image circle: not the board's black squares at the rim that join it.
     outside = outside_circle(grey)
+    circle = fit_image_circle(outside)
+    outside = beyond_circle(outside, circle)
     allowed = ~outside
     allowed[[0, -1], :] = False  # the image's own border is a rim too
     allowed[:, [0, -1]] = False
@@ -408,7 +411,7 @@ def grid_pass(
         # Corners the growth did not reach (bent rows at the rim, a blurred stretch), predicted from
         # the identified ones and checked against the print (cotrain.detect.tag_completion); their
         # confidence is the placement's times that check's correlation.
-        lens = guess_lens(outside, cfg.lens_fov, offset)
+        lens = lens_of_circle(circle, cfg.lens_fov, offset)
         # The crop's own edges (where they are not the frame's) cut fit windows as the rim does.
         inside = allowed.copy()
         inside[:, : int(x0 > 0)] = inside[:, inside.shape[1] - int(x1 < outside.shape[1]) :] = False

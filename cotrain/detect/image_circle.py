@@ -143,10 +143,35 @@ def guess_lens(outside: np.ndarray, fov_deg: float, offset: tuple[float, float] 
     of the black frame ``outside`` (H, W) bool (:func:`fit_image_circle`), in the pixels of a
     crop whose top-left corner is at ``offset`` (x, y) in the frame; None where ``fov_deg`` is 0
     (pixel homographies wanted) or no circle shows."""
-    circle = fit_image_circle(outside) if fov_deg > 0 else None
-    if circle is None:
+    return lens_of_circle(fit_image_circle(outside) if fov_deg > 0 else None, fov_deg, offset)
+
+
+def lens_of_circle(
+    circle: tuple[np.ndarray, float] | None, fov_deg: float, offset: tuple[float, float] = (0.0, 0.0)
+) -> EquidistantLens | None:
+    """:func:`guess_lens` from an image circle already fitted (centre (2,) and radius, frame
+    pixels; None: no circle)."""
+    if circle is None or fov_deg <= 0:
         return None
     return EquidistantLens.from_circle(circle[0] - np.asarray(offset, np.float64), circle[1], fov_deg)
+
+
+CIRCLE_INSIDE_PX = 2.0  # beyond_circle: the black frame's region is kept this far inside the fitted circle (the fit's tolerance)
+
+
+def beyond_circle(outside: np.ndarray, circle: tuple[np.ndarray, float] | None) -> np.ndarray:
+    """(H, W) bool: the black frame ``outside`` (H, W) bool (:func:`cotrain.detect.saddle.outside_circle`)
+    where it lies beyond its image ``circle`` (:func:`fit_image_circle`) less
+    :data:`CIRCLE_INSIDE_PX`; all of it where there is no circle. Under vignetting the black
+    squares of a board at the rim join the frame's dark region and reach far into the circle;
+    counted as frame, their corners look cut by the rim and no saddle fit holds there."""
+    if circle is None:
+        return outside
+    (cx, cy), r = circle
+    inside = np.zeros(outside.shape, np.uint8)
+    shift = 4  # the circle drawn to 1/16 px
+    cv2.circle(inside, (round(cx * 16), round(cy * 16)), max(round((r - CIRCLE_INSIDE_PX) * 16), 0), 1, -1, cv2.LINE_8, shift)
+    return outside & (inside == 0)
 
 
 def _narrowing_circle(p: np.ndarray) -> tuple[np.ndarray, float] | None:

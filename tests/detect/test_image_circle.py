@@ -5,7 +5,14 @@ import cv2
 import numpy as np
 import pytest
 
-from cotrain.detect.image_circle import EquidistantLens, fit_image_circle, local_views, parallelogram_corner, ray_homographies
+from cotrain.detect.image_circle import (
+    EquidistantLens,
+    beyond_circle,
+    fit_image_circle,
+    local_views,
+    parallelogram_corner,
+    ray_homographies,
+)
 from cotrain.detect.saddle import black_level, half_blurred, outside_circle
 from cotrain.detect.tag_pass import TagConfig, decode_bits, look_at_tag, shortest_side
 from cotrain.targets import TargetConfig, make_target
@@ -128,6 +135,23 @@ def test_fit_image_circle_finds_the_circle_whole_or_cut_by_the_frame(c, r, dark_
     assert fit is not None
     np.testing.assert_allclose(fit[0], c, atol=0.5)
     assert fit[1] == pytest.approx(r, abs=2.5)
+
+
+def test_beyond_circle_leaves_out_dark_scene_joined_to_the_frame():
+    """A dark part of the scene joined to the black frame over 90 degrees (as a board's black
+    squares at the rim join it under vignetting): the frame's region reaches far into the image
+    circle; beyond_circle keeps the frame beyond the fitted circle (less 2 px) and drops the
+    rest, and gives the region back whole where no circle was fitted."""
+    c, r = (640.0, 360.0), 340.0
+    outside = outside_circle(circle_frame(720, 1280, c, r, 90.0, 0.02))
+    y, x = np.mgrid[:720, :1280]
+    dist = np.hypot(x - c[0], y - c[1])
+    assert outside[dist < r - 20].mean() > 0.05  # the dark sector, inside the circle, counted as frame
+    kept = beyond_circle(outside, fit_image_circle(outside))
+    assert not kept[dist < r - 3].any()  # nothing inside the circle
+    np.testing.assert_array_equal(kept[dist > r + 3], outside[dist > r + 3])  # the frame as it was
+    assert kept[dist > r + 3].mean() > 0.99
+    assert beyond_circle(outside, None) is outside
 
 
 @pytest.mark.parametrize("noise", [0.0, 0.004])
