@@ -52,9 +52,9 @@ from scipy.spatial import cKDTree
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.half_resolution import corners_at_half_resolution
 from cotrain.detect.identity import assign_ids, canonical_ids, cell_darkness, corner_votes, edge_evidence
-from cotrain.detect.image_circle import beyond_circle, fit_image_circle, lens_of_circle
+from cotrain.detect.image_circle import beyond_circle, lens_of_circle
 from cotrain.detect.lattice import STEPS, Lattice, grow_lattice, refine_positions, skipped_corners, verify_lattice
-from cotrain.detect.saddle import fit_saddles, outside_circle, saddle_candidates, saddle_response, smooth_cached, window_half
+from cotrain.detect.saddle import fit_saddles, outside_and_circle, saddle_candidates, saddle_response, smooth_cached, window_half
 from cotrain.detect.tag_completion import CompletionConfig, complete_board
 from cotrain.geometry.letterbox import CELLS, Letterbox
 from cotrain.targets import ROTATIONS, Checkerboard
@@ -329,8 +329,7 @@ def grid_pass(
     # scales with its area); crop pixels + offset = input pixels.
     roi = search_region(np.maximum(corner_prob, mask_prob), box, cfg)
     # The black frame beyond the image circle: not the board's black squares at the rim that join it.
-    outside = outside_circle(grey)
-    circle = fit_image_circle(outside)
+    outside, circle = outside_and_circle(grey)
     outside = beyond_circle(outside, circle)
     allowed = ~outside
     allowed[[0, -1], :] = False  # the image's own border is a rim too

@@ -432,14 +432,28 @@ def outside_circle(grey: np.ndarray, dark: float = 0.04, grow_px: int = 1) -> np
     ``LIFTED_DARK`` instead, if what that finds outlines an image circle
     (:func:`cotrain.detect.image_circle.fit_image_circle`; a dim wall at a full frame's border
     does not)."""
+    return _black_frame(grey, dark, grow_px, fit_always=False)[0]
+
+
+def outside_and_circle(grey: np.ndarray, dark: float = 0.04, grow_px: int = 1) -> tuple[np.ndarray, tuple[np.ndarray, float] | None]:
+    """:func:`outside_circle` and the image circle fitted to it
+    (:func:`cotrain.detect.image_circle.fit_image_circle`; None where none is), fitted once."""
+    return _black_frame(grey, dark, grow_px, fit_always=True)
+
+
+def _black_frame(grey: np.ndarray, dark: float, grow_px: int, fit_always: bool) -> tuple[np.ndarray, tuple[np.ndarray, float] | None]:
+    """:func:`outside_circle`'s region and its image circle: the one the lifted-black test fits,
+    else (``fit_always``) fitted to the region found under ``dark``, else None."""
     H, W = grey.shape
     small = half_blurred(grey)
     level = black_level(small)
     if level > BLACK_AS_ZERO:
         lifted = _dark_at_border(small, level + LIFTED_DARK, (H, W), grow_px)
-        if fit_image_circle(lifted) is not None:
-            return lifted
-    return _dark_at_border(small, dark, (H, W), grow_px)
+        circle = fit_image_circle(lifted)
+        if circle is not None:
+            return lifted, circle
+    out = _dark_at_border(small, dark, (H, W), grow_px)
+    return out, (fit_image_circle(out) if fit_always else None)
 
 
 def _dark_at_border(small: np.ndarray, below: float, shape: tuple[int, int], grow_px: int) -> np.ndarray:

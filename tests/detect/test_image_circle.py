@@ -13,7 +13,7 @@ from cotrain.detect.image_circle import (
     parallelogram_corner,
     ray_homographies,
 )
-from cotrain.detect.saddle import black_level, half_blurred, outside_circle
+from cotrain.detect.saddle import black_level, half_blurred, outside_and_circle, outside_circle
 from cotrain.detect.tag_pass import TagConfig, decode_bits, look_at_tag, shortest_side
 from cotrain.targets import TargetConfig, make_target
 from tests.detect.test_tag_pass import centre, render
@@ -171,6 +171,26 @@ def test_a_lifted_black_frame_is_still_the_frame(noise):
     assert fit is not None
     np.testing.assert_allclose(fit[0], c, atol=0.5)
     assert fit[1] == pytest.approx(r, abs=2.5)
+
+
+def test_outside_and_circle_is_the_region_and_its_fit():
+    """outside_and_circle gives what outside_circle and fit_image_circle give apart, with one fit:
+    a zero-black frame with dark scene joined to it, a camera's lifted black, and a full frame
+    (no circle)."""
+    c, r = (640.0, 360.0), 340.0
+    plain = circle_frame(720, 1280, c, r, 90.0, 0.02)
+    lifted = (circle_frame(720, 1280, c, r) * (239 / 255) + 16 / 255).astype(np.float32)
+    full = np.full((720, 1280), 0.4, np.float32)
+    for img in (plain, lifted, full):
+        outside, circle = outside_and_circle(img)
+        np.testing.assert_array_equal(outside, outside_circle(img))
+        fit = fit_image_circle(outside)
+        assert (circle is None) == (fit is None)
+        if fit is not None:
+            np.testing.assert_allclose(circle[0], fit[0], atol=1e-9)
+            assert circle[1] == pytest.approx(fit[1], abs=1e-9)
+            np.testing.assert_allclose(circle[0], c, atol=0.5)
+    assert outside_and_circle(full)[1] is None and outside_and_circle(plain)[1] is not None
 
 
 def test_black_level_is_zero_without_a_flat_dark_border():
