@@ -125,7 +125,7 @@ def fit_image_circle(outside: np.ndarray) -> tuple[np.ndarray, float] | None:
 
     fit = _narrowing_circle(p)
     if fit is not None:
-        keep = np.abs(np.linalg.norm(p - fit[0], axis=1) - fit[1]) < INLIER_PX
+        keep = _near_circle(p, *fit, INLIER_PX)
         if keep.sum() < MIN_ARC_PX or keep.mean() < MIN_INLIERS:
             fit = None
     if not passes(fit):
@@ -182,7 +182,7 @@ def _narrowing_circle(p: np.ndarray) -> tuple[np.ndarray, float] | None:
         if fit is None:
             return None
         centre, radius = fit
-        keep = np.abs(np.linalg.norm(p - centre, axis=1) - radius) < max(band * radius, INLIER_PX)
+        keep = _near_circle(p, centre, radius, max(band * radius, INLIER_PX))
         if keep.sum() < MIN_ARC_PX:
             return None
         fit = _algebraic_circle(p[keep])
@@ -202,16 +202,19 @@ def _consensus_circle(p: np.ndarray, shape: tuple[int, int], seed: int = 0) -> t
     b = (tri[:, 1:] ** 2).sum(2) - (tri[:, :1] ** 2).sum(2)  # (T, 2)
     ok = np.abs(np.linalg.det(A)) > 1e-6
     c = np.linalg.solve(np.where(ok[:, None, None], A, np.eye(2)), np.where(ok[:, None], b, 0.0)[..., None])[..., 0]
-    r = np.linalg.norm(tri[:, 0] - c, axis=1)
+    r = np.hypot(tri[:, 0, 0] - c[:, 0], tri[:, 0, 1] - c[:, 1])
     ok &= (r > 0.2 * min(H, W)) & (r < 2 * max(H, W))
-    on = np.abs(np.linalg.norm(sub[None] - c[:, None], axis=2) - r[:, None]) < INLIER_PX  # (T, n)
+    # Within INLIER_PX of a circle: squared distances between (r - INLIER_PX)^2 and (r + INLIER_PX)^2 (no roots).
+    d2 = (sub[None, :, 0] - c[:, None, 0]) ** 2 + (sub[None, :, 1] - c[:, None, 1]) ** 2  # (T, n)
+    lo = np.maximum(r - INLIER_PX, 0.0) ** 2
+    on = (d2 > lo[:, None]) & (d2 < ((r + INLIER_PX) ** 2)[:, None])
     score = np.where(ok, on.sum(1), -1)
     k = int(np.argmax(score))
     if score[k] < 3:
         return None
     centre, radius = c[k], r[k]
     for _ in range(3):
-        keep = np.abs(np.linalg.norm(p - centre, axis=1) - radius) < INLIER_PX
+        keep = _near_circle(p, centre, radius, INLIER_PX)
         if keep.sum() < MIN_ARC_PX:
             return None
         fit = _algebraic_circle(p[keep])
@@ -233,14 +236,33 @@ def _black_all_around(outside: np.ndarray, centre: np.ndarray, radius: float) ->
     return bool(seen.sum() >= 36 and outside[yi, xi].mean() >= MIN_RING_OUTSIDE)
 
 
+def _near_circle(p: np.ndarray, centre: np.ndarray, radius: float, band: float) -> np.ndarray:
+    """(N,) bool: the points p (N, 2) within ``band`` of the circle (``centre`` (2,), ``radius``)."""
+    return np.abs(np.hypot(p[:, 0] - centre[0], p[:, 1] - centre[1]) - radius) < band
+
+
 def _algebraic_circle(p: np.ndarray) -> tuple[np.ndarray, float] | None:
     """The least-squares circle ``|p|^2 = 2 c . p + (r^2 - |c|^2)`` through points p (N, 2): its
-    centre (2,) and radius; None where the points fit no circle."""
-    A = np.concatenate([p, np.ones((len(p), 1))], 1)
-    sol = np.linalg.lstsq(A, (p**2).sum(1), rcond=None)[0]
-    centre = sol[:2] / 2
-    r2 = sol[2] + centre @ centre
-    return (centre, float(np.sqrt(r2))) if np.isfinite(r2) and r2 > 0 else None
+    centre (2,) and radius; None where the points fit no circle (fewer than three, or on a line).
+
+    Solved about the points' mean, where the normal equations split into a 2 x 2 system for the
+    centre and the mean for the constant (the same least-squares circle: moving the points moves
+    it with them), in sums rather than a factorisation of the (N, 3) system (about 10x faster on the
+    few thousand edge pixels of a frame)."""
+    if len(p) < 3:
+        return None
+    m = p.mean(0)
+    u, v = p[:, 0] - m[0], p[:, 1] - m[1]
+    z = u * u + v * v
+    suu, suv, svv = float(u @ u), float(u @ v), float(v @ v)
+    det = suu * svv - suv * suv
+    if not det > 1e-12 * max(suu * svv, 1e-300):
+        return None
+    suz, svz = float(u @ z), float(v @ z)
+    a, b = (svv * suz - suv * svz) / det, (suu * svz - suv * suz) / det  # 2 c, about the mean
+    cx, cy = a / 2, b / 2
+    r2 = float(z.mean()) + cx * cx + cy * cy
+    return (np.array([m[0] + cx, m[1] + cy]), float(np.sqrt(r2))) if np.isfinite(r2) and r2 > 0 else None
 
 
 def ray_homographies(v_corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -26,6 +26,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
+import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -102,10 +103,42 @@ def corner_rays(img: np.ndarray, xy: np.ndarray, radius: np.ndarray) -> np.ndarr
     return out
 
 
+@numba.njit(cache=True, nogil=True)
+def _bilinear(img, x, y):
+    """:func:`value_at` compiled, for points within a pixel of ``img`` (H, W) (border replicated
+    as there); NaN farther out."""
+    H, W = img.shape
+    if not (-1.0 <= x <= W and -1.0 <= y <= H):
+        return np.nan
+    fx0, fy0 = math.floor(x), math.floor(y)
+    fx, fy = x - fx0, y - fy0
+    x0, y0 = int(fx0), int(fy0)
+    x1, y1 = min(max(x0 + 1, 0), W - 1), min(max(y0 + 1, 0), H - 1)
+    x0, y0 = min(max(x0, 0), W - 1), min(max(y0, 0), H - 1)
+    return (1 - fy) * ((1 - fx) * img[y0, x0] + fx * img[y0, x1]) + fy * ((1 - fx) * img[y1, x0] + fx * img[y1, x1])
+
+
+@numba.njit(cache=True, nogil=True)
+def _diag_kernel(img, px, py, ax, ay, bx, by, offset):
+    """:func:`_diag_contrast` in scalars, compiled; NaN where a sample lies over a pixel outside ``img``."""
+    d1x, d1y, d2x, d2y = offset * (ax + bx), offset * (ay + by), offset * (ax - bx), offset * (ay - by)
+    return (
+        _bilinear(img, px + d2x, py + d2y)
+        + _bilinear(img, px - d2x, py - d2y)
+        - _bilinear(img, px + d1x, py + d1y)
+        - _bilinear(img, px - d1x, py - d1y)
+    )
+
+
 def _diag_contrast(img: np.ndarray, p: np.ndarray, ea: np.ndarray, eb: np.ndarray, offset: float) -> float:
     """Brightness of the (+a, -b) / (-a, +b) quadrants minus the (+a, +b) / (-a, -b) ones around
     corner ``p`` (2,) (steps ``ea``, ``eb`` (2,), sampled ``offset`` of the way along the
-    diagonals): its sign alternates between lattice neighbours on a checker."""
+    diagonals): its sign alternates between lattice neighbours on a checker. (Compiled: the
+    growth asks it for every step it tries, 60 times a frame; ``img`` float32.)"""
+    if img.dtype == np.float32 and img.flags.c_contiguous:
+        c = _diag_kernel(img, float(p[0]), float(p[1]), float(ea[0]), float(ea[1]), float(eb[0]), float(eb[1]), float(offset))
+        if c == c:
+            return float(c)
     d1, d2 = offset * (ea + eb), offset * (ea - eb)
     return value_at(img, p + d2) + value_at(img, p - d2) - value_at(img, p + d1) - value_at(img, p - d1)
 
@@ -209,8 +242,27 @@ def step_has_edge(img: np.ndarray, p: np.ndarray, q: np.ndarray, o: np.ndarray, 
     ``cfg.min_step_edge_contrast`` of that contrast. Between two lattice neighbours lies the edge of
     a black and a white square; a step across the board's white margin to another pattern, or a
     knight's move, has no such edge all along."""
+    if img.dtype == np.float32 and img.flags.c_contiguous:  # compiled: the growth asks for every step it takes
+        px, py, qx, qy, ox, oy = float(p[0]), float(p[1]), float(q[0]), float(q[1]), float(o[0]), float(o[1])
+        return _edge_kernel(img, px, py, qx, qy, ox, oy, float(depth), math.copysign(1.0, parent), cfg.min_step_edge_contrast * abs(parent))
     c = edge_contrasts(img, p, q, o, depth) * math.copysign(1.0, parent)
     return bool(np.all(c >= cfg.min_step_edge_contrast * abs(parent)))
+
+
+@numba.njit(cache=True, nogil=True)
+def _edge_kernel(img, px, py, qx, qy, ox, oy, depth, sign, least):
+    """:func:`step_has_edge` in scalars, compiled: whether ``sign`` times the contrasts of
+    :func:`edge_contrasts` all reach ``least`` (False where a sample lies outside ``img``, as
+    :func:`values_at` gives NaN there)."""
+    H, W = img.shape
+    dx, dy, sx, sy = qx - px, qy - py, depth * ox, depth * oy
+    for t in (0.25, 0.5, 0.75):
+        ax, ay, bx, by = px + t * dx + sx, py + t * dy + sy, px + t * dx - sx, py + t * dy - sy
+        if not (0.0 <= ax <= W - 1 and 0.0 <= ay <= H - 1 and 0.0 <= bx <= W - 1 and 0.0 <= by <= H - 1):
+            return False
+        if not sign * (_bilinear(img, ax, ay) - _bilinear(img, bx, by)) >= least:
+            return False
+    return True
 
 
 def _bright_side(da: int, db: int, sa: np.ndarray, sb: np.ndarray) -> np.ndarray:

@@ -323,7 +323,7 @@ def fit_saddles(
     far: a corner cut by the image circle keeps enough of its X-junction only in a small window.
     Returns xy (K, 2), ok (K,), axes (K, 2, 2) as :func:`saddle_fit`."""
     q, ok, axes = saddle_fit(smooth_cached(smoothed, grey, half), xy, half, cfg=cfg, rim_dist=rim_dist)
-    if rim_dist is None:
+    if rim_dist is None or ok.all():
         return q, ok, axes
     H, W = rim_dist.shape
     xi = pixel_index(xy, W, H)
@@ -462,8 +462,8 @@ def _dark_at_border(small: np.ndarray, below: float, shape: tuple[int, int], gro
     H, W = shape
     # Framed by one more dark pixel all round, every region that touches the border joins the frame's.
     dark = cv2.copyMakeBorder((small < below).astype(np.uint8), 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=1)
-    _, lab = cv2.connectedComponents(dark, connectivity=4)
-    at_border = (lab[1:-1, 1:-1] == lab[0, 0]).view(np.uint8)
+    cv2.floodFill(dark, None, (0, 0), 2, flags=4)  # the frame's region, 4-connected (a third of labelling every region)
+    at_border = (dark[1:-1, 1:-1] == 2).view(np.uint8)
     out = cv2.resize(at_border, (W, H), interpolation=cv2.INTER_NEAREST)
     k = 2 * grow_px + 1
     return cv2.dilate(out, np.ones((k, k), np.uint8)) > 0

@@ -282,3 +282,26 @@ def _large_tags_read(model: str) -> int:
     assert n >= 10
     assert through_lens == n, f"{model}: {n - through_lens} of {n} large tags not read through the lens"
     return n - through_pixels
+
+
+def test_algebraic_circle_known_values_and_numpy_least_squares():
+    """Points on a known circle (an arc of it, with noise) give that circle; the fit solved about
+    the points' mean is numpy's least-squares solution of the (N, 3) system; points on a line,
+    or fewer than three, fit no circle."""
+    from cotrain.detect.image_circle import _algebraic_circle
+
+    rng = np.random.default_rng(5)
+    a = rng.uniform(0.3, 2.0, 400)
+    p = np.stack([612.5 + 431.0 * np.cos(a), 355.25 + 431.0 * np.sin(a)], 1)
+    centre, radius = _algebraic_circle(p)
+    np.testing.assert_allclose(centre, [612.5, 355.25], atol=1e-6)
+    assert radius == pytest.approx(431.0, abs=1e-6)
+    noisy = p + rng.normal(0, 1.0, p.shape)
+    sol = np.linalg.lstsq(np.concatenate([noisy, np.ones((len(noisy), 1))], 1), (noisy**2).sum(1), rcond=None)[0]
+    c_ref = sol[:2] / 2
+    centre, radius = _algebraic_circle(noisy)
+    np.testing.assert_allclose(centre, c_ref, atol=1e-6)
+    assert radius == pytest.approx(np.sqrt(sol[2] + c_ref @ c_ref), abs=1e-6)
+    line = np.stack([np.arange(300.0), 2 * np.arange(300.0) + 5], 1)
+    assert _algebraic_circle(line) is None
+    assert _algebraic_circle(p[:2]) is None

@@ -308,3 +308,39 @@ def test_a_seed_finds_its_neighbour_along_a_bent_side_of_a_large_square():
     assert neighbour(at(0.9 * cfg.seed_bend_px, 30.0)) is None  # squares under seed_bend_px: the strict angle only
     assert neighbour(at(60.0, 40.0)) is None  # beyond seed_bend_angle
     assert neighbour(bent, cfg=GridConfig(seed_bend_angle=0.0)) is None  # off
+
+
+def test_compiled_colour_tests_match_their_sampled_definitions():
+    """The growth's compiled colour tests against their definitions through OpenCV's samplers:
+    the quadrant contrast against four cv2.getRectSubPix values (to float32 rounding), inside the
+    image and up to a few pixels beyond it (border replicated there, as getRectSubPix does); the
+    edge test against the three contrasts of cv2.remap samples (NaN outside: no edge), on random
+    steps over a smooth random image, both answers of the test among them."""
+    import math
+
+    import cv2
+
+    from cotrain.detect.grid_config import GridConfig
+    from cotrain.detect.lattice import _diag_contrast, edge_contrasts, step_has_edge, value_at
+
+    cfg = GridConfig()
+    rng = np.random.default_rng(3)
+    img = cv2.GaussianBlur(rng.random((120, 160)).astype(np.float32), (0, 0), 3.0)
+    for _ in range(2000):
+        p = rng.uniform([-4, -4], [164, 124])
+        ea, eb = rng.normal(0, 8, 2), rng.normal(0, 8, 2)
+        d1, d2 = 0.3 * (ea + eb), 0.3 * (ea - eb)
+        ref = value_at(img, p + d2) + value_at(img, p - d2) - value_at(img, p + d1) - value_at(img, p - d1)
+        assert _diag_contrast(img, p, ea, eb, 0.3) == pytest.approx(ref, abs=1e-4)
+    answers = []
+    for _ in range(3000):
+        p = rng.uniform([-3, -3], [163, 123])
+        q = p + rng.normal(0, 12, 2)
+        o = rng.normal(0, 1, 2)
+        o /= np.linalg.norm(o)
+        parent = rng.normal(0, 0.01)
+        c = edge_contrasts(img, p, q, o, 3.0) * math.copysign(1.0, parent)
+        ref = bool(np.all(c >= cfg.min_step_edge_contrast * abs(parent)))
+        assert step_has_edge(img, p, q, o, 3.0, parent, cfg) == ref
+        answers.append(ref)
+    assert 0.02 < np.mean(answers) < 0.98
