@@ -145,8 +145,28 @@ def export_onnx(
 # Convolutions kept in float: int8 in the heads and the first side output moved column / row votes
 # enough to flip a board's identity. (The decoder stage dec2, a third of the network's time in float,
 # is int8: with it the detector keeps its FoV recall and wrong corners on every kept set,
-# docs/results/size_curve.md.)
+# docs/results/size_curve.md.) The second side convolution, 8 -> 8 channels at the full
+# processing size, runs faster in float (1.9 ms against 2.7 in int8) but is kept int8: in float
+# it moved the maps enough for one lattice at a 240-degree rim to slip by a row (seed 11, fov240_033).
 KEEP_FLOAT = ("model.head_", "model.side.0")
+
+
+def add_logit_outputs(proto) -> None:
+    """Give an ONNX graph of the dense maps the inputs of the log-softmax of ``col_logp`` and
+    ``row_logp`` as outputs of their own (:data:`cotrain.model.outputs.LOGITS`), in place."""
+    from onnx import TensorProto, helper
+
+    from cotrain.model.outputs import LOGITS
+
+    g = proto.graph
+    source = {n.output[0]: n for n in g.node if n.op_type == "LogSoftmax"}
+    for logp, logits in LOGITS.items():
+        node = source.get(logp)
+        if node is None:
+            raise ExportError(f"the graph computes no {logp} by a LogSoftmax")
+        g.node.append(helper.make_node("Identity", [node.input[0]], [logits], name=f"{logits}_output"))
+        shape = [d.dim_param or d.dim_value for d in next(o for o in g.output if o.name == logp).type.tensor_type.shape.dim]
+        g.output.append(helper.make_tensor_value_info(logits, TensorProto.FLOAT, shape))
 
 
 def quantize_dense(
@@ -170,7 +190,7 @@ def quantize_dense(
     from onnxruntime.quantization.shape_inference import quant_pre_process
 
     from cotrain.config import from_dict
-    from cotrain.model.outputs import DENSE_OUTPUTS
+    from cotrain.model.outputs import DENSE_OUTPUTS, LOGITS, log_softmax_channels
 
     proto = onnx.load(str(model))
     meta = {p.key: p.value for p in proto.metadata_props}
@@ -209,6 +229,7 @@ def quantize_dense(
             nodes_to_exclude=exclude,
         )
         qproto = onnx.load(str(q))
+        add_logit_outputs(qproto)
         del qproto.metadata_props[:]
         for k, v in {**meta, SOURCE_KEY: file_sha256(model)}.items():
             entry = qproto.metadata_props.add()
@@ -219,4 +240,10 @@ def quantize_dense(
     ref = ort.InferenceSession(dense.SerializeToString(), providers=["CPUExecutionProvider"]).run(list(DENSE_OUTPUTS), {INPUT: check})
     got = ort.InferenceSession(str(out), providers=["CPUExecutionProvider"]).run(list(DENSE_OUTPUTS), {INPUT: check})
     diff = {n: float(np.abs(a - b).max()) for n, a, b in zip(DENSE_OUTPUTS, ref, got)}
+    logits = ort.InferenceSession(str(out), providers=["CPUExecutionProvider"]).run(list(LOGITS.values()), {INPUT: check})
+    maps = dict(zip(DENSE_OUTPUTS, got))
+    for (logp, name), x in zip(LOGITS.items(), logits):
+        d = float(np.abs(log_softmax_channels(x) - maps[logp]).max())
+        if d > 1e-4:
+            raise ExportError(f"{name}: its log-softmax differs from {logp} by {d}")
     return {"out": str(out), "max_diff": diff, "calibration_images": n_calib}

@@ -32,7 +32,7 @@ from cotrain.detect.onnx_model import OnnxModel, default_grid_model_path
 from cotrain.detect.saddle import saddle_fit, smooth_for, window_half
 from cotrain.detect.tag_pass import TagConfig, tag_pass
 from cotrain.geometry.letterbox import Letterbox
-from cotrain.model.outputs import DENSE_OUTPUTS
+from cotrain.model.outputs import DENSE_OUTPUTS, GRID_OUTPUTS, dense_maps
 from cotrain.targets import AprilGrid, Checkerboard, Target
 
 # Raised when a change of the code (not of the settings or the model) changes what the detectors
@@ -145,8 +145,11 @@ class Detector:
             raise ValueError("slot mode reads the model's own corner ids: it needs the board the model was trained on")
         self.mode = mode
         self.grid = grid or GridConfig()
+        # What the grid pass has the network compute: the dense maps, with the column / row maps as
+        # logits where the graph gives them (their log-softmax is taken in finish, beside the network).
+        self.dense = GRID_OUTPUTS if self.net.has_logits else DENSE_OUTPUTS
         if mode == "grid":
-            self.net.keep(DENSE_OUTPUTS)  # the per-slot heads are not run
+            self.net.keep(self.dense)  # the per-slot heads are not run
         self.net.session  # noqa: B018 (a model onnxruntime cannot load fails here, not on the first image)
 
     def cache_key(self) -> dict:
@@ -181,6 +184,7 @@ class Detector:
         ``cfg.half_min_board_share`` of its map, also at half resolution with the same network
         outputs (:func:`cotrain.detect.grid_pass.merge_half_resolution`: a board whose corners are
         too blurred at full resolution)."""
+        out = dense_maps(out)
         logp_col, logp_row = out["col_logp"][0], out["row_logp"][0]
         if not self.board_votes:
             logp_col = np.zeros((self.nx + 2, *logp_col.shape[1:]), np.float32)
@@ -200,7 +204,7 @@ class Detector:
         (default the detector's own settings)."""
         grey = self._grey(image)
         box = self.letterbox(grey)
-        out = self.net.run(box.apply(grey)[None, None], DENSE_OUTPUTS)
+        out = self.net.run(box.apply(grey)[None, None], self.dense)
         return self._grid(grey, box, out, grid or self.grid)
 
     def detect(self, image: np.ndarray) -> Detection:

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cotrain.model.outputs import DENSE_OUTPUTS, INPUT, SLOT_OUTPUTS, SOURCE_KEY, file_sha256
+from cotrain.model.outputs import DENSE_OUTPUTS, INPUT, LOGITS, SLOT_OUTPUTS, SOURCE_KEY, file_sha256
 from cotrain.targets import Checkerboard, Target, TargetError, target_from_json
 
 
@@ -89,7 +89,12 @@ class OnnxModel:
         if not (self.has_dense or self.has_slots):
             missing = [n for n in SLOT_OUTPUTS + DENSE_OUTPUTS if n not in names]
             raise ValueError(f"{self.path}: the model lacks the outputs {', '.join(missing)}")
-        self.outputs = (SLOT_OUTPUTS if self.has_slots else ()) + (DENSE_OUTPUTS if self.has_dense else ())
+        self.has_logits = all(n in names for n in LOGITS.values())  # the int8 graph's column / row maps before the log-softmax
+        self.outputs = (
+            (SLOT_OUTPUTS if self.has_slots else ())
+            + (DENSE_OUTPUTS if self.has_dense else ())
+            + (tuple(LOGITS.values()) if self.has_logits else ())
+        )
         self._proto, self._threads, self._session = proto, threads, None
         if only is not None:
             self.keep(only)

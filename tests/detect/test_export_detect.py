@@ -13,7 +13,7 @@ from cotrain.detect.detector import Detector
 from cotrain.detect.images import expand_inputs, load_image
 from cotrain.detect.onnx_model import OnnxModel
 from cotrain.io.detections import detect_files
-from cotrain.model.outputs import DENSE_OUTPUTS
+from cotrain.model.outputs import DENSE_OUTPUTS, GRID_OUTPUTS, dense_maps
 from cotrain.model.train import TrainConfig, finalize_config, train
 from cotrain.render.renderer import render_batch
 from cotrain.targets import Checkerboard, TargetConfig
@@ -81,9 +81,17 @@ def test_int8_graph_for_the_grid_pass(tiny_onnx, tmp_path):
     ops = {n.op_type for n in onnx.load(str(out)).graph.node}
     assert "QuantizeLinear" in ops and "DequantizeLinear" in ops
     net = OnnxModel(out)
-    assert net.outputs == DENSE_OUTPUTS and not net.has_slots and net.input_size == (64, 96)
+    assert net.outputs == DENSE_OUTPUTS + ("col_logits", "row_logits") and not net.has_slots and net.input_size == (64, 96)
     assert r["max_diff"]["corner_prob"] < 0.25 and r["max_diff"]["mask_prob"] < 0.25
-    Detector(out).detect(np.random.default_rng(0).random((120, 200)).astype(np.float32))
+    # The grid pass runs the logits, without the graph's log-softmax, and takes it itself: the same maps.
+    det = Detector(out)
+    assert det.net.outputs == GRID_OUTPUTS
+    assert "LogSoftmax" not in {n.op_type for n in det.net._proto.graph.node}
+    x = np.random.default_rng(2).random((1, 1, 64, 96)).astype(np.float32)
+    given, taken = net.run(x), dense_maps(det.net.run(x))
+    for n in DENSE_OUTPUTS:
+        np.testing.assert_allclose(taken[n], given[n], atol=1e-5)
+    det.detect(np.random.default_rng(0).random((120, 200)).astype(np.float32))
     with pytest.raises(ValueError, match="no per-slot outputs"):
         Detector(out, mode="slots")
 
