@@ -57,6 +57,7 @@ class GridConfig:
     oblique_ratio: float = 2.0  # squares with sides over this ratio are "oblique": a failed refit is retried with a smaller window
     max_refit_shift: float = 0.15  # a verifying refit must land within this fraction of the square on the corner
     max_rim_edge_angle: float = 15.0  # deg: a corner fitted in a window cut by the rim must have its edges along the lattice lines
+    max_border_edge_angle: float = 30.0  # deg: ... where only the image's border cuts it (no dark rim in reach to make a half X)
     rim_borrowed_angle: float = 30.0  # deg: ... and along an axis without a neighbour, the axis a neighbour across measures (0: off)
     max_skipped: float = 0.3  # share of lattice steps (cells) with an X-junction at the midpoint (centre) that drops a lattice
     skip_response_ratio: float = 0.5  # a midpoint (centre) is an X-junction when its response exceeds this x that of the weakest end

@@ -345,6 +345,7 @@ def grid_pass(
     offset = np.array([x0, y0], np.float64)
     cfg = contrast_scaled(cfg, grey, roi)
     rim_dist = cv2.distanceTransform(allowed.astype(np.uint8), cv2.DIST_L2, 3)
+    crop_circle = None if circle is None else (circle[0] - offset, circle[1])  # the image circle in crop pixels
     smoothed: dict[int, np.ndarray] = {}
     response = saddle_response(grey)
     xy, axes = find_candidates(grey, roi, offset, box, corner_prob, cfg, smoothed, rim_dist, response)
@@ -369,7 +370,7 @@ def grid_pass(
         covered |= cKDTree(lat.xy).query(xy)[0] < cfg.merge_radius_px
         if len(lat.ab) < cfg.min_corners:
             continue  # (the verification only drops corners)
-        lat = verify_lattice(lat, grey, cfg, smoothed, rim_dist)
+        lat = verify_lattice(lat, grey, cfg, smoothed, rim_dist, crop_circle)
         if len(lat.ab) < cfg.min_corners or skipped_corners(lat, response, cfg) > cfg.max_skipped:
             continue
         if CELLS.sample(mask_prob[None], box.to_processing(lat.xy + offset))[:, 0].mean() < cfg.min_board_prob:
@@ -379,7 +380,7 @@ def grid_pass(
         # Joined lattices are placed beside their parts (a part alone can be surer), verified
         # again with their corners' final neighbours.
         parts = {id(x) for x in grown}
-        joined = [verify_lattice(x, grey, cfg, smoothed, rim_dist) for x in join_lattices(grown, cfg) if id(x) not in parts]
+        joined = [verify_lattice(x, grey, cfg, smoothed, rim_dist, crop_circle) for x in join_lattices(grown, cfg) if id(x) not in parts]
         grown += [x for x in joined if len(x.ab) >= cfg.min_corners and skipped_corners(x, response, cfg) <= cfg.max_skipped]
     for lat in grown:
         blur1 = smooth_cached(smoothed, grey, -1)

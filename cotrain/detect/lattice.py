@@ -502,7 +502,12 @@ def _largest_component(lat: Lattice) -> np.ndarray:
 
 
 def verify_lattice(
-    lat: Lattice, grey: np.ndarray, cfg: GridConfig, smoothed: dict[int, np.ndarray], rim_dist: np.ndarray | None = None
+    lat: Lattice,
+    grey: np.ndarray,
+    cfg: GridConfig,
+    smoothed: dict[int, np.ndarray],
+    rim_dist: np.ndarray | None = None,
+    circle: tuple[np.ndarray, float] | None = None,
 ) -> Lattice:
     """Second look at every corner with its final neighbours (image grey (H, W), ``rim_dist``
     (H, W)). A corner is dropped when
@@ -512,7 +517,9 @@ def verify_lattice(
       :func:`cotrain.detect.saddle.saddle_fit`: near the image circle's rim from the part of the
       window that is seen) does not land on it again (within ``max_refit_shift`` of the square),
       or, where the window is cut by the rim, its edge directions do not follow the lattice lines
-      (within ``max_rim_edge_angle``) or, along an axis where it has no neighbour, the direction
+      (within ``max_rim_edge_angle``; ``max_border_edge_angle`` where the image ``circle`` (centre
+      (2,) and radius, in these pixels; None: not known) is out of the window's reach and only the
+      image's border cuts it) or, along an axis where it has no neighbour, the direction
       a neighbour across measures along that axis (within ``rim_borrowed_angle``);
     - it breaks a lattice line: the midpoint of its two neighbours along a, or along b, misses it
       by more than ``max_line_offset`` of a step (where a group of corners slipped by a diagonal
@@ -559,9 +566,13 @@ def verify_lattice(
     if rim_dist is not None:
         qi = pixel_index(q, W, H)
         cut = keep & (rim_dist[qi[:, 1], qi[:, 0]] < 1 + 1.8 * halves)
-        cos_max = np.cos(np.radians(cfg.max_rim_edge_angle))
+        cos_rim, cos_border = np.cos(np.radians(cfg.max_rim_edge_angle)), np.cos(np.radians(cfg.max_border_edge_angle))
         cos_borrowed = np.cos(np.radians(cfg.rim_borrowed_angle))
         for k in np.nonzero(cut)[0]:
+            # Cut by the image's border alone (the image circle's rim, and the black frame beyond
+            # it, out of the window's reach): no dark rim there to make a half X of its own.
+            border = circle is not None and circle[1] - math.hypot(q[k, 0] - circle[0][0], q[k, 1] - circle[0][1]) > 4 + 1.8 * halves[k]
+            cos_max = cos_border if border else cos_rim
             # Cut by the rim, a square's corner against the margin or the rim can pass for half an
             # X-junction: the fitted edges must run along the lattice lines to the neighbours.
             a, b = lat.ab[k]

@@ -241,6 +241,43 @@ def test_rim_cut_tip_corner_needs_edges_along_both_lattice_axes(monkeypatch):
     assert run(np.stack([eb, ea]), 30.0) == everything  # a true X-junction at the border stays
 
 
+def test_a_corner_cut_by_the_image_border_alone_may_fit_its_edges_more_loosely(monkeypatch):
+    """A corner whose window only the image's border cuts (the image circle's rim out of the
+    window's reach) keeps fitted edges up to max_border_edge_angle off its lattice lines: there is
+    no dark rim there to make a half X-junction of a square's corner. Where the circle's rim is
+    within reach, or no circle is known, the rim's limit (max_rim_edge_angle) holds. (The saddle
+    fit is replaced by one that returns the given edge directions, so the rule is tested alone.)"""
+    import math
+
+    import cotrain.detect.lattice as lattice_mod
+    from cotrain.detect.grid_config import GridConfig
+    from cotrain.detect.lattice import verify_lattice
+
+    th = math.radians(40)
+    ea, eb = np.array([math.cos(th), math.sin(th)]), np.array([-math.sin(th), math.cos(th)])
+    ab = np.array([(i, j) for j in range(3) for i in range(4)])
+    xy = np.array([80.0, 6.5]) + 20.0 * (ab[:, :1] * ea + ab[:, 1:] * eb)
+    corner = 0  # (0, 0), 6.5 px below the top border, with neighbours along both axes
+    rim_dist = np.tile(np.arange(120, dtype=np.float32)[:, None], (1, 200))
+    turn = math.radians(22)  # its fitted edges 22 deg off the lattice lines: between the two limits
+    rot = np.array([[math.cos(turn), -math.sin(turn)], [math.sin(turn), math.cos(turn)]])
+
+    def fake_fit(grey_, smoothed, q, half, cfg, rim_dist=None):
+        axes = np.tile(np.stack([ea, eb])[None], (len(q), 1, 1))
+        axes[np.linalg.norm(q - xy[corner], axis=1) < 1e-6] = np.stack([rot @ ea, rot @ eb])
+        return q.copy(), np.ones(len(q), bool), axes
+
+    monkeypatch.setattr(lattice_mod, "fit_saddles", fake_fit)
+
+    def kept(circle) -> bool:
+        out = verify_lattice(Lattice(xy, ab, np.zeros(len(ab), bool)), np.zeros((120, 200), np.float32), GridConfig(), {}, rim_dist, circle)
+        return (0, 0) in {tuple(t) for t in out.ab.tolist()}
+
+    assert kept((np.array([100.0, 60.0]), 500.0))  # the circle's rim far outside the window: the border cuts it
+    assert not kept((np.array([100.0, 200.0]), 195.0))  # the rim 0.5 px away
+    assert not kept(None)  # no circle known: the dark region at the border may be the rim
+
+
 def test_growth_remeasures_steps_where_the_lattice_bends():
     """A board bent into rings about a centre above the image (columns turn by 20 deg per square,
     squares shrink towards the centre, as near a fisheye's rim): a corner's step across, inherited
