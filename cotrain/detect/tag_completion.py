@@ -308,13 +308,23 @@ def _uncontradicted(
     return (~enough & ~strict) | (enough & ~(other > corr[:, 0] + margin) & ((corr[:, 0] >= min_corr) | ~strict))
 
 
+MIN_BORDER_RAY_PX = 3.0  # rays_along: the smallest circle read next to the image's border (px; the blurred core of an X is 1-2 px)
+
+
 def rays_along(sm: np.ndarray, q: np.ndarray, to_image: PlaneMaps, p: np.ndarray, gap: float, gap_px: float, cfg: CompletionConfig) -> bool:
     """Whether the X-junction at q (2,) in ``sm`` has four edge rays (read on a circle of
     ``cfg.ray_radius`` of the local gap ``gap_px``) and each of the board's four axis directions
     at board point p (2,) (through ``to_image``, one map; ``gap`` metres long) leaves along one of them
     within ``cfg.max_ray_angle``: a corner half under an occluder or cut by a glare spot has an
-    edge of that instead."""
-    rays = corner_rays(sm, q[None], np.array([cfg.ray_radius * gap_px]))[0]  # (4, 2)
+    edge of that instead. Next to the image's border the circle shrinks to stay inside it (to
+    :data:`MIN_BORDER_RAY_PX` at least): a corner a few pixels from the frame's edge has its
+    rays as well."""
+    H, W = sm.shape
+    inside = min(q[0], q[1], W - 1 - q[0], H - 1 - q[1]) - 1.0  # the largest circle inside the image
+    radius = min(cfg.ray_radius * gap_px, inside)
+    if radius < min(MIN_BORDER_RAY_PX, cfg.ray_radius * gap_px):
+        return False
+    rays = corner_rays(sm, q[None], np.array([radius]))[0]  # (4, 2)
     if np.isnan(rays).any():
         return False
     ends = to_image((p + np.array([[0.0, 0], [gap, 0], [0, gap], [-gap, 0], [0, -gap]]))[None])[0]

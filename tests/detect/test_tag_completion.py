@@ -354,3 +354,30 @@ def test_complete_board_reports_the_corners_it_predicted_in_view_and_found_nothi
     assert not np.isin(inner, ids).any()
     assert set(inner.tolist()) <= set(unfound.tolist())
     assert vis[unfound].all(), "a corner beyond the image circle is reported unfound"
+
+
+def test_rays_along_reads_a_corner_next_to_the_image_border_on_a_smaller_circle():
+    """An X-junction of 40 px squares 6 px below the image's top edge: its rays are read on a
+    circle that fits inside the image (the 20 px circle its gap asks for would leave it, and gave
+    no rays), and they follow the board's axes; a circle that would have to shrink under
+    MIN_BORDER_RAY_PX (2 px from the edge) still gives none. The same corner turned by 45 deg
+    against the board's axes fails."""
+    from cotrain.detect.tag_completion import MIN_BORDER_RAY_PX, CompletionConfig, rays_along
+
+    def checker(x0: float, y0: float, turn_deg: float = 0.0) -> np.ndarray:
+        yy, xx = np.mgrid[0:120, 0:200].astype(np.float64)
+        t = np.radians(turn_deg)
+        u = np.cos(t) * (xx - x0) + np.sin(t) * (yy - y0)
+        v = -np.sin(t) * (xx - x0) + np.cos(t) * (yy - y0)
+        img = np.where((np.floor(u / 40) + np.floor(v / 40)) % 2 == 0, 0.8, 0.1).astype(np.float32)
+        return cv2.GaussianBlur(img, (0, 0), 0.7)
+
+    to_image = PlaneMaps(np.array([[[1.0, 0, 0], [0, 1, 0], [0, 0, 1]]]))  # board millimetres = pixels
+    cfg = CompletionConfig()
+    gap = 40.0
+    assert cfg.ray_radius * gap > 6  # the circle the gap asks for leaves the image
+    q = np.array([100.0, 6.0])
+    assert rays_along(checker(*q), q, to_image, q, gap, gap, cfg)
+    assert not rays_along(checker(*q, turn_deg=45), q, to_image, q, gap, gap, cfg)
+    q2 = np.array([100.0, 1.0 + MIN_BORDER_RAY_PX - 1.0])
+    assert not rays_along(checker(*q2), q2, to_image, q2, gap, gap, cfg)
