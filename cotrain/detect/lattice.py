@@ -31,7 +31,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from cotrain.detect.grid_config import GridConfig
-from cotrain.detect.saddle import fit_saddles, pixel_index, smooth_cached, window_half
+from cotrain.detect.image_circle import CIRCLE_INSIDE_PX
+from cotrain.detect.saddle import bilinear_at, fit_saddles, pixel_index, smooth_cached, window_half, window_reach
 
 STEPS = ((1, 0), (-1, 0), (0, 1), (0, -1))  # the four lattice neighbours (da, db)
 
@@ -106,16 +107,11 @@ def corner_rays(img: np.ndarray, xy: np.ndarray, radius: np.ndarray) -> np.ndarr
 @numba.njit(cache=True, nogil=True)
 def _bilinear(img, x, y):
     """:func:`value_at` compiled, for points within a pixel of ``img`` (H, W) (border replicated
-    as there); NaN farther out."""
+    as there: :func:`cotrain.detect.saddle.bilinear_at`); NaN farther out."""
     H, W = img.shape
     if not (-1.0 <= x <= W and -1.0 <= y <= H):
         return np.nan
-    fx0, fy0 = math.floor(x), math.floor(y)
-    fx, fy = x - fx0, y - fy0
-    x0, y0 = int(fx0), int(fy0)
-    x1, y1 = min(max(x0 + 1, 0), W - 1), min(max(y0 + 1, 0), H - 1)
-    x0, y0 = min(max(x0, 0), W - 1), min(max(y0, 0), H - 1)
-    return (1 - fy) * ((1 - fx) * img[y0, x0] + fx * img[y0, x1]) + fy * ((1 - fx) * img[y1, x0] + fx * img[y1, x1])
+    return bilinear_at(img, x, y)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -565,13 +561,15 @@ def verify_lattice(
     keep = todo & ok & (np.linalg.norm(q - lat.xy, axis=1) < cfg.max_refit_shift * short)
     if rim_dist is not None:
         qi = pixel_index(q, W, H)
-        cut = keep & (rim_dist[qi[:, 1], qi[:, 0]] < 1 + 1.8 * halves)
+        cut = keep & (rim_dist[qi[:, 1], qi[:, 0]] < window_reach(halves))
         cos_rim, cos_border = np.cos(np.radians(cfg.max_rim_edge_angle)), np.cos(np.radians(cfg.max_border_edge_angle))
         cos_borrowed = np.cos(np.radians(cfg.rim_borrowed_angle))
         for k in np.nonzero(cut)[0]:
             # Cut by the image's border alone (the image circle's rim, and the black frame beyond
             # it, out of the window's reach): no dark rim there to make a half X of its own.
-            border = circle is not None and circle[1] - math.hypot(q[k, 0] - circle[0][0], q[k, 1] - circle[0][1]) > 4 + 1.8 * halves[k]
+            # (The black frame is kept CIRCLE_INSIDE_PX inside the fitted circle, and 1 px for the fit.)
+            rim_room = circle[1] - CIRCLE_INSIDE_PX - 1 - math.hypot(q[k, 0] - circle[0][0], q[k, 1] - circle[0][1]) if circle else 0.0
+            border = rim_room > window_reach(halves[k])
             cos_max = cos_border if border else cos_rim
             # Cut by the rim, a square's corner against the margin or the rim can pass for half an
             # X-junction: the fitted edges must run along the lattice lines to the neighbours.

@@ -94,6 +94,15 @@ def _sample_window(img, x, y, half, replicate, out):
 
 
 @numba.njit(cache=True, nogil=True)
+def bilinear_at(img, x, y):
+    """Bilinear value of ``img`` (H, W) at (x, y), compiled: :func:`_sample_window` for one point
+    (outside the image the nearest pixel; NaN beyond :data:`MAX_COORD`). For compiled callers."""
+    out = np.empty(1)
+    _sample_window(img, x, y, 0, True, out)
+    return out[0]
+
+
+@numba.njit(cache=True, nogil=True)
 def _pixel(img, x, y, replicate):
     """Pixel (x, y) of ``img`` (H, W) as float64; outside: the nearest one (``replicate``) or 0."""
     H, W = img.shape
@@ -327,7 +336,7 @@ def fit_saddles(
         return q, ok, axes
     H, W = rim_dist.shape
     xi = pixel_index(xy, W, H)
-    near = rim_dist[xi[:, 1], xi[:, 0]] < 1 + 1.8 * half  # the window (and its blur) reaches the rim
+    near = rim_dist[xi[:, 1], xi[:, 0]] < window_reach(half)
     for h in sorted({max(2, half // 2), 2}, reverse=True):
         retry = np.nonzero(~ok & near)[0]
         if h >= half or not len(retry):
@@ -349,6 +358,12 @@ def window_half(spacing_px: float | np.ndarray, max_half: int = 5) -> int | np.n
     if np.ndim(spacing_px) == 0 and np.isfinite(spacing_px):  # the growth asks once per corner: plain float arithmetic
         return int(min(max(round(0.3 * float(spacing_px)), 2), max_half))
     return np.clip(np.rint(0.3 * np.asarray(spacing_px)), 2, max_half).astype(int)
+
+
+def window_reach(half: int | np.ndarray) -> float | np.ndarray:
+    """How far (px) from its centre a fit window of half-size ``half`` (scalar or (K,)) and the blur
+    for it (:func:`smooth_for`) reach: a point closer than this to the rim has its window cut there."""
+    return 1 + 1.8 * half
 
 
 def smooth_for(grey: np.ndarray, half: int) -> np.ndarray:
