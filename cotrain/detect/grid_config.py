@@ -88,6 +88,8 @@ class GridConfig:
     margin_band_end: float = 0.25  # ... up to here
     max_violated_edges: float = 2.5  # margin evidence (corners' worth) a placement may contradict before the lattice is rejected
     max_violated_share: float = 0.35  # ... or this share of all the lattice's margin evidence, when that is more
+    cut_at_margins: bool = True  # a lattice so rejected, or placed unsurely, is placed again cut at a line of margin evidence ...
+    cut_min_evidence: float = 0.5  # ... with this much evidence (corners' worth) along it
     join_lattices: bool = True  # lattices of other seeds that share corners under one turn and offset are joined before the placement
     merge_lattices: bool = True  # join the corners of other surely placed lattices that agree with the best one
     merge_min_shared: int = 2  # lattices join (either way) where they share this many corners (spots, and coordinates or ids)

@@ -51,9 +51,9 @@ from scipy.spatial import cKDTree
 
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.half_resolution import corners_at_half_resolution
-from cotrain.detect.identity import assign_ids, canonical_ids, cell_darkness, corner_votes, edge_evidence
+from cotrain.detect.identity import Placement, assign_ids, canonical_ids, cell_darkness, corner_votes, edge_evidence
 from cotrain.detect.image_circle import beyond_circle, lens_of_circle
-from cotrain.detect.lattice import STEPS, Lattice, grow_lattice, refine_positions, skipped_corners, verify_lattice
+from cotrain.detect.lattice import STEPS, Lattice, grow_lattice, largest_component, refine_positions, skipped_corners, verify_lattice
 from cotrain.detect.saddle import fit_saddles, outside_and_circle, saddle_candidates, saddle_response, smooth_cached, window_half
 from cotrain.detect.tag_completion import CompletionConfig, complete_board
 from cotrain.geometry.letterbox import CELLS, Letterbox
@@ -305,6 +305,32 @@ def merge_lattices(
     return Lattice(xy, ab, filled), out_ids
 
 
+def cut_at_margins(lat: Lattice, edges: list[tuple[int, int, int, float]], cfg: GridConfig) -> list[Lattice]:
+    """The parts of ``lat`` on the board's side of each line of margin evidence ``edges`` ((k, da,
+    db, e) each, :func:`cotrain.detect.identity.edge_evidence`): where corner k's outward neighbour
+    is missing and the white margin follows, the board has no corner further along (da, db), so
+    lattice coordinates beyond k's line (a da + b db > a_k da + b_k db) belong to something else,
+    like a distractor the growth stepped onto across the margin. One part per line with
+    ``cfg.cut_min_evidence`` of evidence; each the largest 4-connected piece left, with
+    ``cfg.min_corners`` at least and fewer corners than ``lat``."""
+    lines: dict[tuple[int, int, int], float] = {}
+    for k, da, db, e in edges:
+        key = (da, db, int(lat.ab[k] @ (da, db)))
+        lines[key] = lines.get(key, 0.0) + e
+    parts, seen = [], set()
+    for (da, db, c), e in sorted(lines.items(), key=lambda x: -x[1]):
+        m = lat.ab @ np.array([da, db]) <= c
+        if e < cfg.cut_min_evidence or m.all():
+            continue
+        part = Lattice(lat.xy[m], lat.ab[m], lat.filled[m])
+        keep = largest_component(part)
+        key = frozenset(map(tuple, part.ab[keep].tolist()))
+        if keep.sum() >= cfg.min_corners and key not in seen:
+            seen.add(key)
+            parts.append(Lattice(part.xy[keep], part.ab[keep], part.filled[keep]))
+    return parts
+
+
 def grid_pass(
     grey: np.ndarray,
     box: Letterbox,
@@ -382,16 +408,40 @@ def grid_pass(
         parts = {id(x) for x in grown}
         joined = [verify_lattice(x, grey, cfg, smoothed, rim_dist, crop_circle) for x in join_lattices(grown, cfg) if id(x) not in parts]
         grown += [x for x in joined if len(x.ab) >= cfg.min_corners and skipped_corners(x, response, cfg) <= cfg.max_skipped]
-    for lat in grown:
+
+    def place(lat: Lattice) -> tuple[Placement, list[tuple[int, int, int, float]], bool] | None:
+        """The lattice's placement, its margin evidence, and whether the placement stands (does
+        not contradict that evidence beyond ``cfg.max_violated_edges`` or
+        ``cfg.max_violated_share`` of it: the board would end where the target goes on, another
+        target or a distractor); None for a line of corners."""
         blur1 = smooth_cached(smoothed, grey, -1)
         dark = cell_darkness(blur1, lat)
         if len(dark) < cfg.min_cells:
-            continue  # a line of corners (or a diagonal) is not a checker lattice
+            return None  # a line of corners (or a diagonal) is not a checker lattice
         lc, lr = corner_votes(lat, logp_col, offset, box, cfg), corner_votes(lat, logp_row, offset, box, cfg)
         edges = edge_evidence(blur1, lat, cfg)
         placed = assign_ids(lat.ab, lc, lr, dark, board, cfg, edges)
-        if placed.violated > max(cfg.max_violated_edges, cfg.max_violated_share * sum(e[3] for e in edges)):
-            continue  # the board ends where the target goes on: another target, or a distractor
+        return placed, edges, placed.violated <= max(cfg.max_violated_edges, cfg.max_violated_share * sum(e[3] for e in edges))
+
+    for lat in grown:
+        res = place(lat)
+        if res is None:
+            continue
+        placed, edges, stands = res
+        if cfg.cut_at_margins and edges and not (stands and placement_is_sure(placed.margin, placed.geometry_margin, len(lat.ab), cfg)):
+            # The lattice may have stepped over the board's margin onto a distractor, whose corners
+            # make the placement contradict the margin or leave it unsure: its parts on this side of
+            # each line of margin evidence are placed on their own, and the surest that stands and
+            # is sure replaces it.
+            cuts = []
+            for part in cut_at_margins(lat, edges, cfg):
+                r = place(part)
+                if r is not None and r[2] and placement_is_sure(r[0].margin, r[0].geometry_margin, len(part.ab), cfg):
+                    cuts.append((r[0], part))
+            if cuts:
+                (placed, lat), stands = max(cuts, key=lambda c: c[0].margin), True
+        if not stands:
+            continue
         scored.append((placed.margin, lat, placed.ids, placed.geometry_margin))
         if best is None or placed.margin > best[0]:
             best = (placed.margin, lat, placed.ids, placed.geometry_margin)

@@ -476,7 +476,7 @@ def grow_lattice(
 # --------------------------------------------------------------------------------------------
 # Verification
 # --------------------------------------------------------------------------------------------
-def _largest_component(lat: Lattice) -> np.ndarray:
+def largest_component(lat: Lattice) -> np.ndarray:
     """(K,) bool: the largest 4-connected set of the lattice's coordinates."""
     ab, where = lat.ab, lat.where
     comp = -np.ones(len(ab), int)
@@ -602,7 +602,7 @@ def verify_lattice(
                         break
     xy = np.where(keep[:, None], q, lat.xy)
     lat = Lattice(xy[keep], lat.ab[keep], lat.filled[keep])
-    big = _largest_component(lat)
+    big = largest_component(lat)
     return Lattice(lat.xy[big], lat.ab[big], lat.filled[big])
 
 

@@ -6,6 +6,7 @@ import torch.nn.functional as F
 
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.grid_pass import grid_pass
+from cotrain.detect.lattice import Lattice
 from cotrain.geometry.letterbox import Letterbox
 from cotrain.render.renderer import RenderConfig, render_batch
 from tests.detect.boards import BOARD, NX, NY, board_image
@@ -389,3 +390,54 @@ def test_cache_keys_are_strict_json_and_tell_settings_apart():
     for key in (off, on, AprilGridDetector(AprilGrid()).cache_key()):
         assert json.loads(json.dumps(key, allow_nan=False)) == key
     assert off["grid"]["min_margin_votes_alone"] == "inf" and on != off
+
+
+def test_a_lattice_stepped_across_the_margin_is_placed_again_cut_there():
+    """A partial view, board columns 3-8 and every row, whose growth stepped across the board's
+    right margin onto a distractor checker beside it (a bridge corner, then a 2 x 3 patch). Placed
+    whole, the network's votes (0.5 for the right column and row against 0.05, at the view's
+    corners) put the view right and the distractor off the board, but the geometry prefers a shift
+    that puts the distractor on it: not sure, nothing reported. Cut at the right margin's line of
+    evidence, the part on the board's side is the view itself, and it is placed surely, every id
+    right, with the geometry behind it; a line whose evidence is too weak, or that cuts nothing,
+    gives no part."""
+    from cotrain.detect.grid_pass import cut_at_margins, placement_is_sure
+    from cotrain.detect.identity import assign_ids
+
+    cfg = GridConfig()
+    view = [(i - 3, j) for j in range(NY) for i in range(3, NX)]  # lattice (a, b) = board (i - 3, j)
+    right = NX - 4  # the view's last column
+    distractor = [(right + 1, 2)] + [(a, b) for a in (right + 2, right + 3) for b in (1, 2, 3)]
+    ab = np.array(view + distractor)
+    lat = Lattice(ab * 30.0 + 100.0, ab, np.zeros(len(ab), bool))
+    where = lat.where
+    # Margin evidence: above the top row, below the bottom row, right of the last column (not at
+    # the bridge's row: the growth went on there), and the distractor's own top, weak.
+    edges = [(where[(a, 0)], 0, -1, 0.95) for a in range(right + 1)]
+    edges += [(where[(a, NY - 1)], 0, 1, 0.95) for a in range(right + 1)]
+    edges += [(where[(right, b)], 1, 0, 0.95) for b in range(NY) if b != 2]
+    edges += [(where[(a, 1)], 0, -1, 0.2) for a in (right + 2, right + 3)]
+    # Cell colours as printed (square (i, j) black when i + j is even), the distractor's likewise.
+    dark = {}
+    for a, b in where:
+        if all(t in where for t in ((a + 1, b), (a, b + 1), (a + 1, b + 1))):
+            dark[(a, b)] = 1.0 if (a + 3 + b) % 2 == 0 else -1.0
+    lc, lr = np.full((len(ab), NX + 2), np.log(0.05)), np.full((len(ab), NY + 2), np.log(0.05))
+    on = np.arange(len(view))
+    lc[on, ab[on, 0] + 3 + 1] = lr[on, ab[on, 1] + 1] = np.log(0.5)
+    whole = assign_ids(ab, lc, lr, dark, BOARD, cfg, edges)
+    np.testing.assert_array_equal(whole.ids[len(view) :], -1)
+    assert whole.geometry_margin < 0 and not placement_is_sure(whole.margin, whole.geometry_margin, len(ab), cfg)
+
+    parts = cut_at_margins(lat, edges, cfg)
+    assert [sorted(map(tuple, p.ab.tolist())) for p in parts] == [sorted(view)]  # the distractor's 0.4 cuts nothing
+    part = parts[0]
+    np.testing.assert_array_equal(part.xy, part.ab * 30.0 + 100.0)
+    part_edges = [(part.where[tuple(ab[k])], da, db, e) for k, da, db, e in edges if tuple(ab[k]) in part.where]
+    part_dark = {c: v for c, v in dark.items() if c[0] < right}
+    rows = [where[tuple(t)] for t in part.ab.tolist()]
+    placed = assign_ids(part.ab, lc[rows], lr[rows], part_dark, BOARD, cfg, part_edges)
+    np.testing.assert_array_equal(placed.ids, (part.ab[:, 0] + 3) + NX * part.ab[:, 1])
+    assert placed.violated == 0 and placed.geometry_margin >= cfg.min_geometry_margin
+    assert placement_is_sure(placed.margin, placed.geometry_margin, len(part.ab), cfg)
+    assert cut_at_margins(lat, edges, GridConfig(cut_min_evidence=5.0)) == []
