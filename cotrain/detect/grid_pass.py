@@ -23,7 +23,9 @@ This pass turns them into identities the way a person would (docs/detector.md ha
    (square (i, j) of corners is black when i + j is even) and the board's white margin where the
    lattice stops, and the best one wins if it beats the runner-up by a margin (a board that looks
    the same turned, like 7 x 5 squares, is identified up to that turn: corner 0 goes nearest the
-   image's top left); other lattices of the same board, placed surely on their own and agreeing
+   image's top left); a lattice whose placement fails is placed again cut at each line of its
+   margin evidence (:func:`cut_at_margins`: a growth that stepped across the margin onto a
+   distractor); other lattices of the same board, placed surely on their own and agreeing
    with the best one where they overlap, add the corners it lacks (:func:`merge_lattices`);
 4. positions (:func:`cotrain.detect.lattice.refine_positions`): the reported corners are fitted
    once more in a small window (at most 3 px half-size), close to the junction, where bent edges
