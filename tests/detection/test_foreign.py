@@ -1,0 +1,66 @@
+"""The independent renderer (calib_eval.detection.foreign): its lens laws against known values and
+OpenCV, and its labels against the corners in its own frames."""
+
+import cv2
+import numpy as np
+import pytest
+
+from calib_eval.detection.foreign import LENSES, ForeignConfig, main, project, rays, render_frame
+
+
+@pytest.mark.parametrize("lens", sorted(LENSES))
+def test_lens_laws_round_trip_to_120_degrees(lens):
+    """A ray's pixel, cast back, is the same ray, up to 120 deg off the axis (a 240-degree lens)."""
+    rng = np.random.default_rng(0)
+    theta = rng.uniform(0, np.radians(120), 500)
+    phi = rng.uniform(-np.pi, np.pi, 500)
+    v = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], -1)
+    centre = np.array([640.0, 360.0])
+    q, th = project(v * rng.uniform(0.1, 5.0, (500, 1)), lens, 300.0, centre)
+    back, th_back = rays(q, lens, 300.0, centre)
+    np.testing.assert_allclose(th, theta, atol=1e-12)
+    np.testing.assert_allclose(back, v, atol=1e-9)
+    np.testing.assert_allclose(th_back, theta, atol=1e-9)
+
+
+def test_lens_laws_known_values():
+    """At 90 deg off the axis: equidistant f pi / 2, equisolid f sqrt(2), stereographic 2 f."""
+    f, centre = 200.0, np.zeros(2)
+    side = np.array([1.0, 0.0, 0.0])
+    for lens, rho in (("equidistant", f * np.pi / 2), ("equisolid", f * np.sqrt(2)), ("stereographic", 2 * f)):
+        q, _ = project(side, lens, f, centre)
+        np.testing.assert_allclose(q, [rho, 0.0], atol=1e-9)
+
+
+def test_equidistant_law_is_opencvs_fisheye_without_distortion():
+    """The equidistant law is cv2.fisheye's model with k1..k4 = 0 (points in front of the camera)."""
+    rng = np.random.default_rng(1)
+    p = np.concatenate([rng.uniform(-2, 2, (200, 2)), rng.uniform(0.2, 3, (200, 1))], 1)
+    K = np.array([[310.0, 0, 655.5], [0, 310.0, 351.25], [0, 0, 1]])
+    ref = cv2.fisheye.projectPoints(p.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, np.zeros(4))[0].reshape(-1, 2)
+    q, _ = project(p, "equidistant", 310.0, np.array([655.5, 351.25]))
+    np.testing.assert_allclose(q, ref, atol=1e-6)
+
+
+def test_labels_sit_on_the_rendered_corners():
+    """In frames of the independent renderer (blur, vignetting, noise, sRGB, JPEG), OpenCV's
+    cornerSubPix started at each detectable corner's label stays there: the labels are where the
+    image has its X-junctions."""
+    cfg = ForeignConfig(width=480, height=360, supersample=3, min_visible=10)
+    moved = []
+    for i in range(3):
+        fr = render_frame(180, cfg, np.random.default_rng([11, i]))
+        assert fr.image.shape == (360, 480) and fr.image.dtype == np.uint8
+        q = fr.corners[fr.detectable].astype(np.float32).reshape(-1, 1, 2)
+        crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 0.001)
+        r = cv2.cornerSubPix(fr.image, q.copy(), (3, 3), (-1, -1), crit)
+        moved.append(np.hypot(*(r - q).reshape(-1, 2).T))
+    moved = np.concatenate(moved)
+    assert len(moved) >= 30
+    assert np.median(moved) < 0.15 and np.percentile(moved, 90) < 0.35
+
+
+def test_bad_frame_count_is_one_line_and_exit_2(capsys, tmp_path):
+    assert main(["--per-fov", "0", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error:") and err.count("\n") == 1
