@@ -35,6 +35,7 @@ corner's label (within 3 px) counts as right; at a hidden one, or farther, as wr
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import sys
 import time
@@ -46,7 +47,7 @@ import numpy as np
 
 from calib_eval.detection.evaluation import score
 from calib_eval.detection.opencv_baseline import find_chessboard
-from cotrain.targets import Checkerboard
+from cotrain.targets import AprilGrid, Checkerboard, TargetConfig
 
 # The radial laws: image radius rho(theta) / f and its inverse theta(rho / f).
 LENSES = {
@@ -64,7 +65,9 @@ class ForeignConfig:
     height: int = 720
     seed: int = 5  # everything random derives from it
     supersample: int = 3  # rays per pixel side (box filter over the pixel)
-    min_square_px: float = 10.0  # detectable: the corner's square at least this many pixels
+    target: str = "checkerboard"  # the board drawn: "checkerboard" (10 x 7 squares) or "aprilgrid" (Kalibr's 6 x 6 tags)
+    min_square_px: float = 10.0  # detectable: a checkerboard corner's square at least this many pixels ...
+    min_tag_px: float = 8.0  # ... an AprilGrid corner's tag at least this many (as python -m calib_eval.detection.tags)
     min_visible: int = 6  # frames are drawn again until this many corners are detectable
 
 
@@ -78,6 +81,7 @@ class Frame:
     jpeg: int  # JPEG quality applied, 0 for none
     centre: np.ndarray  # (2,) the image circle's centre, pixels
     radius: float  # the image circle's radius, pixels
+    size: np.ndarray  # (N,) each corner's square (checkerboard) or tag side (AprilGrid) in the image, pixels
 
 
 def rotation(axis: np.ndarray, angle: float) -> np.ndarray:
@@ -104,16 +108,59 @@ def rays(xy: np.ndarray, lens: str, f: float, centre: np.ndarray) -> tuple[np.nd
     return np.stack([s * np.cos(phi), s * np.sin(phi), np.cos(theta)], -1), theta
 
 
-def board_texture(u: np.ndarray, v: np.ndarray, board: Checkerboard, black: float, white: float) -> tuple[np.ndarray, np.ndarray]:
-    """Reflectance and coverage (bool) of board-frame points u, v (metres; squares from 0 to
-    squares_x s, square (0, 0) black, ``board.cfg.margin`` squares of white margin)."""
+def checkerboard_texture(board: Checkerboard):
+    """The checkerboard's print: (u, v) board-frame metres (..., ) -> (reflectance in [0, 1], bool
+    on the sheet). Squares from 0 to squares_x s, square (0, 0) black, ``board.cfg.margin``
+    squares of white margin; drawn from the target's numbers alone."""
     s, cfg = board.s, board.cfg
-    cu, cv = np.floor(u / s), np.floor(v / s)
-    in_squares = (cu >= 0) & (cu < cfg.squares_x) & (cv >= 0) & (cv < cfg.squares_y)
-    dark = in_squares & ((cu + cv) % 2 == 0)
     m = cfg.margin * s
-    cover = (u >= -m) & (u <= cfg.squares_x * s + m) & (v >= -m) & (v <= cfg.squares_y * s + m)
-    return np.where(dark, black, white), cover
+
+    def texture(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        cu, cv = np.floor(u / s), np.floor(v / s)
+        in_squares = (cu >= 0) & (cu < cfg.squares_x) & (cv >= 0) & (cv < cfg.squares_y)
+        dark = in_squares & ((cu + cv) % 2 == 0)
+        cover = (u >= -m) & (u <= cfg.squares_x * s + m) & (v >= -m) & (v <= cfg.squares_y * s + m)
+        return np.where(dark, 0.0, 1.0), cover
+
+    return texture
+
+
+def aprilgrid_texture(board: AprilGrid, px_per_cell: int = 8):
+    """The AprilGrid's print as Kalibr's ``createTargetPDF.py`` lays it out, drawn here again from
+    OpenCV's marker images (not from :class:`cotrain.targets.AprilGrid`'s texture): the page frame
+    has x to the right and y up, tag t sits at column t % tag_cols and row t // tag_cols from the
+    bottom left, each tag is its marker with a 2-cell black border turned by a half turn, and a
+    black square fills every gap crossing. Returns (u, v) metres -> (reflectance, bool on the
+    sheet), sampled from a raster of ``px_per_cell`` pixels per tag cell (nearest pixel)."""
+    S, gap, tc, tr = board.S, board.gap, board.tc, board.tr
+    cell = S / 10
+    x0, y0, x1, y1 = board.extent()
+    px = cell / px_per_cell  # metres per raster pixel
+    W, H = int(np.ceil((x1 - x0) / px)), int(np.ceil((y1 - y0) / px))
+    page = np.ones((H, W), np.float32)
+    d = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11)
+
+    def fill(xa: float, ya: float, xb: float, yb: float, img) -> None:  # page metres (y up) -> raster rows
+        c0, c1 = int(round((xa - x0) / px)), int(round((xb - x0) / px))
+        r0, r1 = int(round((y1 - yb) / px)), int(round((y1 - ya) / px))
+        page[r0:r1, c0:c1] = img if np.isscalar(img) else cv2.resize(img, (c1 - c0, r1 - r0), interpolation=cv2.INTER_NEAREST)
+
+    for t in range(tc * tr):
+        marker = cv2.aruco.generateImageMarker(d, t, 10, borderBits=2).astype(np.float32) / 255  # one pixel per cell
+        xa, ya = (t % tc) * (S + gap), (t // tc) * (S + gap)
+        fill(xa, ya, xa + S, ya + S, np.rot90(marker, 2))
+    for i in range(-1, tc):
+        for j in range(-1, tr):
+            xa, ya = i * (S + gap) + S, j * (S + gap) + S
+            fill(xa, ya, xa + gap, ya + gap, 0.0)
+
+    def texture(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        c = np.floor((u - x0) / px).astype(np.int64)
+        r = np.floor((y1 - v) / px).astype(np.int64)
+        cover = (c >= 0) & (c < W) & (r >= 0) & (r < H)
+        return page[np.clip(r, 0, H - 1), np.clip(c, 0, W - 1)], cover
+
+    return texture
 
 
 def background(h: int, w: int, rng: np.random.Generator) -> np.ndarray:
@@ -135,49 +182,67 @@ def background(h: int, w: int, rng: np.random.Generator) -> np.ndarray:
     return np.clip(img, 0.02, 0.95)
 
 
-def render_frame(fov: float, cfg: ForeignConfig, rng: np.random.Generator, board: Checkerboard | None = None) -> Frame:
-    """One frame with a board at least partly in view (drawn again until ``cfg.min_visible``
-    corners are detectable)."""
-    board = board or Checkerboard()
-    h, w = cfg.height, cfg.width
+def board_pixels(xy: np.ndarray, R: np.ndarray, t: np.ndarray, lens: str, f: float, centre: np.ndarray) -> np.ndarray:
+    """Pixels (..., 2) of board-frame points xy (..., 2) (metres, z = 0) for the board pose R (3, 3),
+    t (3,) in the camera frame (:func:`project`)."""
+    return project(xy @ R[:, :2].T + t, lens, f, centre)[0]
+
+
+def corner_steps(board: Checkerboard | AprilGrid, p_at) -> tuple[np.ndarray, np.ndarray]:
+    """Each corner id's pixel (N, 2) and its size in the image (N,): for a checkerboard the
+    shortest step to a neighbouring corner (the neighbours beyond the board's last corners
+    included), for an AprilGrid the shorter side of its tag. ``p_at(xy)`` maps board-frame
+    metres (..., 2) to pixels (..., 2) (:func:`board_pixels`)."""
     n = board.n_corners
+    ij = board.ij_of(np.arange(n))
+    if isinstance(board, AprilGrid):
+        q = p_at(board.board_xy())
+        partner_x = board.id_of(np.stack([ij[:, 0] ^ 1, ij[:, 1]], 1))  # the tag's other corner along x
+        partner_y = board.id_of(np.stack([ij[:, 0], ij[:, 1] ^ 1], 1))
+        return q, np.minimum(np.linalg.norm(q - q[partner_x], axis=1), np.linalg.norm(q - q[partner_y], axis=1))
+    q = p_at((ij + 1) * board.s)
+    size = np.full(n, np.inf)
+    for step in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+        size = np.minimum(size, np.linalg.norm(p_at((ij + 1 + step) * board.s) - q, axis=1))
+    return q, size
+
+
+def render_frame(fov: float, cfg: ForeignConfig, rng: np.random.Generator, board: Checkerboard | AprilGrid | None = None) -> Frame:
+    """One frame with ``board`` (default the checkerboard) at least partly in view (drawn again
+    until ``cfg.min_visible`` corners are detectable)."""
+    board = board or Checkerboard()
+    texture = aprilgrid_texture(board) if isinstance(board, AprilGrid) else checkerboard_texture(board)
+    h, w = cfg.height, cfg.width
+    x0, y0, x1, y1 = board.extent()
     while True:
         lens = str(rng.choice(list(LENSES)))
         theta_max = np.radians(fov / 2)
         radius = rng.uniform(0.5, 0.75) * h  # the image circle, px
         f = radius / LENSES[lens][0](theta_max)
         centre = np.array([w / 2 - 0.5, h / 2 - 0.5]) + rng.normal(0, 8, 2)
-        # The board: its centre off the axis, facing the camera within 60 deg, turned in its plane.
+        # The board: its centre off the axis, facing the camera within 60 deg, turned in its plane;
+        # its z axis points away from the viewer (checkerboard) or toward it (AprilGrid: Kalibr's
+        # page frame), ``board.front``.
         off = np.radians(rng.uniform(0, fov / 2 - 5))
         az = rng.uniform(0, 2 * np.pi)
         d = np.array([np.sin(off) * np.cos(az), np.sin(off) * np.sin(az), np.cos(off)])
         dist = rng.uniform(0.15, 0.6)
-        size = np.array([board.cfg.squares_x, board.cfg.squares_y]) * board.s
-        z_axis = d  # board normal points away from the viewer (the printed side faces it)
+        z_axis = -board.front * d
         tilt_axis = np.cross(z_axis, rng.normal(size=3))
         R = rotation(tilt_axis, np.radians(rng.uniform(0, 60))) @ _frame_with_z(z_axis)
         R = R @ rotation(np.array([0.0, 0.0, 1.0]), rng.uniform(0, 2 * np.pi))
-        t = dist * d - R[:, :2] @ (size / 2)  # board origin (its square (0, 0)'s outer corner)
-        # Corners and their neighbours one step beyond the board (for the square size).
-        ij = np.stack(np.meshgrid(np.arange(-1, board.nx + 1), np.arange(-1, board.ny + 1)), -1)  # (ny+2, nx+2, 2)
-        p = (ij + 1) * board.s @ R[:, :2].T + t
-        q_all, th_all = project(p, lens, f, centre)
-        step = np.full(q_all.shape[:2], np.inf)
-        for axis in (0, 1):
-            dq = np.linalg.norm(np.diff(q_all, axis=axis), axis=-1)
-            sl = [slice(None)] * 2
-            sl[axis] = slice(1, None)
-            step[tuple(sl)] = np.minimum(step[tuple(sl)], dq)
-            sl[axis] = slice(None, -1)
-            step[tuple(sl)] = np.minimum(step[tuple(sl)], dq)
-        q, th, sq = q_all[1:-1, 1:-1].reshape(n, 2), th_all[1:-1, 1:-1].reshape(n), step[1:-1, 1:-1].reshape(n)
-        pc = p[1:-1, 1:-1].reshape(n, 3)
-        facing = (pc @ R[:, 2]) > 0  # the viewer sees the printed side (normal away from it)
+        t = dist * d - R[:, :2] @ np.array([(x0 + x1) / 2, (y0 + y1) / 2])  # the board frame's origin
+
+        q, size = corner_steps(board, functools.partial(board_pixels, R=R, t=t, lens=lens, f=f, centre=centre))
+        pc = board.board_xy() @ R[:, :2].T + t
+        _, th = project(pc, lens, f, centre)
+        facing = -board.front * (pc @ R[:, 2]) > 0  # the viewer sees the printed side
         rim = np.hypot(*(q - centre).T)
         visible = facing & (th < theta_max) & (rim <= radius)
         visible &= (q[:, 0] >= -0.5) & (q[:, 0] <= w - 0.5) & (q[:, 1] >= -0.5) & (q[:, 1] <= h - 0.5)
         clear = (rim <= radius - 3) & (q[:, 0] >= 2) & (q[:, 0] <= w - 3) & (q[:, 1] >= 2) & (q[:, 1] <= h - 3)
-        if (visible & clear & (sq >= cfg.min_square_px)).sum() >= cfg.min_visible:
+        min_size = cfg.min_tag_px if isinstance(board, AprilGrid) else cfg.min_square_px
+        if (visible & clear & (size >= min_size)).sum() >= cfg.min_visible:
             break
     # Ray casting, supersampled: every sample's board point, reflectance and coverage.
     s = cfg.supersample
@@ -192,11 +257,10 @@ def render_frame(fov: float, cfg: ForeignConfig, rng: np.random.Generator, board
             denom = v @ R[:, 2]
             with np.errstate(divide="ignore", invalid="ignore"):
                 lam = (t @ R[:, 2]) / denom
-            hit = (lam > 0) & (denom > 0)
+            hit = (lam > 0) & (-board.front * denom > 0)  # the printed side, in front
             pb = (lam[..., None] * v - t) @ R[:, :2]  # board-frame (u, v) of the hit
-            refl, cover = board_texture(pb[..., 0], pb[..., 1], board, black, white)
-            on = hit & cover
-            sample = np.where(on, refl, bg)
+            refl, cover = texture(pb[..., 0], pb[..., 1])
+            sample = np.where(hit & cover, black + (white - black) * refl, bg)
             sample = np.where(theta <= theta_max, sample, 0.0)
             acc += sample
     img = acc / (s * s)
@@ -204,8 +268,8 @@ def render_frame(fov: float, cfg: ForeignConfig, rng: np.random.Generator, board
     # corners within 3 px of it (or a quarter of their square) are not detectable.
     if rng.random() < 1 / 3:
         mask = np.zeros((h, w), np.uint8)
-        k = int(rng.integers(n))
-        c = q[k] + rng.normal(0, 3 * np.median(sq[np.isfinite(sq)]), 2)
+        k = int(rng.integers(board.n_corners))
+        c = q[k] + rng.normal(0, 3 * np.median(size[np.isfinite(size)]), 2)
         axes = (int(rng.uniform(30, w / 5)), int(rng.uniform(30, h / 4)))
         cv2.ellipse(mask, (int(c[0]), int(c[1])), axes, float(rng.uniform(0, 180)), 0, 360, 1, -1)
         img = np.where(mask > 0, rng.uniform(0.1, 0.8), img)
@@ -213,7 +277,7 @@ def render_frame(fov: float, cfg: ForeignConfig, rng: np.random.Generator, board
         qi = np.clip(np.round(q).astype(int), 0, [w - 1, h - 1])
         d_occ = dist[qi[:, 1], qi[:, 0]]
         visible &= d_occ > 0
-        clear &= d_occ > np.maximum(3.0, 0.25 * sq)
+        clear &= d_occ > np.maximum(3.0, 0.25 * size)
     # Optics and sensor, in linear light; then sRGB.
     img = cv2.GaussianBlur(img, (0, 0), rng.uniform(0.3, 1.0))
     _, theta_px = rays(np.stack([xs, ys], -1), lens, f, centre)
@@ -225,7 +289,7 @@ def render_frame(fov: float, cfg: ForeignConfig, rng: np.random.Generator, board
     jpeg = int(rng.integers(70, 96)) if rng.random() < 0.5 else 0
     if jpeg:
         u8 = cv2.imdecode(cv2.imencode(".jpg", u8, [cv2.IMWRITE_JPEG_QUALITY, jpeg])[1], cv2.IMREAD_GRAYSCALE)
-    return Frame(u8, q, visible, visible & clear & (sq >= cfg.min_square_px), lens, jpeg, centre, float(radius))
+    return Frame(u8, q, visible, visible & clear & (size >= min_size), lens, jpeg, centre, float(radius), size)
 
 
 def _frame_with_z(z: np.ndarray) -> np.ndarray:
@@ -237,16 +301,25 @@ def _frame_with_z(z: np.ndarray) -> np.ndarray:
     return np.stack([x, np.cross(z, x), z], 1)
 
 
+def make_board(cfg: ForeignConfig) -> Checkerboard | AprilGrid:
+    """The default target of ``cfg.target``'s kind (configs/)."""
+    if cfg.target == "checkerboard":
+        return Checkerboard()
+    if cfg.target == "aprilgrid":
+        return AprilGrid(TargetConfig(kind="aprilgrid"))
+    raise ValueError(f"target must be checkerboard or aprilgrid, not {cfg.target!r}")
+
+
 def render_set(out: Path, cfg: ForeignConfig, progress: bool = True) -> list[dict]:
     """Frames and labels (``out/images/*.png``, ``out/labels.json``, the layout of ``calib-eval
     detection``'s sets); returns the labels."""
     from tqdm import tqdm
 
-    board = Checkerboard()
+    board = make_board(cfg)
     (out / "images").mkdir(parents=True, exist_ok=True)
     labels = []
     jobs = [(fov, i) for fov in cfg.fovs for i in range(cfg.per_fov)]
-    for fov, i in tqdm(jobs, desc="render (independent renderer)", disable=not progress):
+    for fov, i in tqdm(jobs, desc=f"render {cfg.target} (independent renderer)", disable=not progress):
         fr = render_frame(fov, cfg, np.random.default_rng([cfg.seed, fov, i]), board)
         name = f"fov{fov}_{i:03d}.png"
         cv2.imwrite(str(out / "images" / name), fr.image)
@@ -263,36 +336,44 @@ def render_set(out: Path, cfg: ForeignConfig, progress: bool = True) -> list[dic
                 "detectable": fr.detectable.tolist(),
                 "centre": fr.centre.tolist(),
                 "radius": fr.radius,
+                "size_px": fr.size.tolist(),
             }
         )
     (out / "labels.json").write_text(json.dumps({"config": asdict(cfg), "target": board.to_json(), "labels": labels}))
     return labels
 
 
-def detect_set(out: Path, labels: list[dict], progress: bool = True) -> dict[str, dict]:
-    """Our detector and findChessboardCornersSB on the set's frames: predictions by detector name."""
+def detect_set(out: Path, labels: list[dict], board: Checkerboard | AprilGrid, progress: bool = True) -> dict[str, dict]:
+    """Our detector and the peers a user would otherwise pick on the set's frames: predictions
+    (``calib_eval.detection.evaluation.score``'s input) by detector name. Checkerboard:
+    ``findChessboardCornersSB`` (corners without trusted ids, matched by position). AprilGrid: the
+    tag detectors of ``python -m calib_eval.detection.tags`` that import here (cv2.aruco always),
+    each tag's corners taking its Kalibr ids. Times are per frame, decoding left out."""
     from tqdm import tqdm
 
-    from cotrain.detect.detector import Detector
+    from calib_eval.detection.tags import available_peers, tags_to_corners
+    from cotrain.detect.buffers import keep_image_buffers
+    from cotrain.detect.detector import make_detector
 
-    det, board = Detector(), Checkerboard()
-    preds: dict[str, dict] = {"ours": {}, "opencv_sb": {}}
-    for lab in tqdm(labels, desc="detect", disable=not progress):
-        t0 = time.perf_counter()
-        grey = cv2.imread(str(out / "images" / lab["image"]), cv2.IMREAD_GRAYSCALE)
-        d = det.detect(grey)
-        preds["ours"][lab["image"]] = {
-            "corners": [[int(i), float(x), float(y)] for i, (x, y) in zip(d.ids, d.xy)],
-            "ms": 1000 * (time.perf_counter() - t0),
-            "has_id": True,
-        }
-        t0 = time.perf_counter()
-        c = find_chessboard(grey, (board.nx, board.ny), "sb")
-        preds["opencv_sb"][lab["image"]] = {
-            "corners": [[-1, float(x), float(y)] for x, y in c] if c is not None else [],
-            "ms": 1000 * (time.perf_counter() - t0),
-            "has_id": False,
-        }
+    keep_image_buffers()  # as cotrain detect runs (cotrain.detect.buffers); the peers are timed under it too
+    runs: dict = {"ours": make_detector(board).detect}
+    runs.update(available_peers() if isinstance(board, AprilGrid) else {"opencv_sb": None})
+    preds: dict[str, dict] = {}
+    for name, run in runs.items():  # one detector over every frame, then the next (as calib_eval.detection.tags)
+        preds[name] = {}
+        for lab in tqdm(labels, desc=name, disable=not progress):
+            grey = cv2.imread(str(out / "images" / lab["image"]), cv2.IMREAD_GRAYSCALE)
+            t0 = time.perf_counter()
+            if name == "ours":
+                d = run(grey)
+                corners, has_id = [[int(i), float(x), float(y)] for i, (x, y) in zip(d.ids, d.xy)], True
+            elif run is None:
+                c = find_chessboard(grey, (board.nx, board.ny), "sb")
+                corners, has_id = ([[-1, float(x), float(y)] for x, y in c] if c is not None else []), False
+            else:
+                ids, xy = tags_to_corners(run(grey), board, np.array(lab["corners"]))
+                corners, has_id = [[int(i), float(p[0]), float(p[1])] for i, p in zip(ids, xy)], True
+            preds[name][lab["image"]] = {"corners": corners, "ms": 1000 * (time.perf_counter() - t0), "has_id": has_id}
     return preds
 
 
@@ -315,31 +396,42 @@ def table(results: dict[str, dict], fovs: tuple[int, ...]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--target", choices=("checkerboard", "aprilgrid"), default="checkerboard", help="the board drawn")
     ap.add_argument("--per-fov", type=int, default=ForeignConfig.per_fov, help="frames per FoV")
     ap.add_argument("--seed", type=int, default=ForeignConfig.seed)
-    ap.add_argument("--out", type=Path, default=Path("report/foreign"), help="output folder")
+    ap.add_argument("--out", type=Path, default=None, help="output folder (default report/foreign_<target>)")
     ap.add_argument("--no-progress", action="store_true")
     a = ap.parse_args(argv)
     if a.per_fov < 1:
         print("error: --per-fov must be at least 1", file=sys.stderr)
         return 2
-    cfg = ForeignConfig(per_fov=a.per_fov, seed=a.seed)
-    labels = render_set(a.out, cfg, progress=not a.no_progress)
-    preds = detect_set(a.out, labels, progress=not a.no_progress)
-    (a.out / "predictions.json").write_text(json.dumps(preds))
+    cfg = ForeignConfig(per_fov=a.per_fov, seed=a.seed, target=a.target)
+    out = a.out or Path(f"report/foreign_{a.target}")
+    old = out / "labels.json"
+    if old.exists() and json.loads(old.read_text()).get("config") == json.loads(json.dumps(asdict(cfg))):
+        labels = json.loads(old.read_text())["labels"]  # this set, rendered before with the same settings
+        print(f"{out}: reusing the {len(labels)} frames rendered there with these settings", file=sys.stderr)
+    else:
+        labels = render_set(out, cfg, progress=not a.no_progress)
+    preds = detect_set(out, labels, make_board(cfg), progress=not a.no_progress)
+    (out / "predictions.json").write_text(json.dumps(preds))  # kept before scoring
     results = {}
     for name, p in preds.items():
         r = score(p, labels)
         r["ms_median"] = float(np.median([v["ms"] for v in p.values()]))
         results[name] = r
+    size = f"tag {cfg.min_tag_px:g}" if cfg.target == "aprilgrid" else f"square {cfg.min_square_px:g}"
     md = (
-        f"Independent renderer (`python -m calib_eval.detection.foreign`, seed {cfg.seed}, {cfg.per_fov} frames per FoV at "
-        f"{cfg.width}x{cfg.height}): recall of detectable corners within 3 px (ours: with the right id; SB: matched by position).\n\n"
+        f"Independent renderer, {cfg.target} (`python -m calib_eval.detection.foreign --target {cfg.target}`, seed {cfg.seed}, "
+        f"{cfg.per_fov} frames per FoV at {cfg.width}x{cfg.height}): recall of detectable corners ({size} px across at least) "
+        "within 3 px, with the right id"
+        + (" (findChessboardCornersSB: matched by position)" if cfg.target == "checkerboard" else " (peers: a tag's corners take its ids)")
+        + ".\n\n"
         + table(results, cfg.fovs)
         + "\n"
     )
-    (a.out / "results.md").write_text(md)
-    (a.out / "results.json").write_text(json.dumps(results))
+    (out / "results.md").write_text(md)
+    (out / "results.json").write_text(json.dumps(results))
     print(md)
     return 0
 

@@ -64,3 +64,53 @@ def test_bad_frame_count_is_one_line_and_exit_2(capsys, tmp_path):
     assert main(["--per-fov", "0", "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error:") and err.count("\n") == 1
+
+
+def test_aprilgrid_page_decodes_at_kalibrs_corner_positions():
+    """The independent AprilGrid page (drawn from OpenCV's marker images, not from our target's
+    texture), seen flat from its printed side: cv2.aruco finds all 36 tags, and each tag's four
+    corners lie at its Kalibr corners' board coordinates (createGridPoints)."""
+    from calib_eval.detection.foreign import aprilgrid_texture, make_board
+
+    board = make_board(ForeignConfig(target="aprilgrid"))
+    x0, y0, x1, y1 = board.extent()
+    px = 0.0005  # metres per pixel of the view
+    ys, xs = np.mgrid[0 : int((y1 - y0) / px), 0 : int((x1 - x0) / px)]
+    refl, cover = aprilgrid_texture(board)(x0 + (xs + 0.5) * px, y1 - (ys + 0.5) * px)  # image rows go down the page
+    assert cover.all()
+    prm = cv2.aruco.DetectorParameters()
+    prm.markerBorderBits = 2
+    det = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11), prm)
+    corners, ids, _ = det.detectMarkers((refl * 255).astype(np.uint8))
+    assert ids is not None and sorted(ids.ravel().tolist()) == list(range(board.n_tags))
+    xy = board.board_xy()
+    for t, c in zip(ids.ravel(), corners):
+        c = c.reshape(4, 2)
+        page = np.stack([x0 + (c[:, 0] + 0.5) * px, y1 - (c[:, 1] + 0.5) * px], 1)
+        d = np.linalg.norm(page[:, None] - xy[board.tag_corners(t)][None], axis=2)
+        assert d.min(1).max() < 0.002  # each decoded corner within 2 mm of its own Kalibr corner (tags are 55 mm)
+        assert sorted(d.argmin(1).tolist()) == [0, 1, 2, 3]
+
+
+def test_aprilgrid_frames_show_their_tags_where_labelled():
+    """Rendered AprilGrid frames: cv2.aruco decodes tags in them, and the four corners it reports
+    for tag t lie at the labels of tag t's four Kalibr corners, one each, far nearer than to any
+    other (ids and the board's printed side are right through the lens)."""
+    from calib_eval.detection.foreign import make_board
+
+    cfg = ForeignConfig(target="aprilgrid", width=640, height=480, min_visible=60)
+    board = make_board(cfg)
+    prm = cv2.aruco.DetectorParameters()
+    prm.markerBorderBits = 2
+    det = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11), prm)
+    checked = 0
+    for i in range(4):
+        fr = render_frame(180, cfg, np.random.default_rng([3, i]), board)
+        corners, ids, _ = det.detectMarkers(fr.image)
+        for t, c in zip([] if ids is None else ids.ravel(), corners):
+            assert 0 <= t < board.n_tags
+            d = np.linalg.norm(c.reshape(4, 1, 2) - fr.corners[board.tag_corners(t)][None], axis=2)
+            assert sorted(d.argmin(1).tolist()) == [0, 1, 2, 3]  # each of its corners nearest one of its own labels
+            assert d.min(1).max() < 0.15 * np.sort(d, 1)[:, 1].min()  # aruco's corners are 1-2 px off under the lens
+            checked += 1
+    assert checked >= 5
