@@ -1,35 +1,41 @@
-"""Frames from a second, independent renderer: ``python -m calib_eval.detection.foreign [--per-fov N] [--out DIR]``.
+"""Frames from a second, independent renderer: ``python -m calib_eval.detection.foreign [--target KIND] [--per-fov N]``.
 
-Our detector is judged on frames other renderers draw, and everything it was tuned on came from
-one renderer (:mod:`cotrain.render`, kornia). This module draws checkerboard frames another way,
-sharing none of that code: numpy and OpenCV only, the lens as a closed-form radial law, the board
-as an analytic texture sampled by ray casting with a box filter, and the sensor in linear light
-encoded as sRGB. Then it runs our detector and ``findChessboardCornersSB`` on the same frames and
-scores them (:func:`calib_eval.detection.evaluation.score`, so the figures read like
-``calib-eval detection``'s).
+Our detectors are judged on frames other renderers draw, and everything they were tuned on came
+from one renderer (:mod:`cotrain.render`, kornia). This module draws frames another way, sharing
+none of that code: numpy and OpenCV only, the lens as a closed-form radial law, the board as a
+texture sampled by ray casting with a box filter, and the sensor in linear light encoded as sRGB.
+Then it runs our detector and the detectors a user would otherwise pick on the same frames
+(checkerboard: ``findChessboardCornersSB``; AprilGrid: the peers of ``python -m
+calib_eval.detection.tags``) and scores them (:func:`calib_eval.detection.evaluation.score`, so
+the figures read like ``calib-eval detection``'s). A set rendered before with the same settings
+is reused.
 
 - Lens: the image radius of a ray ``theta`` off the axis follows one of three classic fisheye
   laws (:data:`LENSES`: equidistant ``f theta``, equisolid ``2 f sin(theta / 2)``, stereographic
   ``2 f tan(theta / 2)``), each with its closed-form inverse; the image circle (the FoV's edge)
   has a radius of 0.5-0.75 of the frame's height, so the frame's top and bottom may cut it.
   Beyond it the frame is black.
-- Board: the default target (10 x 7 squares of 40 mm, half a square of white margin), its centre
-  0.15-0.6 m away, 0-(FoV / 2 - 5) deg off the axis, turned 0-60 deg from facing the camera and any
-  angle in its plane. Print: black 0.03-0.15, white 0.7-0.95.
+- Board: the default target of its kind (10 x 7 squares of 40 mm with half a square of white
+  margin, drawn from its numbers; or Kalibr's 6 x 6 AprilGrid of 55 mm tags, its page drawn again
+  from OpenCV's marker images, :func:`aprilgrid_texture`), its centre 0.15-0.6 m away, 0-(FoV / 2
+  - 5) deg off the axis, turned 0-60 deg from facing the camera and any angle in its plane. Print:
+  black 0.03-0.15, white 0.7-0.95.
 - Scene: a background of smooth shading and random grey shapes; in a third of the frames a grey
-  occluder in front of the board. Corners under it (within 3 px) are not visible.
+  occluder in front of the board.
 - Optics and sensor: ``supersample`` x ``supersample`` rays per pixel (box filter), a Gaussian
   lens blur of 0.3-1.0 px, vignetting down to 0.5-0.9 at the rim (quadratic in theta), an
-  exposure of 0.6-1.3, shot and
-  read noise, sRGB encoding to 8 bits, and in half the frames JPEG at quality 70-95.
+  exposure of 0.6-1.3, shot and read noise, sRGB encoding to 8 bits, and in half the frames JPEG
+  at quality 70-95.
 
 Labels: every corner's projection through the same closed-form law (an independent check of our
 geometry is in the tests: the equidistant law against ``cv2.fisheye.projectPoints``). A corner is
 visible when it lies on the board's printed side, inside the image circle and the frame, and not
 under the occluder; detectable when also 3 px inside the circle, 2 px inside the frame, clear of
-the occluder by 3 px and a quarter of its square, and its square in the image (the shortest step
-to a neighbour) is 10 px at least, as in ``calib-eval detection``. A corner reported at a visible
-corner's label (within 3 px) counts as right; at a hidden one, or farther, as wrong.
+the occluder by 3 px and a quarter of its size, and that size in the image is 10 px at least for
+a checkerboard (the shortest step to a neighbour, as in ``calib-eval detection``) or 8 px for an
+AprilGrid (the shorter side of its tag, as in ``python -m calib_eval.detection.tags``). A corner
+reported at a visible corner's label (within 3 px) with its id counts as right; at a hidden one,
+or farther, as wrong.
 """
 
 from __future__ import annotations
@@ -407,13 +413,24 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     cfg = ForeignConfig(per_fov=a.per_fov, seed=a.seed, target=a.target)
     out = a.out or Path(f"report/foreign_{a.target}")
+    try:
+        print(evaluate(cfg, out, progress=not a.no_progress))
+    except (OSError, ValueError) as e:  # an output folder that cannot be written, a broken labels.json
+        print(f"error: {e}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def evaluate(cfg: ForeignConfig, out: Path, progress: bool = True) -> str:
+    """Render (or reuse) the set under ``out``, run the detectors, score them; writes
+    predictions.json (before scoring), results.json and results.md there and returns the latter."""
     old = out / "labels.json"
     if old.exists() and json.loads(old.read_text()).get("config") == json.loads(json.dumps(asdict(cfg))):
         labels = json.loads(old.read_text())["labels"]  # this set, rendered before with the same settings
         print(f"{out}: reusing the {len(labels)} frames rendered there with these settings", file=sys.stderr)
     else:
-        labels = render_set(out, cfg, progress=not a.no_progress)
-    preds = detect_set(out, labels, make_board(cfg), progress=not a.no_progress)
+        labels = render_set(out, cfg, progress=progress)
+    preds = detect_set(out, labels, make_board(cfg), progress=progress)
     (out / "predictions.json").write_text(json.dumps(preds))  # kept before scoring
     results = {}
     for name, p in preds.items():
@@ -432,8 +449,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     (out / "results.md").write_text(md)
     (out / "results.json").write_text(json.dumps(results))
-    print(md)
-    return 0
+    return md
 
 
 if __name__ == "__main__":

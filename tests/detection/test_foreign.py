@@ -114,3 +114,11 @@ def test_aprilgrid_frames_show_their_tags_where_labelled():
             assert d.min(1).max() < 0.15 * np.sort(d, 1)[:, 1].min()  # aruco's corners are 1-2 px off under the lens
             checked += 1
     assert checked >= 5
+
+
+def test_an_output_folder_that_is_a_file_is_one_line_and_exit_1(capsys, tmp_path):
+    blocker = tmp_path / "taken"
+    blocker.write_text("a file, not a folder")
+    assert main(["--per-fov", "1", "--out", str(blocker), "--no-progress"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("error:") and err.count("\n") == 1
