@@ -430,7 +430,8 @@ def test_a_lattice_stepped_across_the_margin_is_placed_again_cut_there():
     assert whole.geometry_margin < 0 and not placement_is_sure(whole.margin, whole.geometry_margin, len(ab), cfg)
 
     parts = cut_at_margins(lat, edges, cfg)
-    assert [sorted(map(tuple, p.ab.tolist())) for p in parts] == [sorted(view)]  # the distractor's 0.4 cuts nothing
+    # The top and bottom lines cut nothing off; the distractor's top (0.4) is under cut_min_evidence.
+    assert [sorted(map(tuple, p.ab.tolist())) for p in parts] == [sorted(view)]
     part = parts[0]
     np.testing.assert_array_equal(part.xy, part.ab * 30.0 + 100.0)
     part_edges = [(part.where[tuple(ab[k])], da, db, e) for k, da, db, e in edges if tuple(ab[k]) in part.where]
