@@ -114,6 +114,7 @@ def rays(xy: np.ndarray, lens: str, f: float, centre: np.ndarray) -> tuple[np.nd
     return np.stack([s * np.cos(phi), s * np.sin(phi), np.cos(theta)], -1), theta
 
 
+@functools.lru_cache(maxsize=2)
 def checkerboard_texture(board: Checkerboard):
     """The checkerboard's print: (u, v) board-frame metres (..., ) -> (reflectance in [0, 1], bool
     on the sheet). Squares from 0 to squares_x s, square (0, 0) black, ``board.cfg.margin``
@@ -131,6 +132,7 @@ def checkerboard_texture(board: Checkerboard):
     return texture
 
 
+@functools.lru_cache(maxsize=2)  # one page per board, not per frame
 def aprilgrid_texture(board: AprilGrid, px_per_cell: int = 8):
     """The AprilGrid's print as Kalibr's ``createTargetPDF.py`` lays it out, drawn here again from
     OpenCV's marker images (not from :class:`cotrain.targets.AprilGrid`'s texture): the page frame
@@ -393,10 +395,10 @@ def table(results: dict[str, dict], fovs: tuple[int, ...]) -> str:
         det = sum(per[str(f)]["n_detectable"] for f in fovs)
         hit = sum(per[str(f)]["recall"] * per[str(f)]["n_detectable"] for f in fovs)
         wrong = sum(round(per[str(f)]["outlier_rate"] * per[str(f)]["n_reported"]) for f in fovs)
-        hits = [(per[str(f)]["recall"] * per[str(f)]["n_detectable"], per[str(f)]["mean_error_px"]) for f in fovs]
-        mean = sum(n * e for n, e in hits if n) / hit if hit else float("nan")
+        errors = [e for f in fovs for e in r["errors"].get(str(f), [])]
+        mean = float(np.mean(errors)) if errors else float("nan")
         cells = " | ".join(f"{per[str(f)]['recall']:.3f}" for f in fovs)
-        rows.append(f"| {name} | {cells} | {hit / max(det, 1):.3f} | {wrong} | {mean:.3f} | {r['ms_median']:.1f} |")
+        rows.append(f"| {name} | {cells} | {hit / max(det, 1):.3f} | {wrong} | {mean:.3f} | {r['ms_per_image']:.1f} |")
     return "\n".join(rows)
 
 
@@ -432,11 +434,7 @@ def evaluate(cfg: ForeignConfig, out: Path, progress: bool = True) -> str:
         labels = render_set(out, cfg, progress=progress)
     preds = detect_set(out, labels, make_board(cfg), progress=progress)
     (out / "predictions.json").write_text(json.dumps(preds))  # kept before scoring
-    results = {}
-    for name, p in preds.items():
-        r = score(p, labels)
-        r["ms_median"] = float(np.median([v["ms"] for v in p.values()]))
-        results[name] = r
+    results = {name: score(p, labels) for name, p in preds.items()}
     size = f"tag {cfg.min_tag_px:g}" if cfg.target == "aprilgrid" else f"square {cfg.min_square_px:g}"
     md = (
         f"Independent renderer, {cfg.target} (`python -m calib_eval.detection.foreign --target {cfg.target}`, seed {cfg.seed}, "
