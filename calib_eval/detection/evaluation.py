@@ -200,13 +200,29 @@ def run_geometry(kind: str, images: list[Path], target: Target, progress: bool =
 # Scoring
 # --------------------------------------------------------------------------------------------
 def score_image(
-    pred: list[list[float]], has_id: bool, gt: np.ndarray, visible: np.ndarray, detectable: np.ndarray, tol: float = TOL_PX
+    pred: list[list[float]],
+    has_id: bool,
+    gt: np.ndarray,
+    visible: np.ndarray,
+    detectable: np.ndarray,
+    tol: float = TOL_PX,
+    symmetries: tuple[np.ndarray, ...] = (),
 ) -> dict:
     """Match one image's predictions to ground truth.
 
     pred: [[id, x, y], ...] (id -1 when the detector gives none); gt (N, 2); visible, detectable (N,).
+    ``symmetries``: the target's id permutations under which it looks the same (``Target.symmetries()``;
+    a checkerboard with both square counts odd or both even, under a half turn). On such a board
+    one view's ids are defined up to them (the detector reports one of the equivalent sets, as
+    OpenCV does), so the predictions are scored under each and the one with the most hits counts.
     Returns hits (list of (gt id, error)), n_detectable, n_reported, n_outliers.
     """
+    if has_id and symmetries:
+        options = [score_image(pred, True, gt, visible, detectable, tol)]
+        for perm in symmetries:
+            moved = [[int(perm[int(i)]) if 0 <= int(i) < len(perm) else int(i), x, y] for i, x, y in pred]
+            options.append(score_image(moved, True, gt, visible, detectable, tol))
+        return max(options, key=lambda s: (len(s["hits"]), -s["n_outliers"]))
     hits: list[tuple[int, float]] = []
     outliers = 0
     if has_id:
@@ -242,8 +258,9 @@ def score_image(
     return {"hits": hits, "n_detectable": int(np.sum(detectable)), "n_reported": len(pred), "n_outliers": outliers}
 
 
-def score(preds: dict[str, dict], labels: list[dict]) -> dict:
-    """Per-FoV and overall metrics of one detector from its saved predictions."""
+def score(preds: dict[str, dict], labels: list[dict], symmetries: tuple[np.ndarray, ...] = ()) -> dict:
+    """Per-FoV and overall metrics of one detector from its saved predictions (``symmetries``: the
+    target's, see :func:`score_image`)."""
     groups: dict[str, dict] = {}
     errors_by_fov: dict[str, list[float]] = {}
     radial: dict[str, list[tuple[float, bool]]] = {}
@@ -259,7 +276,7 @@ def score(preds: dict[str, dict], labels: list[dict]) -> dict:
             empty_flagged += int(len(p["corners"]) > 0)
             continue
         gt = np.asarray(lab["corners"])
-        s = score_image(p["corners"], p["has_id"], gt, np.asarray(lab["visible"]), np.asarray(lab["detectable"]))
+        s = score_image(p["corners"], p["has_id"], gt, np.asarray(lab["visible"]), np.asarray(lab["detectable"]), symmetries=symmetries)
         key = lab.get("condition") or str(lab["fov"])
         g = groups.setdefault(key, {"det": 0, "hit": 0, "rep": 0, "out": 0})
         g["det"] += s["n_detectable"]
@@ -435,7 +452,9 @@ def evaluate_detection(model: str | None, cfg: EvalConfig, out: Path, progress: 
         (out / f"predictions_{name}.json").write_text(json.dumps(preds[name]))
     # Second pass: scores from the saved predictions.
     order = [n for n in DETECTORS if n in detectors or n in kept]
-    results = {name: score(json.loads((out / f"predictions_{name}.json").read_text()), meta["labels"]) for name in order}
+    results = {
+        name: score(json.loads((out / f"predictions_{name}.json").read_text()), meta["labels"], board.symmetries()) for name in order
+    }
     # The per-slot read-out is the network's own experimental output, not a detector a user
     # would pick: it gets a section of its own, below the detectors.
     found = {k: v for k, v in results.items() if k not in EXPERIMENTAL}

@@ -1,4 +1,4 @@
-"""Frames from a second, independent renderer: ``python -m calib_eval.detection.foreign [--target KIND] [--per-fov N]``.
+"""Frames from a second, independent renderer: ``python -m calib_eval.detection.foreign [--target KIND | --board YAML] [--per-fov N]``.
 
 Our detectors are judged on frames other renderers draw, and everything they were tuned on came
 from one renderer (:mod:`cotrain.render`, kornia). This module draws frames another way, sharing
@@ -17,7 +17,9 @@ is reused.
   Beyond it the frame is black.
 - Board: the default target of its kind (10 x 7 squares of 40 mm with half a square of white
   margin, drawn from its numbers; or Kalibr's 6 x 6 AprilGrid of 55 mm tags, its page drawn again
-  from OpenCV's marker images, :func:`aprilgrid_texture`), its centre 0.15-0.6 m away, 0-(FoV / 2
+  from OpenCV's marker images, :func:`aprilgrid_texture`), or the board of a target file
+  (``--board``: Kalibr's target yaml or ours; on a board that looks the same under a half turn,
+  a frame's ids count under either of the equivalent sets), its centre 0.15-0.6 m away, 0-(FoV / 2
   - 5) deg off the axis, turned 0-60 deg from facing the camera and any angle in its plane. Print:
   black 0.03-0.15, white 0.7-0.95.
 - Scene: a background of smooth shading and random grey shapes; in a third of the frames a grey
@@ -53,7 +55,7 @@ import numpy as np
 
 from calib_eval.detection.evaluation import score
 from calib_eval.detection.opencv_baseline import find_chessboard
-from cotrain.targets import AprilGrid, Checkerboard, TargetConfig
+from cotrain.targets import AprilGrid, Checkerboard, TargetConfig, load_target
 
 # The radial laws: image radius rho(theta) / f and its inverse theta(rho / f).
 LENSES = {
@@ -71,7 +73,8 @@ class ForeignConfig:
     height: int = 720
     seed: int = 5  # everything random derives from it
     supersample: int = 3  # rays per pixel side (box filter over the pixel)
-    target: str = "checkerboard"  # the board drawn: "checkerboard" (10 x 7 squares) or "aprilgrid" (Kalibr's 6 x 6 tags)
+    target: str = "checkerboard"  # the board drawn: "checkerboard" (10 x 7 squares) or "aprilgrid" (Kalibr's 6 x 6 tags) ...
+    board: str = ""  # ... or the board of this target file (Kalibr's target yaml or ours; its kind then sets target)
     min_square_px: float = 10.0  # detectable: a checkerboard corner's square at least this many pixels ...
     min_tag_px: float = 8.0  # ... an AprilGrid corner's tag at least this many (as python -m calib_eval.detection.tags)
     min_visible: int = 6  # frames are drawn again until this many corners are detectable
@@ -310,7 +313,14 @@ def _frame_with_z(z: np.ndarray) -> np.ndarray:
 
 
 def make_board(cfg: ForeignConfig) -> Checkerboard | AprilGrid:
-    """The default target of ``cfg.target``'s kind (configs/)."""
+    """The board of the target file ``cfg.board``, else the default target of ``cfg.target``'s kind
+    (configs/). Raises ValueError (one line) for a file that describes no board, or one of another
+    kind than ``cfg.target``."""
+    if cfg.board:
+        board = load_target(cfg.board)
+        if board.kind != cfg.target:
+            raise ValueError(f"{cfg.board}: describes a {board.kind} board, and --target says {cfg.target}")
+        return board
     if cfg.target == "checkerboard":
         return Checkerboard()
     if cfg.target == "aprilgrid":
@@ -355,17 +365,18 @@ def detect_set(out: Path, labels: list[dict], board: Checkerboard | AprilGrid, p
     """Our detector and the peers a user would otherwise pick on the set's frames: predictions
     (``calib_eval.detection.evaluation.score``'s input) by detector name. Checkerboard:
     ``findChessboardCornersSB`` (corners without trusted ids, matched by position). AprilGrid: the
-    tag detectors of ``python -m calib_eval.detection.tags`` that import here (cv2.aruco always),
-    each tag's corners taking its Kalibr ids. Times are per frame, decoding left out."""
+    tag detectors of ``python -m calib_eval.detection.tags`` that are installed (cv2.aruco always),
+    each in a process of its own, each tag's corners taking its Kalibr ids. Times are per frame, decoding left out."""
     from tqdm import tqdm
 
-    from calib_eval.detection.tags import available_peers, tags_to_corners
+    from calib_eval.detection.tags import run_peers, tags_to_corners
     from cotrain.detect.buffers import keep_image_buffers
     from cotrain.detect.detector import make_detector
 
     keep_image_buffers()  # as cotrain detect runs (cotrain.detect.buffers); the peers are timed under it too
     runs: dict = {"ours": make_detector(board).detect}
-    runs.update(available_peers() if isinstance(board, AprilGrid) else {"opencv_sb": None})
+    if isinstance(board, Checkerboard):
+        runs["opencv_sb"] = None
     preds: dict[str, dict] = {}
     for name, run in runs.items():  # one detector over every frame, then the next (as calib_eval.detection.tags)
         preds[name] = {}
@@ -374,14 +385,19 @@ def detect_set(out: Path, labels: list[dict], board: Checkerboard | AprilGrid, p
             t0 = time.perf_counter()
             if name == "ours":
                 d = run(grey)
-                corners, has_id = [[int(i), float(x), float(y)] for i, (x, y) in zip(d.ids, d.xy)], True
-            elif run is None:
-                c = find_chessboard(grey, (board.nx, board.ny), "sb")
-                corners, has_id = ([[-1, float(x), float(y)] for x, y in c] if c is not None else []), False
+                corners = [[int(i), float(x), float(y)] for i, (x, y) in zip(d.ids, d.xy)]
             else:
-                ids, xy = tags_to_corners(run(grey), board, np.array(lab["corners"]))
-                corners, has_id = [[int(i), float(p[0]), float(p[1])] for i, p in zip(ids, xy)], True
-            preds[name][lab["image"]] = {"corners": corners, "ms": 1000 * (time.perf_counter() - t0), "has_id": has_id}
+                c = find_chessboard(grey, (board.nx, board.ny), "sb")
+                corners = [[-1, float(x), float(y)] for x, y in c] if c is not None else []
+            preds[name][lab["image"]] = {"corners": corners, "ms": 1000 * (time.perf_counter() - t0), "has_id": name == "ours"}
+    if isinstance(board, AprilGrid):
+        # Each peer in a process of its own (tags.run_peers: a crash in its library ends its row only).
+        for name, found in run_peers([out / "images" / lab["image"] for lab in labels], progress=progress).items():
+            preds[name] = {}
+            for lab, (tags, ms) in zip(labels, found):
+                ids, xy = tags_to_corners(tags, board, np.array(lab["corners"]))
+                corners = [[int(i), float(q[0]), float(q[1])] for i, q in zip(ids, xy)]
+                preds[name][lab["image"]] = {"corners": corners, "ms": ms, "has_id": True}
     return preds
 
 
@@ -404,18 +420,21 @@ def table(results: dict[str, dict], fovs: tuple[int, ...]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--target", choices=("checkerboard", "aprilgrid"), default="checkerboard", help="the board drawn")
+    ap.add_argument("--target", choices=("checkerboard", "aprilgrid"), default=None, help="the board drawn: its kind's default")
+    ap.add_argument("--board", type=Path, default=None, help="a target file (Kalibr's target yaml or ours): its board is drawn")
     ap.add_argument("--per-fov", type=int, default=ForeignConfig.per_fov, help="frames per FoV")
     ap.add_argument("--seed", type=int, default=ForeignConfig.seed)
-    ap.add_argument("--out", type=Path, default=None, help="output folder (default report/foreign_<target>)")
+    ap.add_argument("--out", type=Path, default=None, help="output folder (default report/foreign_<target or board file>)")
     ap.add_argument("--no-progress", action="store_true")
     a = ap.parse_args(argv)
     if a.per_fov < 1:
         print("error: --per-fov must be at least 1", file=sys.stderr)
         return 2
-    cfg = ForeignConfig(per_fov=a.per_fov, seed=a.seed, target=a.target)
-    out = a.out or Path(f"report/foreign_{a.target}")
     try:
+        kind = load_target(a.board).kind if a.board else a.target or "checkerboard"
+        cfg = ForeignConfig(per_fov=a.per_fov, seed=a.seed, target=a.target or kind, board=str(a.board or ""))
+        make_board(cfg)  # a file of another kind than --target: said before anything is drawn
+        out = a.out or Path(f"report/foreign_{a.board.stem if a.board else cfg.target}")
         print(evaluate(cfg, out, progress=not a.no_progress))
     except (OSError, ValueError) as e:  # an output folder that cannot be written, a broken labels.json
         print(f"error: {e}", file=sys.stderr)
@@ -427,17 +446,20 @@ def evaluate(cfg: ForeignConfig, out: Path, progress: bool = True) -> str:
     """Render (or reuse) the set under ``out``, run the detectors, score them; writes
     predictions.json (before scoring), results.json and results.md there and returns the latter."""
     old = out / "labels.json"
-    if old.exists() and json.loads(old.read_text()).get("config") == json.loads(json.dumps(asdict(cfg))):
+    board = make_board(cfg)
+    same = {"config": json.loads(json.dumps(asdict(cfg))), "target": board.to_json()}
+    if old.exists() and {k: json.loads(old.read_text()).get(k) for k in same} == same:
         labels = json.loads(old.read_text())["labels"]  # this set, rendered before with the same settings
         print(f"{out}: reusing the {len(labels)} frames rendered there with these settings", file=sys.stderr)
     else:
         labels = render_set(out, cfg, progress=progress)
-    preds = detect_set(out, labels, make_board(cfg), progress=progress)
+    preds = detect_set(out, labels, board, progress=progress)
     (out / "predictions.json").write_text(json.dumps(preds))  # kept before scoring
-    results = {name: score(p, labels) for name, p in preds.items()}
+    results = {name: score(p, labels, board.symmetries()) for name, p in preds.items()}
     size = f"tag {cfg.min_tag_px:g}" if cfg.target == "aprilgrid" else f"square {cfg.min_square_px:g}"
+    which = f"--board {cfg.board}" if cfg.board else f"--target {cfg.target}"
     md = (
-        f"Independent renderer, {cfg.target} (`python -m calib_eval.detection.foreign --target {cfg.target}`, seed {cfg.seed}, "
+        f"Independent renderer, {board} (`python -m calib_eval.detection.foreign {which}`, seed {cfg.seed}, "
         f"{cfg.per_fov} frames per FoV at {cfg.width}x{cfg.height}): recall of detectable corners ({size} px across at least) "
         "within 3 px, with the right id"
         + (" (findChessboardCornersSB: matched by position)" if cfg.target == "checkerboard" else " (peers: a tag's corners take its ids)")

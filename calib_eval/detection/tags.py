@@ -6,7 +6,8 @@
 2. Run our tag pass (:class:`cotrain.detect.detector.AprilGridDetector`) and the AprilGrid
    detectors a user would otherwise pick, where installed (``make peers``): OpenCV's aruco with
    ``DICT_APRILTAG_36h11`` and Kalibr's 2-bit border, ``aprilgrid`` (PyPI, a port of Kalibr's
-   detector) and ``pupil-apriltags`` (AprilTag 3).
+   detector) and ``pupil-apriltags`` (AprilTag 3), each peer in a process of its own
+   (:func:`run_peers`: a crash in a peer's library ends that peer's row, not the evaluation).
 3. Score per FoV, per 10-degree bin of the corner's off-axis angle and per bin of tag size, and
    on rows of hard frames of their own (``--per-condition``): the checkerboard evaluation's
    conditions (:data:`calib_eval.detection.conditions.CONDITIONS`: large tags at the rim, over- and
@@ -25,6 +26,7 @@ import json
 import statistics
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -90,14 +92,45 @@ def _pupil():
 PEERS = {"aruco": _aruco, "aprilgrid": _aprilgrid, "pupil-apriltags": _pupil}
 
 
-def available_peers() -> dict:
-    """The peers that import here: name -> detector (uint8 image -> tags)."""
+def peer_tags(make: Callable, paths: list[str]) -> list[tuple[list, float]]:
+    """The peer ``make()`` builds (one of :data:`PEERS`) over the images ``paths`` (read as 8-bit
+    grey; the reading is not timed): per image its tags and its milliseconds. Raises ImportError
+    where the peer is not installed."""
+    run = make()
+    keep_image_buffers()  # as cotrain detect runs (cotrain.detect.buffers): our detector is timed under it too
+    out = []
+    for path in paths:
+        img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        t0 = time.perf_counter()
+        tags = run(img)
+        out.append((tags, 1000 * (time.perf_counter() - t0)))
+    return out
+
+
+def run_peers(paths: list[Path], peers: dict[str, Callable] | None = None, progress: bool = True) -> dict[str, list[tuple[list, float]]]:
+    """:func:`peer_tags` of every peer (name -> factory, module-level; default :data:`PEERS`) over
+    ``paths``, each in a process of its own (spawned), one after another: name -> per image its
+    tags and milliseconds. A peer is a third-party library, some of them C (AprilTag's, under
+    pupil-apriltags, has an open report of heap corruption: pupil-labs/apriltags#39). With all
+    of them in one process, a 10 x 8 AprilGrid set of the independent renderer aborted in a later
+    allocation in 5 of 5 runs; with each in its own, in none of 3. A peer whose process dies is
+    left out of this run, said in one line, and the others and our detector's results stand. A
+    peer not installed is left out too (said on stderr)."""
+    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures.process import BrokenProcessPool
+    from multiprocessing import get_context
+
     out = {}
-    for name, make in PEERS.items():
-        try:
-            out[name] = make()
-        except ImportError:
-            print(f"{name}: not installed (make peers); left out", file=sys.stderr)
+    for name, make in (PEERS if peers is None else peers).items():
+        if progress:
+            print(f"{name}: {len(paths)} images, in a process of its own", file=sys.stderr)
+        with ProcessPoolExecutor(1, mp_context=get_context("spawn")) as pool:
+            try:
+                out[name] = pool.submit(peer_tags, make, [str(p) for p in paths]).result()
+            except ImportError:
+                print(f"{name}: not installed (make peers); left out", file=sys.stderr)
+            except BrokenProcessPool:
+                print(f"{name}: its process died (a crash inside the library); left out of this run", file=sys.stderr)
     return out
 
 
@@ -194,20 +227,21 @@ def score_frame(ids, xy, lab: dict, min_tag_px: float) -> dict:
 def evaluate(cfg: TagEvalConfig, out: Path) -> dict:
     board = make_target(TargetConfig(kind="aprilgrid"))
     labels = render_set(cfg, board, out)
+    paths = [out / "images" / lab["image"] for lab in labels]
     keep_image_buffers()  # as cotrain detect runs (cotrain.detect.buffers); the peers are timed under it too
-    dets = {"ours": AprilGridDetector(board).detect, **available_peers()}
+    detect = AprilGridDetector(board).detect
+    ours = []
+    for path in paths:
+        img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        t0 = time.perf_counter()
+        found = detect(img)
+        ours.append(((found.ids.tolist(), list(found.xy)), 1000 * (time.perf_counter() - t0)))
+    runs = {"ours": ours, **run_peers(paths)}
     res = {}
-    for name, run in dets.items():
+    for name, found in runs.items():
         rows = []
-        for lab in labels:
-            img = cv2.imread(str(out / "images" / lab["image"]), cv2.IMREAD_GRAYSCALE)
-            t0 = time.perf_counter()
-            found = run(img)
-            ms = 1000 * (time.perf_counter() - t0)
-            if name == "ours":
-                ids, xy = found.ids.tolist(), list(found.xy)
-            else:
-                ids, xy = tags_to_corners(found, board, np.array(lab["corners"]))
+        for lab, (tags, ms) in zip(labels, found):
+            ids, xy = tags if name == "ours" else tags_to_corners(tags, board, np.array(lab["corners"]))
             s = score_frame(ids, xy, lab, cfg.min_tag_px)
             rows.append((lab, s, ms, len(ids)))
         res[name] = summarise(rows)

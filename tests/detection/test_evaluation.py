@@ -28,6 +28,26 @@ def test_score_image_position_matched():
     assert s["n_outliers"] == 1  # the one between corners
 
 
+def test_score_image_takes_a_symmetric_boards_equivalent_ids():
+    """On a board that looks the same under a half turn (8 x 6 squares: 7 x 5 corners) one view's
+    ids are defined up to that turn: the turned ids score as hits under the board's symmetries,
+    and as outliers without them. Wrong ids stay wrong under every equivalent set."""
+    from cotrain.targets import Checkerboard, TargetConfig
+
+    board = Checkerboard(TargetConfig(squares_x=8, squares_y=6))
+    (perm,) = board.symmetries()
+    gt = np.stack(np.meshgrid(np.arange(7) * 30.0 + 100, np.arange(5) * 30.0 + 100), -1).reshape(-1, 2)
+    vis = det = np.ones(len(gt), bool)
+    turned = [[int(perm[i]), float(x), float(y)] for i, (x, y) in enumerate(gt[:10])]
+    s = score_image(turned, True, gt, vis, det, symmetries=board.symmetries())
+    assert len(s["hits"]) == 10 and s["n_outliers"] == 0
+    s0 = score_image(turned, True, gt, vis, det)
+    assert len(s0["hits"]) == 0 and s0["n_outliers"] == 10
+    shifted = [[i + 1, float(x), float(y)] for i, (x, y) in enumerate(gt[:10])]  # one corner along: neither set of ids
+    s1 = score_image(shifted, True, gt, vis, det, symmetries=board.symmetries())
+    assert len(s1["hits"]) == 0 and s1["n_outliers"] == 10
+
+
 def test_score_aggregates_and_empty_images():
     labels = [
         {

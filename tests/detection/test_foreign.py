@@ -92,18 +92,23 @@ def test_aprilgrid_page_decodes_at_kalibrs_corner_positions():
         assert sorted(d.argmin(1).tolist()) == [0, 1, 2, 3]
 
 
-def test_aprilgrid_frames_show_their_tags_where_labelled():
+@pytest.mark.parametrize("kalibr_yaml", [None, "tagCols: 10\ntagRows: 8\ntagSize: 0.06\ntagSpacing: 0.3\n"])
+def test_aprilgrid_frames_show_their_tags_where_labelled(kalibr_yaml, tmp_path):
     """Rendered AprilGrid frames: cv2.aruco decodes tags in them, and the four corners it reports
     for tag t lie at the labels of tag t's four Kalibr corners, one each, far nearer than to any
-    other (ids and the board's printed side are right through the lens)."""
+    other (ids and the board's printed side are right through the lens). The default board, and
+    one of a Kalibr target yaml (``--board``: 10 x 8 tags, ids up to 79)."""
     from calib_eval.detection.foreign import make_board
 
-    cfg = ForeignConfig(target="aprilgrid", width=640, height=480, min_visible=60)
+    path = tmp_path / "april.yaml"
+    path.write_text("target_type: 'aprilgrid'\n" + (kalibr_yaml or ""))
+    cfg = ForeignConfig(target="aprilgrid", width=640, height=480, min_visible=60, board=str(path) if kalibr_yaml else "")
     board = make_board(cfg)
+    assert board.n_tags == (80 if kalibr_yaml else 36)
     prm = cv2.aruco.DetectorParameters()
     prm.markerBorderBits = 2
     det = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11), prm)
-    checked = 0
+    checked, seen_ids = 0, set()
     for i in range(4):
         fr = render_frame(180, cfg, np.random.default_rng([3, i]), board)
         corners, ids, _ = det.detectMarkers(fr.image)
@@ -113,7 +118,10 @@ def test_aprilgrid_frames_show_their_tags_where_labelled():
             assert sorted(d.argmin(1).tolist()) == [0, 1, 2, 3]  # each of its corners nearest one of its own labels
             assert d.min(1).max() < 0.15 * np.sort(d, 1)[:, 1].min()  # aruco's corners are 1-2 px off under the lens
             checked += 1
+            seen_ids.add(int(t))
     assert checked >= 5
+    if kalibr_yaml:
+        assert max(seen_ids) >= 36  # tags beyond the default board's 36
 
 
 def test_an_output_folder_that_is_a_file_is_one_line_and_exit_1(capsys, tmp_path):
@@ -122,3 +130,12 @@ def test_an_output_folder_that_is_a_file_is_one_line_and_exit_1(capsys, tmp_path
     assert main(["--per-fov", "1", "--out", str(blocker), "--no-progress"]) == 1
     err = capsys.readouterr().err
     assert err.startswith("error:") and err.count("\n") == 1
+
+
+def test_a_board_file_of_another_kind_than_the_target_is_one_line_and_exit_1(capsys, tmp_path):
+    f = tmp_path / "checker.yaml"
+    f.write_text("target_type: 'checkerboard'\ntargetCols: 7\ntargetRows: 5\nrowSpacingMeters: 0.05\ncolSpacingMeters: 0.05\n")
+    assert main(["--board", str(f), "--target", "aprilgrid", "--out", str(tmp_path / "out"), "--no-progress"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("error:") and "checkerboard" in err and err.count("\n") == 1
+    assert not (tmp_path / "out").exists()  # said before anything is drawn

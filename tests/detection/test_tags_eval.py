@@ -1,9 +1,12 @@
 """Scoring of the AprilGrid evaluation: a peer's tags take their Kalibr corner ids by position;
 recall counts detectable corners within 3 px of their own label, everything else is wrong."""
 
+import os
+
+import cv2
 import numpy as np
 
-from calib_eval.detection.tags import score_frame, summarise, tags_to_corners
+from calib_eval.detection.tags import PEERS, run_peers, score_frame, summarise, tags_to_corners
 from cotrain.targets import TargetConfig, make_target
 
 
@@ -46,3 +49,20 @@ def test_summary_counts_recall_per_fov_angle_and_tag_size():
     assert r["sizes"][8]["recall"] == 1.0 and r["sizes"][10]["recall"] == 0.0 and r["sizes"][12]["recall"] == 3 / 4
     assert r["sizes"][30] == {"recall": 1.0, "corners": 1} and r["sizes"][20]["recall"] is None
     np.testing.assert_allclose(r["mean_err"], np.mean([0.1, 0.2, 0.3, 0.3, 0.3]))
+
+
+def test_a_peer_that_crashes_its_process_is_left_out_and_the_others_run(tmp_path, capsys):
+    """Each peer runs in a process of its own: one whose library aborts the process (os.abort
+    here) is left out of the run with a one-line message; cv2.aruco, after it, still reads the
+    tag drawn on the page, with its id and its time."""
+    marker = cv2.aruco.generateImageMarker(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11), 7, 160, borderBits=2)
+    page = np.full((320, 320), 255, np.uint8)
+    page[80:240, 80:240] = marker
+    path = tmp_path / "tag7.png"
+    cv2.imwrite(str(path), page)
+    out = run_peers([path], {"crashes": os.abort, "aruco": PEERS["aruco"]}, progress=False)
+    assert list(out) == ["aruco"]
+    ((tags, ms),) = out["aruco"]
+    assert [t for t, _ in tags] == [7] and ms > 0
+    np.testing.assert_allclose(sorted(tags[0][1].tolist()), sorted([[79.5, 79.5], [239.5, 79.5], [239.5, 239.5], [79.5, 239.5]]), atol=1.0)
+    assert "crashes: its process died" in capsys.readouterr().err
