@@ -215,7 +215,11 @@ def score_image(
     a checkerboard with both square counts odd or both even, under a half turn). On such a board
     one view's ids are defined up to them (the detector reports one of the equivalent sets, as
     OpenCV does), so the predictions are scored under each and the one with the most hits counts.
-    Returns hits (list of (gt id, error)), n_detectable, n_reported, n_outliers.
+    A corner reported with its own id within ``tol`` of a corner the labels call hidden (an
+    occluder within 2 px of it, a glare spot that washes it out, the image circle's edge) is
+    neither a hit nor an outlier: it is counted in ``n_hidden`` (its id is right, and its position
+    too, to the tolerance; the labels' visibility is conservative).
+    Returns hits (list of (gt id, error)), n_detectable, n_reported, n_outliers, n_hidden.
     """
     if has_id and symmetries:
         options = [score_image(pred, True, gt, visible, detectable, tol)]
@@ -224,16 +228,17 @@ def score_image(
             options.append(score_image(moved, True, gt, visible, detectable, tol))
         return max(options, key=lambda s: (len(s["hits"]), -s["n_outliers"]))
     hits: list[tuple[int, float]] = []
-    outliers = 0
+    outliers = hidden = 0
     if has_id:
         for i, x, y in pred:
             i = int(i)
-            e = math.hypot(x - gt[i, 0], y - gt[i, 1]) if 0 <= i < len(gt) and visible[i] else math.inf
-            if e <= tol:
-                if detectable[i]:
-                    hits.append((i, e))
-            else:
+            e = math.hypot(x - gt[i, 0], y - gt[i, 1]) if 0 <= i < len(gt) else math.inf
+            if not e <= tol:  # (NaN: a label behind the camera)
                 outliers += 1
+            elif not visible[i]:
+                hidden += 1
+            elif detectable[i]:
+                hits.append((i, e))
     else:
         vis_idx = np.nonzero(visible)[0]
         used: set[int] = set()
@@ -254,8 +259,15 @@ def score_image(
             used.add(i)
             if detectable[i]:
                 hits.append((i, e))
-        outliers = len(pred) - len(matched_pred)
-    return {"hits": hits, "n_detectable": int(np.sum(detectable)), "n_reported": len(pred), "n_outliers": outliers}
+        hidden_q = gt[~np.asarray(visible, bool)]
+        for k, (_, x, y) in enumerate(pred):
+            if k in matched_pred:
+                continue
+            if len(hidden_q) and np.hypot(hidden_q[:, 0] - x, hidden_q[:, 1] - y).min() <= tol:
+                hidden += 1  # at a corner labelled hidden (no id to check: the position alone)
+            else:
+                outliers += 1
+    return {"hits": hits, "n_detectable": int(np.sum(detectable)), "n_reported": len(pred), "n_outliers": outliers, "n_hidden": hidden}
 
 
 def score(preds: dict[str, dict], labels: list[dict], symmetries: tuple[np.ndarray, ...] = ()) -> dict:
@@ -278,11 +290,12 @@ def score(preds: dict[str, dict], labels: list[dict], symmetries: tuple[np.ndarr
         gt = np.asarray(lab["corners"])
         s = score_image(p["corners"], p["has_id"], gt, np.asarray(lab["visible"]), np.asarray(lab["detectable"]), symmetries=symmetries)
         key = lab.get("condition") or str(lab["fov"])
-        g = groups.setdefault(key, {"det": 0, "hit": 0, "rep": 0, "out": 0})
+        g = groups.setdefault(key, {"det": 0, "hit": 0, "rep": 0, "out": 0, "hid": 0})
         g["det"] += s["n_detectable"]
         g["hit"] += len(s["hits"])
         g["rep"] += s["n_reported"]
         g["out"] += s["n_outliers"]
+        g["hid"] += s["n_hidden"]
         errors_by_fov.setdefault(key, []).extend(e for _, e in s["hits"])
         hit_ids = {i for i, _ in s["hits"]}
         c = np.asarray(lab["centre"])
@@ -298,6 +311,7 @@ def score(preds: dict[str, dict], labels: list[dict], symmetries: tuple[np.ndarr
             "outlier_rate": g["out"] / max(1, g["rep"]),
             "n_detectable": g["det"],
             "n_reported": g["rep"],
+            "n_hidden": g["hid"],  # reported with the right id within 3 px of a corner labelled hidden (score_image)
         }
     return {
         "per_fov": rows,
@@ -314,7 +328,10 @@ def score(preds: dict[str, dict], labels: list[dict], symmetries: tuple[np.ndarr
 # Report
 # --------------------------------------------------------------------------------------------
 def _table(results: dict[str, dict], fovs: list[int]) -> str:
-    lines = ["| FoV | detector | recall | mean err px | median err px | outliers | paper recall / err |", "|---|---|---|---|---|---|---|"]
+    lines = [
+        "| FoV | detector | recall | mean err px | median err px | outliers | labelled hidden | paper recall / err |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for fov in fovs:
         for name, r in results.items():
             row = r["per_fov"].get(str(fov))
@@ -324,14 +341,14 @@ def _table(results: dict[str, dict], fovs: list[int]) -> str:
             ptxt = f"{paper[0]:.3f} / {paper[1]:.3f}" if paper and name in ("learned", "opencv_sb") else ""
             lines.append(
                 f"| {fov} | {name} | {row['recall']:.3f} | {row['mean_error_px']:.3f} | {row['median_error_px']:.3f} | "
-                f"{100 * row['outlier_rate']:.2f}% | {ptxt} |"
+                f"{100 * row['outlier_rate']:.2f}% | {row.get('n_hidden', 0)} | {ptxt} |"
             )
     conditions = [c for c in CONDITIONS if any(c in r.get("per_condition", {}) for r in results.values())]
     if conditions:
         lines += [
             "",
-            "| condition (FoV 180-240) | detector | recall | mean err px | median err px | outliers |",
-            "|---|---|---|---|---|---|",
+            "| condition (FoV 180-240) | detector | recall | mean err px | median err px | outliers | labelled hidden |",
+            "|---|---|---|---|---|---|---|",
         ]
         for c in conditions:
             for name, r in results.items():
@@ -339,7 +356,7 @@ def _table(results: dict[str, dict], fovs: list[int]) -> str:
                 if row is not None:
                     lines.append(
                         f"| {c} | {name} | {row['recall']:.3f} | {row['mean_error_px']:.3f} | {row['median_error_px']:.3f} | "
-                        f"{100 * row['outlier_rate']:.2f}% |"
+                        f"{100 * row['outlier_rate']:.2f}% | {row.get('n_hidden', 0)} |"
                     )
     lines.append("")
     lines.append("| detector | images without target with reports | ms / image (median) |")
@@ -472,7 +489,9 @@ def evaluate_detection(model: str | None, cfg: EvalConfig, out: Path, progress: 
         table,
         "",
         "Recall: detectable ground-truth corners found within 3 px (learned: right id; OpenCV: matched by position). "
-        "Outliers: reported corners with a wrong id or over 3 px off. Paper numbers: learned / geometry-based rows of its table.",
+        "Outliers: reported corners with a wrong id or over 3 px off. Labelled hidden: reported within 3 px of a corner the labels "
+        "call hidden (an occluder within 2 px of it, glare that washes it out), with its id (OpenCV: at its position); "
+        "neither hits nor outliers. Paper numbers: learned / geometry-based rows of its table.",
         "",
         *[f"![{p.stem}]({p.name})" for p in plots],
     ]

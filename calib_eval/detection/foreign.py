@@ -36,8 +36,8 @@ under the occluder; detectable when also 3 px inside the circle, 2 px inside the
 the occluder by 3 px and a quarter of its size, and that size in the image is 10 px at least for
 a checkerboard (the shortest step to a neighbour, as in ``calib-eval detection``) or 8 px for an
 AprilGrid (the shorter side of its tag, as in ``python -m calib_eval.detection.tags``). A corner
-reported at a visible corner's label (within 3 px) with its id counts as right; at a hidden one,
-or farther, as wrong.
+reported at a visible corner's label (within 3 px) with its id counts as right; at a hidden
+one's, apart ("labelled hidden"); farther, or with another id, as wrong.
 """
 
 from __future__ import annotations
@@ -404,17 +404,20 @@ def detect_set(out: Path, labels: list[dict], board: Checkerboard | AprilGrid, p
 def table(results: dict[str, dict], fovs: tuple[int, ...]) -> str:
     """Markdown: recall per FoV and over all, wrong corners, mean error of the recalled corners
     and median ms per image, per detector."""
-    head = "| detector | " + " | ".join(f"FoV {f}" for f in fovs) + " | all | wrong corners | mean err (px) | ms / image |"
-    rows = [head, "|" + " --- |" * (len(fovs) + 5)]
+    head = (
+        "| detector | " + " | ".join(f"FoV {f}" for f in fovs) + " | all | wrong corners | labelled hidden | mean err (px) | ms / image |"
+    )
+    rows = [head, "|" + " --- |" * (len(fovs) + 6)]
     for name, r in results.items():
         per = r["per_fov"]
         det = sum(per[str(f)]["n_detectable"] for f in fovs)
         hit = sum(per[str(f)]["recall"] * per[str(f)]["n_detectable"] for f in fovs)
         wrong = sum(round(per[str(f)]["outlier_rate"] * per[str(f)]["n_reported"]) for f in fovs)
+        hidden = sum(per[str(f)]["n_hidden"] for f in fovs)
         errors = [e for f in fovs for e in r["errors"].get(str(f), [])]
         mean = float(np.mean(errors)) if errors else float("nan")
         cells = " | ".join(f"{per[str(f)]['recall']:.3f}" for f in fovs)
-        rows.append(f"| {name} | {cells} | {hit / max(det, 1):.3f} | {wrong} | {mean:.3f} | {r['ms_per_image']:.1f} |")
+        rows.append(f"| {name} | {cells} | {hit / max(det, 1):.3f} | {wrong} | {hidden} | {mean:.3f} | {r['ms_per_image']:.1f} |")
     return "\n".join(rows)
 
 

@@ -16,7 +16,10 @@
 Detectable corners: visible, and the tag at least ``min_tag_px`` across (the smaller singular
 value of the image of one tag side). A peer's tag gives its four corners the ids of that tag's
 Kalibr corners, matched to the labels of that tag by position (peers order corners differently);
-a corner is recalled within 3 px of its label, and every other reported corner is wrong.
+a corner is recalled within 3 px of its label. A corner reported with its id within 3 px of a
+corner the labels call hidden (an occluder within 2 px of it, glare that washes it out) is
+counted apart ("labelled hidden": its id and position are right, the labels' visibility is
+conservative); every other reported corner is wrong.
 """
 
 from __future__ import annotations
@@ -213,15 +216,18 @@ def score_frame(ids, xy, lab: dict, min_tag_px: float) -> dict:
     q, vis = np.array(lab["corners"]), np.array(lab["visible"], bool)
     det = vis & (np.array(lab["tag_px"]) >= min_tag_px)
     hit = np.zeros(len(q), bool)
-    err, wrong = [], 0
+    err, wrong, hidden = [], 0, 0
     for i, p in zip(ids, xy):
-        if i >= 0 and vis[i] and np.linalg.norm(q[i] - p) < TOL_PX and not hit[i]:
+        near = 0 <= i < len(q) and np.linalg.norm(q[i] - p) < TOL_PX
+        if near and vis[i] and not hit[i]:
             hit[i] = True
             if det[i]:
                 err.append(float(np.linalg.norm(q[i] - p)))
+        elif near and not vis[i]:
+            hidden += 1  # its own id at a corner the labels call hidden (an occluder within 2 px of it)
         else:
             wrong += 1
-    return {"det": det, "hit": hit & det, "err": err, "wrong": wrong}
+    return {"det": det, "hit": hit & det, "err": err, "wrong": wrong, "hidden": hidden}
 
 
 def evaluate(cfg: TagEvalConfig, out: Path) -> dict:
@@ -254,15 +260,16 @@ def evaluate(cfg: TagEvalConfig, out: Path) -> dict:
 
 def summarise(rows: list) -> dict:
     per_fov, per_bin, per_size, per_cond = {}, {b: [0, 0] for b in BINS}, {z: [0, 0] for z in SIZES}, {}
-    det_all = hit_all = wrong = empty_reports = 0
+    det_all = hit_all = wrong = hidden = empty_reports = 0
     errs, ms = [], []
     for lab, s, t, n in rows:
         if lab.get("condition"):  # a row of its own, outside the FoV figures (and the timing)
-            c = per_cond.setdefault(lab["condition"], [0, 0, 0, []])
+            c = per_cond.setdefault(lab["condition"], [0, 0, 0, [], 0])
             c[0] += int(s["det"].sum())
             c[1] += int(s["hit"].sum())
             c[2] += s["wrong"]
             c[3] += s["err"]
+            c[4] += s["hidden"]
             continue
         ms.append(t)
         if lab["fov"] is None:
@@ -273,6 +280,7 @@ def summarise(rows: list) -> dict:
         f[1] += int(s["hit"].sum())
         f[2] += s["wrong"]
         wrong += s["wrong"]
+        hidden += s["hidden"]
         det_all += int(s["det"].sum())
         hit_all += int(s["hit"].sum())
         errs += s["err"]
@@ -289,6 +297,7 @@ def summarise(rows: list) -> dict:
     return {
         "recall": hit_all / max(det_all, 1),
         "wrong": wrong,
+        "hidden": hidden,  # reported with their own ids at corners labelled hidden (score_frame): neither hits nor wrong
         "mean_err": float(np.mean(errs)) if errs else float("nan"),
         "median_err": float(np.median(errs)) if errs else float("nan"),
         "empty_reports": empty_reports,
@@ -297,7 +306,13 @@ def summarise(rows: list) -> dict:
         "bins": {b: {"recall": v[1] / v[0] if v[0] else None, "corners": v[0]} for b, v in per_bin.items()},
         "sizes": {z: {"recall": v[1] / v[0] if v[0] else None, "corners": v[0]} for z, v in per_size.items()},
         "conditions": {
-            k: {"recall": v[1] / max(v[0], 1), "corners": v[0], "wrong": v[2], "mean_err": float(np.mean(v[3])) if v[3] else None}
+            k: {
+                "recall": v[1] / max(v[0], 1),
+                "corners": v[0],
+                "wrong": v[2],
+                "hidden": v[4],
+                "mean_err": float(np.mean(v[3])) if v[3] else None,
+            }
             for k, v in per_cond.items()
         },
     }
@@ -311,14 +326,16 @@ def table(res: dict, cfg: TagEvalConfig) -> str:
         "",
         "| detector | recall | "
         + " | ".join(f"FoV {f}" for f in cfg.fovs)
-        + " | wrong | mean / median err (px) | reports on empty frames | ms / image (median) |",
-        "|---" * (6 + len(cfg.fovs)) + "|",
+        + " | wrong | labelled hidden | mean / median err (px) | reports on empty frames | ms / image (median) |",
+        "|---" * (7 + len(cfg.fovs)) + "|",
     ]
     for n in names:
         r = res[n]
         fovs = " | ".join(f"{r['fov'].get(f, {}).get('recall', float('nan')):.3f}" for f in cfg.fovs)
         err = f"{r['mean_err']:.3f} / {r['median_err']:.3f}"
-        lines.append(f"| {n} | {r['recall']:.3f} | {fovs} | {r['wrong']} | {err} | {r['empty_reports']} | {r['ms']:.1f} |")
+        lines.append(
+            f"| {n} | {r['recall']:.3f} | {fovs} | {r['wrong']} | {r.get('hidden', 0)} | {err} | {r['empty_reports']} | {r['ms']:.1f} |"
+        )
     lines += ["", "Recall per off-axis angle of the corner (deg; corners in the last row):", ""]
     lines.append("| detector | " + " | ".join(f"{b}-{b + 10}" for b in BINS) + " |")
     lines.append("|---" * (1 + len(BINS)) + "|")
@@ -341,13 +358,17 @@ def table(res: dict, cfg: TagEvalConfig) -> str:
     if conds:
         lines += [
             "",
-            f"Hard frames, {cfg.per_condition} per condition (FoV 180-240; recall / wrong corners; corners in the last column):",
+            f"Hard frames, {cfg.per_condition} per condition (FoV 180-240; recall / wrong / labelled hidden corners; "
+            "corners in the last column):",
             "",
         ]
         lines.append("| condition | " + " | ".join(names) + " | corners |")
         lines.append("|---" * (2 + len(names)) + "|")
         for c in conds:
-            cells = [f"{res[n]['conditions'][c]['recall']:.3f} / {res[n]['conditions'][c]['wrong']}" for n in names]
+            cells = [
+                f"{res[n]['conditions'][c]['recall']:.3f} / {res[n]['conditions'][c]['wrong']} / {res[n]['conditions'][c].get('hidden', 0)}"
+                for n in names
+            ]
             lines.append(f"| {c} | " + " | ".join(cells) + f" | {res[names[0]]['conditions'][c]['corners']} |")
     return "\n".join(lines) + "\n"
 

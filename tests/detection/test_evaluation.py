@@ -21,6 +21,17 @@ def test_score_image_learned():
     assert s["n_detectable"] == 3 and s["n_reported"] == 3 and s["n_outliers"] == 2
 
 
+def test_score_image_counts_right_ids_at_hidden_corners_apart():
+    """A corner the labels call hidden (an occluder within 2 px of it), reported with its own id
+    within 3 px, is neither a hit nor an outlier; with another id, or farther, it is an outlier.
+    Matched by position (OpenCV), a report at a hidden corner counts the same way."""
+    pred = [[3, 400.5, 100.0], [3, 405.0, 100.0], [2, 400.0, 100.0]]
+    s = score_image(pred, True, GT, VIS, DET)
+    assert s["hits"] == [] and s["n_hidden"] == 1 and s["n_outliers"] == 2
+    s = score_image([[-1, 400.5, 100.0], [-1, 100.0, 101.0]], False, GT, VIS, DET)
+    assert s["hits"] == [(0, 1.0)] and s["n_hidden"] == 1 and s["n_outliers"] == 0
+
+
 def test_score_image_position_matched():
     pred = [[-1, 200.0, 101.0], [-1, 100.0, 100.0], [-1, 250.0, 100.0]]
     s = score_image(pred, False, GT, VIS, DET)
@@ -70,10 +81,11 @@ def test_score_aggregates_and_empty_images():
     }
     r = score(preds, labels)
     row = r["per_fov"]["200"]
-    # Corner 0 hit (1 px), corner 1 hit (3 px, the tolerance is inclusive), corner 2 missing; id 3 is not visible -> outlier.
+    # Corner 0 hit (1 px), corner 1 hit (3 px, the tolerance is inclusive), corner 2 missing; id 3 is
+    # labelled hidden, reported at its place with its id: neither a hit nor an outlier.
     assert row["recall"] == pytest.approx(2 / 3)
     assert row["mean_error_px"] == pytest.approx(2.0) and row["median_error_px"] == pytest.approx(2.0)
-    assert row["outlier_rate"] == pytest.approx(1 / 3)
+    assert row["outlier_rate"] == 0.0 and row["n_hidden"] == 1
     assert r["false_images"] == 1 and r["n_empty"] == 2
     assert r["ms_per_image"] == pytest.approx(20.0)
 

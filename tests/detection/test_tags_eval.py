@@ -1,5 +1,6 @@
 """Scoring of the AprilGrid evaluation: a peer's tags take their Kalibr corner ids by position;
-recall counts detectable corners within 3 px of their own label, everything else is wrong."""
+recall counts detectable corners within 3 px of their own label; a corner labelled hidden reported
+with its id there is counted apart; everything else is wrong."""
 
 import os
 
@@ -21,10 +22,11 @@ def test_peer_tags_take_kalibr_ids_and_wrong_ones_count():
     assert sorted(ids[:4]) == [10, 11, 14, 15] and ids[4:] == [-1] * 4
     lab = {"corners": q.tolist(), "visible": [True] * g.n_corners, "tag_px": [20.0] * g.n_corners}
     lab["tag_px"][15] = 5.0  # too small to count: found, but neither recalled nor wrong
+    lab["visible"][11] = False  # labelled hidden (an occluder within 2 px), found with its id: apart
     s = score_frame(ids, xy, lab, 8.0)
-    assert s["det"].sum() == g.n_corners - 1
-    assert s["hit"].sum() == 3 and s["wrong"] == 4
-    np.testing.assert_allclose(s["err"], [np.sqrt(0.5)] * 3)
+    assert s["det"].sum() == g.n_corners - 2
+    assert s["hit"].sum() == 2 and s["wrong"] == 4 and s["hidden"] == 1
+    np.testing.assert_allclose(s["err"], [np.sqrt(0.5)] * 2)
 
 
 def test_summary_counts_recall_per_fov_angle_and_tag_size():
@@ -34,15 +36,21 @@ def test_summary_counts_recall_per_fov_angle_and_tag_size():
     n = 4
     lab_a = {"fov": 180, "angle": [5.0, 15.0, 15.0, 95.0], "tag_px": [9.0, 11.0, 40.0, 40.0]}
     lab_b = {"fov": 220, "angle": [105.0] * n, "tag_px": [13.0] * n}
-    s_a = {"det": np.array([True, True, True, False]), "hit": np.array([True, False, True, False]), "err": [0.1, 0.2], "wrong": 1}
-    s_b = {"det": np.ones(n, bool), "hit": np.array([True, True, True, False]), "err": [0.3] * 3, "wrong": 0}
+    s_a = {
+        "det": np.array([True, True, True, False]),
+        "hit": np.array([True, False, True, False]),
+        "err": [0.1, 0.2],
+        "wrong": 1,
+        "hidden": 1,
+    }
+    s_b = {"det": np.ones(n, bool), "hit": np.array([True, True, True, False]), "err": [0.3] * 3, "wrong": 0, "hidden": 0}
     empty = {"fov": None}
     # A frame of a hard condition: its own row, in none of the FoV, angle or size figures.
     lab_c = {"fov": None, "condition": "motion blur", "angle": [5.0] * n, "tag_px": [40.0] * n}
-    s_c = {"det": np.ones(n, bool), "hit": np.array([True, False, False, False]), "err": [0.9], "wrong": 2}
+    s_c = {"det": np.ones(n, bool), "hit": np.array([True, False, False, False]), "err": [0.9], "wrong": 2, "hidden": 3}
     r = summarise([(lab_a, s_a, 10.0, 3), (lab_b, s_b, 30.0, 3), (empty, None, 20.0, 2), (lab_c, s_c, 99.0, 3)])
-    assert r["recall"] == 5 / 7 and r["wrong"] == 1 and r["empty_reports"] == 1 and r["ms"] == 20.0
-    assert r["conditions"] == {"motion blur": {"recall": 0.25, "corners": 4, "wrong": 2, "mean_err": 0.9}}
+    assert r["recall"] == 5 / 7 and r["wrong"] == 1 and r["hidden"] == 1 and r["empty_reports"] == 1 and r["ms"] == 20.0
+    assert r["conditions"] == {"motion blur": {"recall": 0.25, "corners": 4, "wrong": 2, "hidden": 3, "mean_err": 0.9}}
     assert r["fov"][180]["recall"] == 2 / 3 and r["fov"][220]["recall"] == 3 / 4
     assert r["bins"][0]["recall"] == 1.0 and r["bins"][10]["recall"] == 0.5 and r["bins"][90]["corners"] == 0
     assert r["bins"][100]["recall"] == 3 / 4
