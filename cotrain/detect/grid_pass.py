@@ -57,7 +57,7 @@ from cotrain.detect.identity import Placement, assign_ids, canonical_ids, cell_d
 from cotrain.detect.image_circle import beyond_circle, lens_of_circle
 from cotrain.detect.lattice import STEPS, Lattice, grow_lattice, largest_component, refine_positions, skipped_corners, verify_lattice
 from cotrain.detect.saddle import fit_saddles, outside_and_circle, saddle_candidates, saddle_response, smooth_cached, window_half
-from cotrain.detect.tag_completion import CompletionConfig, complete_board
+from cotrain.detect.tag_completion import CompletionConfig, complete_board, neighbour_check
 from cotrain.geometry.letterbox import CELLS, Letterbox
 from cotrain.targets import ROTATIONS, Checkerboard
 
@@ -459,11 +459,19 @@ def grid_pass(
     on = ids >= 0
     conf = np.full(len(ids), 1.0 - np.exp(-margin)) * np.where(lat.filled, cfg.filled_confidence, 1.0)
     ids, q, conf = ids[on], lat.xy[on], conf[on]
+    lens = lens_of_circle(circle, cfg.lens_fov, offset)
+    if cfg.misfit_neighbours and cfg.max_neighbour_misfit > 0:
+        # A corner off where its identified neighbours put it (the growth took a T-junction at an
+        # occluder's edge, or slid a row's end) is dropped; completion may find it where it is.
+        # Where many miss, the maps are at fault (no image circle to guess the lens from, and a
+        # bend no homography follows: a 640x480 board lost 24 of 25 corners so), and none is dropped.
+        ok = neighbour_check(board, ids, q, cfg.misfit_neighbours, cfg.max_neighbour_misfit, lens)
+        if np.mean(~ok) <= cfg.max_misfit_share:
+            ids, q, conf = ids[ok], q[ok], conf[ok]
     if cfg.complete_rounds and 4 <= len(ids) < board.n_corners:
         # Corners the growth did not reach (bent rows at the rim, a blurred stretch), predicted from
         # the identified ones and checked against the print (cotrain.detect.tag_completion); their
         # confidence is the placement's times that check's correlation.
-        lens = lens_of_circle(circle, cfg.lens_fov, offset)
         # The crop's own edges (where they are not the frame's) cut fit windows as the rim does.
         inside = allowed.copy()
         inside[:, : int(x0 > 0)] = inside[:, inside.shape[1] - int(x1 < outside.shape[1]) :] = False

@@ -235,6 +235,44 @@ def local_homographies(P: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.nda
     return H * np.where(w < 0, -1.0, 1.0)[:, None, None], posed
 
 
+def neighbour_check(
+    board: Target, ids: np.ndarray, xy: np.ndarray, neighbours: int, max_misfit: float, lens: EquidistantLens | None = None
+) -> np.ndarray:
+    """(K,) bool: which identified corners ``ids`` (K,) at ``xy`` (K, 2) lie where the ``neighbours``
+    other corners nearest them on the board put them: the map of those corners (:func:`local_maps`;
+    with ``lens``, the homography of their rays, so the fisheye's bend is the lens's) must carry the
+    corner's board point to within ``max_misfit`` of the local square (the shorter image of one
+    board step there) of its position. A corner the growth took at an occluder's edge (a T-junction
+    a fraction of a square off), or at the end of a row slid by one square, misses it. A wrong
+    corner bends its neighbours' maps, so the check runs twice, the second time with the maps of
+    the corners the first kept. Corners without a posed map (under four others, all on a line)
+    are kept."""
+    K = len(ids)
+    keep = np.ones(K, bool)
+    if min(neighbours, K - 1) < 4:
+        return keep
+    P = board.board_xy()[ids]
+    step = smallest_step(board)
+
+    def misfit(support: np.ndarray) -> np.ndarray:
+        sup = np.nonzero(support)[0]
+        n = min(neighbours, len(sup) - 1)
+        _, near = cKDTree(P[sup]).query(P, k=n + 1)
+        near = sup[near.reshape(K, -1)]
+        own = near == np.arange(K)[:, None]  # a corner of the support finds itself first
+        near = np.where(own.any(1)[:, None], np.roll(near, -1, 1), near)[:, :n]
+        to_image, posed = local_maps(P[near], xy[near], lens)
+        q0, *ends = np.moveaxis(to_image(P[:, None] + np.array([[0.0, 0.0], [step, 0.0], [0.0, step]])), 1, 0)
+        square = np.minimum(np.linalg.norm(ends[0] - q0, axis=1), np.linalg.norm(ends[1] - q0, axis=1))
+        off = np.linalg.norm(q0 - xy, axis=1) / np.maximum(square, 1e-9)
+        return np.where(posed & np.isfinite(off), off, 0.0)
+
+    keep = ~(misfit(keep) > max_misfit)
+    if keep.all() or min(neighbours, int(keep.sum()) - 1) < 4:
+        return keep
+    return ~(misfit(keep) > max_misfit)
+
+
 def print_check(
     sm: np.ndarray,
     rim_dist: np.ndarray,

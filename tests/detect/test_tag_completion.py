@@ -15,6 +15,7 @@ from cotrain.detect.tag_completion import (
     local_homography,
     local_map,
     local_maps,
+    neighbour_check,
     print_check,
     print_correlation,
 )
@@ -381,3 +382,31 @@ def test_rays_along_reads_a_corner_next_to_the_image_border_on_a_smaller_circle(
     assert not rays_along(checker(*q, turn_deg=45), q, to_image, q, gap, gap, cfg)
     q2 = np.array([100.0, 1.0 + MIN_BORDER_RAY_PX - 1.0])
     assert not rays_along(checker(*q2), q2, to_image, q2, gap, gap, cfg)
+
+
+def test_neighbour_check_drops_a_corner_off_where_its_neighbours_put_it():
+    """A 10 x 7 checkerboard about 72 deg off-axis through an equidistant lens of 220 degrees (squares
+    bent and foreshortened): with the lens, every exact corner fits its neighbours' map and is kept;
+    a corner moved by 0.3 of its square (a T-junction at an occluder's edge) is dropped, and its
+    neighbours, whose maps it bends, are kept by the second pass; one moved by 0.1 stays. Without
+    the lens the bend alone puts corners off by more than the pixel maps can follow."""
+    board = make_target(TargetConfig(kind="checkerboard", squares_x=10, squares_y=7, square_size=0.04))
+    lens = EquidistantLens((640.0, 360.0), 340.0 / np.radians(110))
+    P = board.board_xy()
+    # The board's plane: centre 0.3 m away, 72 deg off the axis, turned 30 deg toward the camera.
+    off, turn = np.radians(72), np.radians(30)
+    c = 0.3 * np.array([np.sin(off), 0.0, np.cos(off)])
+    ex = np.array([np.cos(off + turn), 0.0, -np.sin(off + turn)])
+    ey = np.array([0.0, 1.0, 0.0])
+    X = c + (P[:, :1] - P[:, 0].mean()) * ex + (P[:, 1:] - P[:, 1].mean()) * ey
+    q = lens.project(X)
+    ids = np.arange(board.n_corners)
+    assert neighbour_check(board, ids, q, 7, 0.2, lens).all()
+    square = np.linalg.norm(q[23] - q[22])
+    moved = q.copy()
+    moved[22] += np.array([0.3 * square, 0.0])
+    keep = neighbour_check(board, ids, moved, 7, 0.2, lens)
+    assert not keep[22] and keep.sum() == board.n_corners - 1
+    moved[22] = q[22] + np.array([0.1 * square, 0.0])
+    assert neighbour_check(board, ids, moved, 7, 0.2, lens).all()
+    assert not neighbour_check(board, ids, q, 7, 0.02, None).all()
