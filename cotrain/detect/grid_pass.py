@@ -464,7 +464,8 @@ def grid_pass(
         # A corner off where its identified neighbours put it (the growth took a T-junction at an
         # occluder's edge, or slid a row's end) is dropped; completion may find it where it is.
         # Where many miss, the maps are at fault (no image circle to guess the lens from, and a
-        # bend no homography follows: a 640x480 board lost 24 of 25 corners so), and none is dropped.
+        # bend no homography follows: a 640x480 board lost 22 of its 23 placed corners so), and
+        # none is dropped.
         ok = neighbour_check(board, ids, q, cfg.misfit_neighbours, cfg.max_neighbour_misfit, lens)
         if np.mean(~ok) <= cfg.max_misfit_share:
             ids, q, conf = ids[ok], q[ok], conf[ok]

@@ -235,6 +235,16 @@ def local_homographies(P: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.nda
     return H * np.where(w < 0, -1.0, 1.0)[:, None, None], posed
 
 
+def nearest_others(P: np.ndarray, support: np.ndarray, n: int) -> np.ndarray:
+    """(K, n) indices of the ``n`` points of ``support`` (K,) bool nearest each of the K board points
+    P (K, 2) (distinct: corner ids), the point itself left out."""
+    sup = np.nonzero(support)[0]
+    _, near = cKDTree(P[sup]).query(P, k=n + 1)
+    near = sup[near.reshape(len(P), -1)]
+    own = near == np.arange(len(P))[:, None]  # a point of the support finds itself first (distance 0)
+    return np.where(own.any(1)[:, None], np.roll(near, -1, 1), near)[:, :n]
+
+
 def neighbour_check(
     board: Target, ids: np.ndarray, xy: np.ndarray, neighbours: int, max_misfit: float, lens: EquidistantLens | None = None
 ) -> np.ndarray:
@@ -255,12 +265,7 @@ def neighbour_check(
     step = smallest_step(board)
 
     def misfit(support: np.ndarray) -> np.ndarray:
-        sup = np.nonzero(support)[0]
-        n = min(neighbours, len(sup) - 1)
-        _, near = cKDTree(P[sup]).query(P, k=n + 1)
-        near = sup[near.reshape(K, -1)]
-        own = near == np.arange(K)[:, None]  # a corner of the support finds itself first
-        near = np.where(own.any(1)[:, None], np.roll(near, -1, 1), near)[:, :n]
+        near = nearest_others(P, support, min(neighbours, int(support.sum()) - 1))
         to_image, posed = local_maps(P[near], xy[near], lens)
         q0, *ends = np.moveaxis(to_image(P[:, None] + np.array([[0.0, 0.0], [step, 0.0], [0.0, step]])), 1, 0)
         square = np.minimum(np.linalg.norm(ends[0] - q0, axis=1), np.linalg.norm(ends[1] - q0, axis=1))
@@ -325,14 +330,9 @@ def _uncontradicted(
 ) -> np.ndarray:
     """One pass of :func:`print_check`, each corner's homography fitted to the nearest corners of
     ``support`` (K,) bool other than itself."""
-    K = len(ids)
     n = min(cfg.neighbours, int(support.sum()) - 1)
     kP = board.board_xy()[ids]
-    sup = np.nonzero(support)[0]
-    _, near = cKDTree(kP[sup]).query(kP, k=n + 1)
-    near = sup[near.reshape(K, -1)]
-    own = near == np.arange(K)[:, None]  # a corner of the support finds itself first (distinct ids: distinct points)
-    near = np.where(own.any(1)[:, None], np.roll(near, -1, 1), near)[:, :n]
+    near = nearest_others(kP, support, n)
     to_image, posed = local_maps(kP[near], xy[near], lens)
     # The patch through each corner's homography, moved so that the corner lands on its position.
     q0 = to_image(kP[:, None])  # (K, 1, 2)
