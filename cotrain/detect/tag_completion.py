@@ -246,7 +246,13 @@ def nearest_others(P: np.ndarray, support: np.ndarray, n: int) -> np.ndarray:
 
 
 def neighbour_check(
-    board: Target, ids: np.ndarray, xy: np.ndarray, neighbours: int, max_misfit: float, lens: EquidistantLens | None = None
+    board: Target,
+    ids: np.ndarray,
+    xy: np.ndarray,
+    neighbours: int,
+    max_misfit: float,
+    lens: EquidistantLens | None = None,
+    max_share: float = 1.0,
 ) -> np.ndarray:
     """(K,) bool: which identified corners ``ids`` (K,) at ``xy`` (K, 2) lie where the ``neighbours``
     other corners nearest them on the board put them: the map of those corners (:func:`local_maps`;
@@ -256,7 +262,9 @@ def neighbour_check(
     a fraction of a square off), or at the end of a row slid by one square, misses it. A wrong
     corner bends its neighbours' maps, so the check runs twice, the second time with the maps of
     the corners the first kept. Corners without a posed map (under four others, all on a line)
-    are kept."""
+    are kept, and so are all of them where more than ``max_share`` would be dropped: then the
+    maps are at fault, not the corners (no lens to take the bend out, and a bend no homography
+    follows)."""
     K = len(ids)
     keep = np.ones(K, bool)
     if min(neighbours, K - 1) < 4:
@@ -273,9 +281,9 @@ def neighbour_check(
         return np.where(posed & np.isfinite(off), off, 0.0)
 
     keep = ~(misfit(keep) > max_misfit)
-    if keep.all() or min(neighbours, int(keep.sum()) - 1) < 4:
-        return keep
-    return ~(misfit(keep) > max_misfit)
+    if not keep.all() and min(neighbours, int(keep.sum()) - 1) >= 4:
+        keep = ~(misfit(keep) > max_misfit)
+    return keep if np.mean(~keep) <= max_share else np.ones(K, bool)
 
 
 def print_check(
