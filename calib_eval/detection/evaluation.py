@@ -183,16 +183,19 @@ def run_learned(
 
 def run_geometry(kind: str, images: list[Path], target: Target, progress: bool = True) -> dict:
     """OpenCV detectors (``opencv_sb``, ``opencv_classic``) looking for ``target``; corners carry no
-    identity we trust (id -1)."""
+    identity we trust (id -1). A file that cannot be read as an image gets no corners and its
+    ``error`` (as :func:`run_learned`), and the run goes on."""
     from tqdm import tqdm
 
     method = kind.removeprefix("opencv_")
     out = {}
     for p in tqdm(images, desc=kind, disable=not progress):
         t0 = time.perf_counter()
-        c = find_chessboard(cv2.imread(str(p), cv2.IMREAD_GRAYSCALE), (target.nx, target.ny), method)
+        grey = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
+        c = find_chessboard(grey, (target.nx, target.ny), method) if grey is not None else None
         corners = [[-1, float(x), float(y)] for x, y in c] if c is not None else []
-        out[p.name] = {"corners": corners, "ms": 1000 * (time.perf_counter() - t0), "error": None, "has_id": False}
+        err = None if grey is not None else f"{p}: not readable as an image"
+        out[p.name] = {"corners": corners, "ms": 1000 * (time.perf_counter() - t0), "error": err, "has_id": False}
     return out
 
 

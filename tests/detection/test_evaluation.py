@@ -107,3 +107,25 @@ def test_condition_frames_score_as_rows_of_their_own():
     assert r["per_fov"]["200"]["recall"] == 1.0 and r["per_condition"]["motion blur"]["recall"] == pytest.approx(1 / 3)
     table = _table({"learned": r}, [200])
     assert table.index("| 200 | learned | 1.000") < table.index("| motion blur | learned | 0.333")
+
+
+def test_opencv_peers_go_on_past_an_unreadable_file(tmp_path):
+    """calib-eval's OpenCV detectors over a folder where one file is no image: that file gets no
+    corners and its error, and the next one is still read (a board drawn flat: its 6 x 4 inner
+    corners found)."""
+    import cv2
+
+    from calib_eval.detection.evaluation import run_geometry
+    from cotrain.targets import Checkerboard, TargetConfig
+
+    board = Checkerboard(TargetConfig(squares_x=7, squares_y=5))
+    page = np.full((300, 380), 255, np.uint8)
+    for j in range(5):
+        for i in range(7):
+            if (i + j) % 2 == 0:
+                page[40 + j * 40 : 80 + j * 40, 50 + i * 40 : 90 + i * 40] = 0
+    (tmp_path / "a.png").write_bytes(b"not an image")
+    cv2.imwrite(str(tmp_path / "b.png"), page)
+    out = run_geometry("opencv_classic", [tmp_path / "a.png", tmp_path / "b.png"], board, progress=False)
+    assert out["a.png"]["corners"] == [] and "not readable" in out["a.png"]["error"]
+    assert len(out["b.png"]["corners"]) == 24 and out["b.png"]["error"] is None
