@@ -96,11 +96,11 @@ PEERS = {"aruco": _aruco, "aprilgrid": _aprilgrid, "pupil-apriltags": _pupil}
 
 
 def peer_tags(make: Callable, paths: list[str]) -> list[tuple[list, float]]:
-    """The peer ``make()`` builds (one of :data:`PEERS`) over the images ``paths`` (read as 8-bit
-    grey; the reading is not timed): per image its tags and its milliseconds. Raises ImportError
-    where the peer is not installed."""
+    """The detector ``make()`` builds (one of :data:`PEERS`, or ours) over the images ``paths``
+    (read as 8-bit grey; the reading is not timed): per image what it returns and its
+    milliseconds. Raises ImportError where a peer is not installed."""
     run = make()
-    keep_image_buffers()  # as cotrain detect runs (cotrain.detect.buffers): our detector is timed under it too
+    keep_image_buffers()  # as cotrain detect runs (cotrain.detect.buffers), for every detector timed here
     out = []
     for path in paths:
         img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
@@ -234,15 +234,12 @@ def evaluate(cfg: TagEvalConfig, out: Path) -> dict:
     board = make_target(TargetConfig(kind="aprilgrid"))
     labels = render_set(cfg, board, out)
     paths = [out / "images" / lab["image"] for lab in labels]
-    keep_image_buffers()  # as cotrain detect runs (cotrain.detect.buffers); the peers are timed under it too
-    detect = AprilGridDetector(board).detect
-    ours = []
-    for path in paths:
-        img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-        t0 = time.perf_counter()
-        found = detect(img)
-        ours.append(((found.ids.tolist(), list(found.xy)), 1000 * (time.perf_counter() - t0)))
-    runs = {"ours": ours, **run_peers(paths)}
+
+    def ours():  # the tag pass, in this process: (ids, positions) per image
+        detect = AprilGridDetector(board).detect
+        return lambda img: (lambda d: (d.ids.tolist(), list(d.xy)))(detect(img))
+
+    runs = {"ours": peer_tags(ours, paths), **run_peers(paths)}
     res = {}
     for name, found in runs.items():
         rows = []
