@@ -330,6 +330,20 @@ class PlaneMaps:
         v = np.concatenate([g, np.ones_like(g[..., :1])], -1) @ self.R  # R^T (g, 1): back to the camera's rays
         return self.lens.project(v)
 
+    def to_plane(self, q: np.ndarray) -> np.ndarray:
+        """Pixels q (K, M, 2) -> the plane's points (K, M, 2) under each map (the inverse of
+        calling it); NaN where a pixel's ray misses the plane in front."""
+        q = np.asarray(q, np.float64)
+        if self.lens is None:
+            g = q
+        else:
+            w = self.lens.lift(q) @ self.R.transpose(0, 2, 1)  # R v: the rays in each map's view
+            g = np.where(w[..., 2:] > 1e-12, w[..., :2] / np.where(w[..., 2:] > 1e-12, w[..., 2:], 1.0), np.nan)
+        Hi = np.linalg.inv(self.H)
+        h = g @ Hi[:, :2, :2].transpose(0, 2, 1) + Hi[:, None, :2, 2]
+        w = g @ Hi[:, 2, :2, None] + Hi[:, None, 2, 2:]
+        return np.where(np.abs(w) > 1e-12, h / np.where(np.abs(w) > 1e-12, w, 1.0), np.nan)
+
     def take(self, idx: np.ndarray | int) -> PlaneMaps:
         """The maps ``idx`` (an index array, a mask, or one index kept as a batch of one)."""
         idx = np.atleast_1d(idx)

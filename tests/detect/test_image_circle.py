@@ -7,6 +7,7 @@ import pytest
 
 from cotrain.detect.image_circle import (
     EquidistantLens,
+    PlaneMaps,
     beyond_circle,
     fit_image_circle,
     local_views,
@@ -37,6 +38,36 @@ def test_equidistant_lens_known_values_and_round_trip():
     np.testing.assert_allclose(np.linalg.norm(v, axis=-1), 1.0, atol=1e-12)
     np.testing.assert_allclose(lens.project(2.5 * v), q, atol=1e-9)
     np.testing.assert_allclose(lens.lift(np.array([640.0, 360.0])), [0, 0, 1], atol=1e-12)
+
+
+def test_plane_maps_to_plane_inverts_the_maps_with_and_without_a_lens():
+    """Batched plane -> pixel maps (a homography each, and the same through each map's own view
+    of an equidistant lens's rays, 40-100 deg off-axis): to_plane takes their pixels back to the
+    plane's points (round trip to 1e-9 m), per map, with batch shapes (K, M, 2)."""
+    rng = np.random.default_rng(4)
+    lens = EquidistantLens.from_circle(np.array([640.0, 360.0]), 400.0, 220.0)
+    K, M = 3, 20
+    H = np.array([[900.0, 40.0, 300.0], [-30.0, 850.0, 200.0], [0.2, -0.1, 1.0]]) + rng.normal(0, 1, (K, 3, 3)) * [
+        [40, 20, 30],
+        [20, 40, 30],
+        [0.1, 0.1, 0],
+    ]
+    p = rng.uniform(0.0, 0.3, (K, M, 2))
+    flat = PlaneMaps(H)
+    q = flat(p)
+    assert q.shape == (K, M, 2)
+    np.testing.assert_allclose(flat.to_plane(q), p, atol=1e-9)
+    # Through the lens: each map's view of rays around a direction well off the axis.
+    off = np.radians([40.0, 70.0, 100.0])
+    z = np.stack([np.sin(off), np.zeros(K), np.cos(off)], 1)
+    x = np.cross([0.0, 1.0, 0.0], z)
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    R = np.stack([x, np.cross(z, x), z], 1)
+    Hv = np.array([[1.0, 0.0, -0.15], [0.0, 1.0, -0.15], [0.0, 0.0, 0.5]])[None].repeat(K, 0)  # board 0.5 m out, centred
+    views = PlaneMaps(Hv, R, lens)
+    q = views(p)
+    assert np.isfinite(q).all() and q.shape == (K, M, 2)
+    np.testing.assert_allclose(views.to_plane(q), p, atol=1e-9)
 
 
 def test_parallelogram_corner_closes_the_quad_in_the_rays_own_view():
