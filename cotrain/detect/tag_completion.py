@@ -75,10 +75,13 @@ class CompletionConfig:
     lens: bool = True  # homographies of the corners' rays under the tag pass's lens guess, where it has one (tag_pass.TagConfig.lens_fov)
     print_fit_gap_px: float = 7.0  # where the saddle fits fail in a gap under this (px), the print is moved onto the image (print_fit) ...
     print_fit_radius: float = 1.5  # ... over the pixels within this many local gaps of it ...
-    print_fit_min_pixels: int = 20  # ... at least this many inside the image circle ...
+    print_fit_min_pixels: int = 20  # ... at least this many inside the image circle and the frame ...
+    print_fit_min_share: float = 0.5  # ... and this share of the disc ...
     print_fit_iterations: int = 12  # ... by at most this many Gauss-Newton steps per blur tried ...
     print_fit_max_blur: float = 0.5  # ... blurs up to this fraction of the gap (a wider one washes the corner out) ...
     print_fit_min_r2: float = 0.8  # ... and it must explain this share of their variance
+    print_fit_rim_px: float = 1.5  # a prediction nearer the rim than min_rim_px but this far (px; 0: never) is found by print_fit alone ...
+    print_fit_rim_gap_px: float = 20.0  # ... in a gap under this (px), within reach of it
 
 
 _PATCHES: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}  # print_patches' results per board and patch
@@ -394,7 +397,14 @@ PRINT_FIT_STOP_STEP = 0.01  # ... until a step is shorter than this (px)
 
 
 def print_fit(
-    img: np.ndarray, rim_dist: np.ndarray, board: Target, to_image: PlaneMaps, t: int, gap_px: float, cfg: CompletionConfig
+    img: np.ndarray,
+    rim_dist: np.ndarray,
+    board: Target,
+    to_image: PlaneMaps,
+    t: int,
+    gap_px: float,
+    cfg: CompletionConfig,
+    reach: float | None = None,
 ) -> np.ndarray | None:
     """Corner ``t`` (2,) found by moving the print onto the image ``img`` (H, W), where a saddle
     fit cannot find it: in gaps of a few pixels an AprilGrid's crossing square ends inside the
@@ -413,18 +423,19 @@ def print_fit(
     percentile, where the prediction was 0.1-2.9 px off."""
     H, W = img.shape
     radius = max(cfg.print_fit_radius * gap_px, 3.0)
-    reach = cfg.search * gap_px
+    reach = (cfg.search if reach is None else reach) * gap_px
     q0 = to_image(board.board_xy()[t][None, None])[0, 0]
     if not np.isfinite(q0).all():
         return None
     # The pixels compared: integer pixels within the radius, inside the image circle.
-    lo = np.floor(q0 - radius).astype(int)
-    hi = np.ceil(q0 + radius).astype(int)
-    if lo[0] < 0 or lo[1] < 0 or hi[0] > W - 1 or hi[1] > H - 1:
+    lo = np.maximum(np.floor(q0 - radius).astype(int), 0)  # the frame's edge cuts the patch as the rim does
+    hi = np.minimum(np.ceil(q0 + radius).astype(int), [W - 1, H - 1])
+    if (hi <= lo).any():
         return None
     ys, xs = np.mgrid[lo[1] : hi[1] + 1, lo[0] : hi[0] + 1]
-    inside = (np.hypot(xs - q0[0], ys - q0[1]) <= radius) & (rim_dist[ys, xs] > 1.5)
-    if inside.sum() < cfg.print_fit_min_pixels:
+    disc = np.hypot(xs - q0[0], ys - q0[1]) <= radius
+    inside = disc & (rim_dist[ys, xs] > 1.5)
+    if inside.sum() < max(cfg.print_fit_min_pixels, cfg.print_fit_min_share * np.pi * radius**2):
         return None
     px = np.stack([xs[inside], ys[inside]], 1).astype(np.float64)
     obs = img[ys[inside], xs[inside]].astype(np.float64)
@@ -584,7 +595,9 @@ def complete_board(
             q0, *ends = to_image((P[t] + np.array([[0.0, 0.0], [gap, 0], [0, gap]]))[None])[0]
             g_px = min(np.linalg.norm(ends[0] - q0), np.linalg.norm(ends[1] - q0))
             res = np.linalg.norm(to_image(kP[near][None])[0] - kq[near], axis=1).max()
-            if not (0 <= q0[0] <= Ww - 1 and 0 <= q0[1] <= Hh - 1) or _value(rim_dist, q0) < cfg.min_rim_px:
+            in_frame = bool(0 <= q0[0] <= Ww - 1 and 0 <= q0[1] <= Hh - 1)
+            at_rim = in_frame and g_px < cfg.print_fit_rim_gap_px and 0 < cfg.print_fit_rim_px <= _value(rim_dist, q0) < cfg.min_rim_px
+            if not in_frame or (_value(rim_dist, q0) < cfg.min_rim_px and not at_rim):
                 failed[t] = beside  # out of view (NaN: behind the horizon)
                 unfound.discard(t)
                 continue
@@ -592,7 +605,7 @@ def complete_board(
                 failed[t] = beside
                 unfound.add(t)  # too small to fit, or a poor prediction: it may be in view
                 continue
-            todo.append((t, q0, g_px, to_image, beside))
+            todo.append((t, q0, g_px, to_image, beside, at_rim))
         if not todo:
             break
         added = 0
@@ -607,17 +620,18 @@ def complete_board(
                 pts = np.array([todo[sel[k]][1] for k in small])
                 fitted[small], ok[small], _ = fit_saddles(grey, smoothed, pts, int(h), small_cfg, rim_dist)
             for k, q_fit, ok_k in zip(sel, fitted, ok):
-                t, q0, g_px, to_image, beside = todo[k]
-                options = [q_fit] if ok_k and np.linalg.norm(q_fit - q0) < cfg.reach * g_px else []
-                if not options and g_px < cfg.print_fit_gap_px:
-                    q_print = print_fit(grey, rim_dist, board, to_image, t, g_px, cfg)
+                t, q0, g_px, to_image, beside, at_rim = todo[k]
+                options = [q_fit] if ok_k and not at_rim and np.linalg.norm(q_fit - q0) < cfg.reach * g_px else []
+                if not options and (g_px < cfg.print_fit_gap_px or at_rim):
+                    q_print = print_fit(grey, rim_dist, board, to_image, t, g_px, cfg, cfg.reach if at_rim else cfg.search)
                     options = [] if q_print is None else [q_print]
-                if tree is not None and not options:
+                if tree is not None and not options and not at_rim:
                     options = [candidates[j] for j in tree.query_ball_point(q0, cfg.search * g_px)]
                 allq = np.array(list(known.values()))
                 best, best_corr = None, -np.inf
                 for q in options:
-                    if np.linalg.norm(allq - q, axis=1).min() < cfg.crowd * g_px or _value(rim_dist, q) < cfg.min_rim_px:
+                    rim_px = cfg.print_fit_rim_px if at_rim else cfg.min_rim_px
+                    if np.linalg.norm(allq - q, axis=1).min() < cfg.crowd * g_px or _value(rim_dist, q) < rim_px:
                         continue
                     m = print_correlation(sm, rim_dist, board, to_image, q - q0, t, cfg)
                     if m.corr < cfg.sure_corr and not rays_along(sm, q, to_image, P[t], gap, g_px, cfg):
@@ -626,7 +640,10 @@ def complete_board(
                         best, best_corr = q, m.corr
                 if best is None:
                     failed[t] = beside
-                    unfound.add(t)
+                    if at_rim:
+                        unfound.discard(t)  # as out of view: the view may end there
+                    else:
+                        unfound.add(t)
                     continue
                 known[t], score[t], gaps[t] = np.asarray(best, np.float64), best_corr, g_px
                 added += 1

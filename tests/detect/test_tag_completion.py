@@ -476,3 +476,41 @@ def test_complete_board_finds_corners_of_small_tags_by_their_print():
         assert err.max() < 0.5, f"corner {ids[err.argmax()]} is {err.max():.2f} px off"
         found.append(len(ids))
     assert found[1] >= found[0] + 40, found
+
+
+def test_complete_board_finds_corners_just_inside_the_rim_by_their_print():
+    """A flat view of a grey print (gaps of 6-9 px) cut by a black region along one row of corners,
+    which lie 2.2 px inside it: given the corners more than 5 px inside, completion with the print
+    fit at the rim also finds that row (where no saddle window fits), each within 0.15 px of its
+    true position; without it, none of them. Nothing is reported in the black region."""
+    g = make_target(TargetConfig(kind="aprilgrid"))
+    H = np.array([[420.0, 30.0, 180.0], [-20.0, -400.0, 420.0], [0.1, 0.05, 1.0]])
+    k = 4  # the print integrated over each pixel, then blurred (as in the print fit's own test)
+    up = np.diag([k, k, 1.0]) @ np.array([[1.0, 0, 0.5], [0, 1, 0.5], [0, 0, 1]]) @ H
+    fine = flat_view(g, np.array([[1.0, 0, -0.5], [0, 1, -0.5], [0, 0, 1]]) @ up, size=(560 * k, 480 * k), blur=1e-3)
+    v = cv2.GaussianBlur(cv2.resize(fine, (560, 480), interpolation=cv2.INTER_AREA), (0, 0), 0.9)
+    rng = np.random.default_rng(5)
+    to_image = PlaneMaps(H[None])
+    P = g.points().numpy()[:, :2]
+    q = to_image(P[None])[0]
+    row = np.arange(g.n_corners) // g.nx
+    ends = q[[6 * g.nx, 7 * g.nx - 1]]  # corner row 6 (the top of tag row 3): a straight line in this view
+    n = np.array([-(ends[1] - ends[0])[1], (ends[1] - ends[0])[0]]) / np.linalg.norm(ends[1] - ends[0])
+    n = n if (q[row == 7].mean(0) - ends[0]) @ n > 0 else -n  # towards row 7
+    yy, xx = np.mgrid[0:480, 0:560]
+    inside = ((np.stack([xx, yy], -1) - ends[0]) @ n) < 2.2
+    img = np.where(inside, 0.3 + (v - 0.1) / 0.7 * 0.45, 0.02).astype(np.float32) + rng.normal(0, 0.01, v.shape).astype(np.float32)
+    rim = cv2.distanceTransform(inside.astype(np.uint8), cv2.DIST_L2, 3)
+    depth = 2.2 - (q - ends[0]) @ n  # px inside the region
+    given = np.nonzero(depth > 5)[0]
+    near_rim = set(np.nonzero(row == 6)[0].tolist())
+    assert np.allclose(depth[list(near_rim)], 2.2, atol=1e-6) and (depth[row == 7] < 0).all()
+    found = []
+    for rim_px in (0.0, 1.5):
+        cfg = CompletionConfig(print_fit_rim_px=rim_px)
+        ids, xy, _, _ = complete_board(img, {}, rim, np.zeros((0, 2)), g, given, q[given], cfg, GridConfig())
+        assert (depth[ids] > 0).all()
+        err = np.linalg.norm(xy - q[ids], axis=1)
+        assert err.max() < 0.15, f"corner {ids[err.argmax()]} is {err.max():.2f} px off"
+        found.append(near_rim & set(ids.tolist()))
+    assert not found[0] and len(found[1]) >= 0.6 * len(near_rim), (found, near_rim)
