@@ -16,7 +16,10 @@ identified one (a grid step away) is
    fails or lands farther in a gap under ``print_fit_gap_px``, the print moved onto the image
    there (:func:`print_fit`); else the best of the tag pass's candidates within ``search`` of it
    (the growth stops where the prediction from a lattice's last steps misses by more than its
-   reach; here every identified corner around predicts);
+   reach; here every identified corner around predicts). A prediction closer to the image
+   circle's rim than ``min_rim_px`` (the board's edge against the black frame makes an X of its
+   own there) is out of view, but from ``print_fit_rim_px`` on, in a gap under
+   ``print_fit_rim_gap_px``, the print fit alone looks for it, within ``reach``;
 3. verified against the print (:func:`print_correlation`): the image around the corner, sampled
    through the homography moved onto it, must correlate with the board's printed pattern around
    that corner (tag border, crossing square, the tags' data cells) by ``min_corr``, and better by
@@ -415,12 +418,13 @@ def print_fit(
     local gaps (``gap_px``) of ``q0``, blurred, and moved by Gauss-Newton steps (the print's
     black and white levels fitted linearly at each) to match the image. The blurs of
     :data:`PRINT_FIT_SIGMAS` up to ``cfg.print_fit_max_blur`` of the gap are tried widest first,
-    each from the last one's shift, until a narrower one matches worse. None where fewer than
-    ``cfg.print_fit_min_pixels`` pixels lie inside the image circle (``rim_dist`` over 1.5 px),
-    the match explains less than ``cfg.print_fit_min_r2`` of the pixels' variance, or the shift
-    exceeds ``cfg.search`` of the gap. Measured on the independent renderer's 10 x 8 AprilGrid
-    frames (gaps of 3-5 px, grey prints): 0.07 px from the labels on median, 0.2 px at the 90th
-    percentile, where the prediction was 0.1-2.9 px off."""
+    each from the last one's shift, until a narrower one matches worse. Only pixels inside the
+    frame and the image circle (``rim_dist`` over 1.5 px) are compared. None where fewer than
+    ``cfg.print_fit_min_pixels`` of them, or under ``cfg.print_fit_min_share`` of the disc, are
+    left, the match explains less than ``cfg.print_fit_min_r2`` of their variance, or the shift
+    exceeds ``reach`` (default ``cfg.search``) of the gap. Measured on the independent renderer's
+    10 x 8 AprilGrid frames (gaps of 3-5 px, grey prints): 0.06 px from the labels on median,
+    0.19 px at the 90th percentile, where the prediction was 0.1-2.9 px off."""
     H, W = img.shape
     radius = max(cfg.print_fit_radius * gap_px, 3.0)
     reach = (cfg.search if reach is None else reach) * gap_px
