@@ -290,26 +290,33 @@ def test_complete_board_recovers_a_checkerboard_rim_view_from_a_block_of_corners
     assert found > 0.8, f"{found:.2f} of the visible corners"
 
 
+def _completed_small_tags(blur: float, cfgs: list[CompletionConfig], tol: float) -> list[int]:
+    """Tags of 8-14 px seen 60-90 deg off-axis through a 200-degree UCM lens, blurred by ``blur``
+    px, completed from the four tags of one block under each of ``cfgs``: every corner found is
+    visible and within ``tol`` px of its label; returns how many each finds."""
+    g = make_target(TargetConfig(kind="aprilgrid", margin=0.3))
+    c = np.array(centre(g))
+    img, q, vis, _ = render(g, "ucm", 200, (c + [0.0, 0.0, 1.0]).tolist(), (c + [-0.3, 0.05, 0.0]).tolist())
+    grey = cv2.GaussianBlur(img.astype(np.float32) / 255, (0, 0), blur)
+    lens, rim, smoothed, cand = _circle_view(grey)
+    given = _anchor(g, [14, 15, 20, 21])
+    found = []
+    for cfg in cfgs:
+        ids, xy, _, _ = complete_board(grey, dict(smoothed), rim, cand, g, given, q[given], cfg, GridConfig(), lens)
+        assert vis[ids].all()
+        err = np.linalg.norm(xy - q[ids], axis=1)
+        assert err.max() < tol, f"corner {ids[err.argmax()]} is {err.max():.2f} px off"
+        found.append(len(ids))
+    return found
+
+
 def test_complete_board_fits_small_gaps_with_a_looser_symmetry():
     """Tags of about 9 px (gaps of under 3 px) blurred by 0.8 px: at the smallest window the
     crossing square's far corner breaks the point symmetry, and a fit held to the candidates'
     symmetry fails at many corners; tried again with ``small_min_symmetry`` where the local gap is
     under ``small_gap_px``, completion from four tags finds at least 10 more, each within 1 px of
     its label."""
-    g = make_target(TargetConfig(kind="aprilgrid", margin=0.3))
-    c = np.array(centre(g))
-    img, q, vis, _ = render(g, "ucm", 200, (c + [0.0, 0.0, 1.0]).tolist(), (c + [-0.3, 0.05, 0.0]).tolist())
-    grey = cv2.GaussianBlur(img.astype(np.float32) / 255, (0, 0), 0.8)
-    lens, rim, smoothed, cand = _circle_view(grey)
-    given = _anchor(g, [14, 15, 20, 21])
-    found = []
-    for small_gap_px in (0.0, 4.0):
-        cfg = CompletionConfig(small_gap_px=small_gap_px, print_fit_gap_px=0.0)  # the saddle fits alone
-        ids, xy, _, _ = complete_board(grey, smoothed, rim, cand, g, given, q[given], cfg, GridConfig(), lens)
-        assert vis[ids].all()
-        err = np.linalg.norm(xy - q[ids], axis=1)
-        assert err.max() < 1.0, f"corner {ids[err.argmax()]} is {err.max():.2f} px off"
-        found.append(len(ids))
+    found = _completed_small_tags(0.8, [CompletionConfig(small_gap_px=x, print_fit_gap_px=0.0) for x in (0.0, 4.0)], tol=1.0)
     assert found[1] >= found[0] + 10, found
 
 
@@ -461,20 +468,7 @@ def test_complete_board_finds_corners_of_small_tags_by_their_print():
     """Tags of 8-14 px seen 60-90 deg off-axis through a 200-degree UCM lens and blurred by 1 px
     (gaps of 3-4 px), completed from the four tags of one block: with the print fitted where the
     saddle fits fail, at least 40 more corners (85 -> 142 when written), each within 0.5 px of its label."""
-    g = make_target(TargetConfig(kind="aprilgrid", margin=0.3))
-    c = np.array(centre(g))
-    img, q, vis, _ = render(g, "ucm", 200, (c + [0.0, 0.0, 1.0]).tolist(), (c + [-0.3, 0.05, 0.0]).tolist())
-    grey = cv2.GaussianBlur(img.astype(np.float32) / 255, (0, 0), 1.0)
-    lens, rim, smoothed, cand = _circle_view(grey)
-    given = _anchor(g, [14, 15, 20, 21])
-    found = []
-    for gap_px in (0.0, 7.0):
-        cfg = CompletionConfig(print_fit_gap_px=gap_px)
-        ids, xy, _, _ = complete_board(grey, dict(smoothed), rim, cand, g, given, q[given], cfg, GridConfig(), lens)
-        assert vis[ids].all()
-        err = np.linalg.norm(xy - q[ids], axis=1)
-        assert err.max() < 0.5, f"corner {ids[err.argmax()]} is {err.max():.2f} px off"
-        found.append(len(ids))
+    found = _completed_small_tags(1.0, [CompletionConfig(print_fit_gap_px=x) for x in (0.0, 7.0)], tol=0.5)
     assert found[1] >= found[0] + 40, found
 
 
