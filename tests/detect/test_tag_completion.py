@@ -473,7 +473,7 @@ def test_complete_board_finds_corners_of_small_tags_by_their_print():
 
 
 def test_complete_board_finds_corners_just_inside_the_rim_by_their_print():
-    """A flat view of a grey print (gaps of 6-9 px) cut by a black region along one row of corners,
+    """A flat view of a grey print (gaps of 6-7 px) cut by a black region along one row of corners,
     which lie 2.2 px inside it: given the corners more than 5 px inside, completion with the print
     fit at the rim also finds that row (where no saddle window fits), each within 0.15 px of its
     true position; without it, none of them. Nothing is reported in the black region."""

@@ -908,7 +908,7 @@ def test_a_blurred_view_is_read_at_half_resolution_too():
     c = np.array(centre(g))
     img, q, vis, _ = render(g, "kb4", 200, (c + [0.0, 0.0, 0.5]).tolist(), c.tolist())
     grey = cv2.GaussianBlur(img.astype(np.float32) / 255, (0, 0), 2.5)
-    saddles = replace(TagConfig().complete, print_fit_gap_px=0.0)
+    saddles = replace(TagConfig().complete, print_fit_gap_px=0.0, print_fit_rim_px=0.0)
     alone = tag_pass(grey, g, TagConfig(half_below=0, complete=saddles))
     both = tag_pass(grey, g, TagConfig(complete=saddles))
     assert len(alone.ids) < TagConfig().half_below
