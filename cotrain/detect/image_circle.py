@@ -308,6 +308,17 @@ def local_views(q: np.ndarray, lens: EquidistantLens) -> tuple[np.ndarray, np.nd
     return w[..., :2] / np.where(w[..., 2:] > 0.1, w[..., 2:], 1.0), R, ok
 
 
+def _in_front(h: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """h / w for homogeneous points (h (..., 2), w (..., 1)); NaN where w is not positive (behind)."""
+    return np.where(w > 1e-12, h / np.where(w > 1e-12, w, 1.0), np.nan)
+
+
+def _through(H: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Homographies H (K, 3, 3) applied to points p (K, M, 2) -> (K, M, 2); NaN behind (see
+    :func:`_in_front`: the maps are oriented so that the points in front have a positive scale)."""
+    return _in_front(p @ H[:, :2, :2].transpose(0, 2, 1) + H[:, None, :2, 2], p @ H[:, 2, :2, None] + H[:, None, 2, 2:])
+
+
 @dataclass
 class PlaneMaps:
     """K maps from points of a plane (the board, metres) to pixels: homographies ``H`` (K, 3, 3)
@@ -320,11 +331,7 @@ class PlaneMaps:
 
     def __call__(self, p: np.ndarray) -> np.ndarray:
         """Board points p (K, M, 2) -> pixels (K, M, 2); NaN behind a map's horizon."""
-        p = np.asarray(p, np.float64)
-        H = self.H
-        h = p @ H[:, :2, :2].transpose(0, 2, 1) + H[:, None, :2, 2]
-        w = p @ H[:, 2, :2, None] + H[:, None, 2, 2:]
-        g = np.where(w > 1e-12, h / np.where(w > 1e-12, w, 1.0), np.nan)
+        g = _through(self.H, np.asarray(p, np.float64))
         if self.lens is None:
             return g
         v = np.concatenate([g, np.ones_like(g[..., :1])], -1) @ self.R  # R^T (g, 1): back to the camera's rays
@@ -333,16 +340,11 @@ class PlaneMaps:
     def to_plane(self, q: np.ndarray) -> np.ndarray:
         """Pixels q (K, M, 2) -> the plane's points (K, M, 2) under each map (the inverse of
         calling it); NaN where a pixel's ray misses the plane in front."""
-        q = np.asarray(q, np.float64)
-        if self.lens is None:
-            g = q
-        else:
-            w = self.lens.lift(q) @ self.R.transpose(0, 2, 1)  # R v: the rays in each map's view
-            g = np.where(w[..., 2:] > 1e-12, w[..., :2] / np.where(w[..., 2:] > 1e-12, w[..., 2:], 1.0), np.nan)
-        Hi = np.linalg.inv(self.H)
-        h = g @ Hi[:, :2, :2].transpose(0, 2, 1) + Hi[:, None, :2, 2]
-        w = g @ Hi[:, 2, :2, None] + Hi[:, None, 2, 2:]
-        return np.where(np.abs(w) > 1e-12, h / np.where(np.abs(w) > 1e-12, w, 1.0), np.nan)
+        g = np.asarray(q, np.float64)
+        if self.lens is not None:
+            w = self.lens.lift(g) @ self.R.transpose(0, 2, 1)  # R v: the rays in each map's view
+            g = _in_front(w[..., :2], w[..., 2:])
+        return _through(np.linalg.inv(self.H), g)
 
     def take(self, idx: np.ndarray | int) -> PlaneMaps:
         """The maps ``idx`` (an index array, a mask, or one index kept as a batch of one)."""

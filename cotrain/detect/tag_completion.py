@@ -601,8 +601,9 @@ def complete_board(
             g_px = min(np.linalg.norm(ends[0] - q0), np.linalg.norm(ends[1] - q0))
             res = np.linalg.norm(to_image(kP[near][None])[0] - kq[near], axis=1).max()
             in_frame = bool(0 <= q0[0] <= Ww - 1 and 0 <= q0[1] <= Hh - 1)
-            at_rim = in_frame and g_px < cfg.print_fit_rim_gap_px and 0 < cfg.print_fit_rim_px <= _value(rim_dist, q0) < cfg.min_rim_px
-            if not in_frame or (_value(rim_dist, q0) < cfg.min_rim_px and not at_rim):
+            rim_q0 = _value(rim_dist, q0)
+            at_rim = in_frame and g_px < cfg.print_fit_rim_gap_px and 0 < cfg.print_fit_rim_px <= rim_q0 < cfg.min_rim_px
+            if not in_frame or (rim_q0 < cfg.min_rim_px and not at_rim):
                 failed[t] = beside  # out of view (NaN: behind the horizon)
                 unfound.discard(t)
                 continue
@@ -617,16 +618,20 @@ def complete_board(
         halves = np.array([window_half(x[2]) for x in todo])
         for h in np.unique(halves):
             sel = np.nonzero(halves == h)[0]
-            fitted, ok, _ = fit_saddles(grey, smoothed, np.array([todo[k][1] for k in sel]), int(h), fit_cfg, rim_dist)
+            # No saddle is fitted at the rim (the print fit alone looks there).
+            fit = ~np.array([todo[k][5] for k in sel], bool)
+            fitted, ok = np.array([todo[k][1] for k in sel], np.float64), np.zeros(len(sel), bool)
+            if fit.any():
+                fitted[fit], ok[fit], _ = fit_saddles(grey, smoothed, fitted[fit], int(h), fit_cfg, rim_dist)
             # In gaps of a few pixels the crossing square ends inside the smallest window and its far
             # corner breaks the point symmetry (tags of 8-12 px): such a fit is tried again, looser.
-            small = np.nonzero(~ok & (np.array([todo[k][2] for k in sel]) < cfg.small_gap_px))[0]
+            small = np.nonzero(fit & ~ok & (np.array([todo[k][2] for k in sel]) < cfg.small_gap_px))[0]
             if len(small):
                 pts = np.array([todo[sel[k]][1] for k in small])
                 fitted[small], ok[small], _ = fit_saddles(grey, smoothed, pts, int(h), small_cfg, rim_dist)
             for k, q_fit, ok_k in zip(sel, fitted, ok):
                 t, q0, g_px, to_image, beside, at_rim = todo[k]
-                options = [q_fit] if ok_k and not at_rim and np.linalg.norm(q_fit - q0) < cfg.reach * g_px else []
+                options = [q_fit] if ok_k and np.linalg.norm(q_fit - q0) < cfg.reach * g_px else []
                 if not options and (g_px < cfg.print_fit_gap_px or at_rim):
                     q_print = print_fit(grey, rim_dist, board, to_image, t, g_px, cfg, cfg.reach if at_rim else cfg.search)
                     options = [] if q_print is None else [q_print]
