@@ -37,6 +37,7 @@ MIN_CONTOUR_PX = 40  # contours of the black frame shorter than this are specks 
 INLIER_PX = 2.0  # px: edge pixels this close to the circle are on it (the frame's edge is found at half resolution)
 MIN_INLIERS = 0.6  # share of the black frame's edge on the narrowing fit's circle (else a dark scene joins it: the consensus fit)
 CONSENSUS_TRIES = 128  # circles through three edge pixels that the consensus fit tries ...
+CONSENSUS_RETRY_TRIES = 1024  # ... and where its circle fails, in a second, larger draw (a dark scene joined to most of the edge)
 CONSENSUS_POINTS = 600  # ... each scored on about this many of the edge pixels (every n-th)
 RING_PX = 6.0  # the black frame must lie this far outside the circle (px; its edge, found at half resolution, is 2-4 px soft) ...
 MIN_RING_OUTSIDE = 0.95  # ... on this share of the ring there inside the image
@@ -130,6 +131,10 @@ def fit_image_circle(outside: np.ndarray) -> tuple[np.ndarray, float] | None:
             fit = None
     if not passes(fit):
         fit = _consensus_circle(p, outside.shape)
+    if not passes(fit):
+        # Where a dark scene joins most of the frame's edge (a circle cut by the image's sides leaves
+        # four short arcs in its corners), 128 draws may miss three points on the circle itself.
+        fit = _consensus_circle(p, outside.shape, seed=1, tries=CONSENSUS_RETRY_TRIES)
         if not passes(fit):
             return None
     centre, radius = fit
@@ -189,14 +194,16 @@ def _narrowing_circle(p: np.ndarray) -> tuple[np.ndarray, float] | None:
     return fit
 
 
-def _consensus_circle(p: np.ndarray, shape: tuple[int, int], seed: int = 0) -> tuple[np.ndarray, float] | None:
+def _consensus_circle(
+    p: np.ndarray, shape: tuple[int, int], seed: int = 0, tries: int = CONSENSUS_TRIES
+) -> tuple[np.ndarray, float] | None:
     """The circle through most of the edge pixels p (N, 2) of an image of ``shape`` (H, W): of
-    :data:`CONSENSUS_TRIES` circles through three of them (a fixed random draw) with a radius
+    ``tries`` circles through three of them (a fixed random draw from ``seed``) with a radius
     of a fifth of the image's shorter side to twice its longer, the one with the most within
     :data:`INLIER_PX`, fitted again to those; None where under :data:`MIN_ARC_PX` lie on it."""
     H, W = shape
     sub = p[:: max(1, len(p) // CONSENSUS_POINTS)]
-    tri = sub[np.random.default_rng(seed).integers(0, len(sub), (CONSENSUS_TRIES, 3))]  # (T, 3, 2)
+    tri = sub[np.random.default_rng(seed).integers(0, len(sub), (tries, 3))]  # (T, 3, 2)
     # The centre c through three points: 2 (p_k - p_0) . c = |p_k|^2 - |p_0|^2, k = 1, 2.
     A = 2 * (tri[:, 1:] - tri[:, :1])  # (T, 2, 2)
     b = (tri[:, 1:] ** 2).sum(2) - (tri[:, :1] ** 2).sum(2)  # (T, 2)

@@ -6,8 +6,11 @@ import numpy as np
 import pytest
 
 from cotrain.detect.image_circle import (
+    MIN_CONTOUR_PX,
     EquidistantLens,
     PlaneMaps,
+    _black_all_around,
+    _consensus_circle,
     beyond_circle,
     fit_image_circle,
     local_views,
@@ -166,6 +169,37 @@ def test_fit_image_circle_finds_the_circle_whole_or_cut_by_the_frame(c, r, dark_
     assert fit is not None
     np.testing.assert_allclose(fit[0], c, atol=0.5)
     assert fit[1] == pytest.approx(r, abs=2.5)
+
+
+def _edge_pixels(outside: np.ndarray) -> np.ndarray:
+    """The black frame's edge pixels off the image border, as fit_image_circle collects them."""
+    H, W = outside.shape
+    contours, _ = cv2.findContours(outside.astype(np.uint8), cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
+    p = np.concatenate([c.reshape(-1, 2) for c in contours if len(c) >= MIN_CONTOUR_PX]).astype(np.float64)
+    return p[(p[:, 0] >= 3) & (p[:, 0] < W - 3) & (p[:, 1] >= 3) & (p[:, 1] < H - 3)]
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_fit_image_circle_finds_a_circle_cut_by_the_frame_with_dark_scene_at_its_border(seed):
+    """A circle larger than the frame (black only in its four corners), with dark scene along the
+    top and bottom edges inside it (twelve discs: a dark room, as the frame's edge shows it): most
+    edge pixels are the scene's, off the circle. The circle is found (centre within half a pixel,
+    radius within 2.5 px). With seed 3 a single draw of circles through three edge pixels misses
+    it; the second, larger draw finds it."""
+    c, r = (620.4, 382.5), 655.0
+    img = circle_frame(720, 1280, c, r, 0.0, 0.02)
+    rng = np.random.default_rng(seed)
+    for k in range(12):
+        x, y = float(rng.uniform(100, 1180)), 0.0 if k % 2 == 0 else 719.0
+        cv2.circle(img, (int(x), int(y)), int(rng.uniform(60, 160)), 0.0, -1)
+    outside = outside_circle(img)
+    fit = fit_image_circle(outside)
+    assert fit is not None
+    np.testing.assert_allclose(fit[0], c, atol=0.5)
+    assert fit[1] == pytest.approx(r, abs=2.5)
+    if seed == 3:
+        first = _consensus_circle(_edge_pixels(outside), outside.shape)
+        assert first is None or not _black_all_around(outside, *first)
 
 
 def test_beyond_circle_leaves_out_dark_scene_joined_to_the_frame():
