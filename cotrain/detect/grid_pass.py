@@ -466,7 +466,17 @@ def grid_pass(
         # Where many miss, the maps are at fault (no image circle to guess the lens from, and a
         # bend no homography follows: a 640x480 board lost 22 of its 23 placed corners so), and
         # none is dropped.
-        ok = neighbour_check(board, ids, q, cfg.misfit_neighbours, cfg.max_neighbour_misfit, lens, cfg.max_misfit_share)
+        ok = neighbour_check(
+            board,
+            ids,
+            q,
+            cfg.misfit_neighbours,
+            cfg.max_neighbour_misfit,
+            lens,
+            cfg.max_misfit_share,
+            cfg.worst_neighbour_misfit,
+            cfg.worst_misfit_rounds,
+        )
         ids, q, conf = ids[ok], q[ok], conf[ok]
     if cfg.complete_rounds and 4 <= len(ids) < board.n_corners:
         # Corners the growth did not reach (bent rows at the rim, a blurred stretch), predicted from

@@ -268,6 +268,8 @@ def neighbour_check(
     max_misfit: float,
     lens: EquidistantLens | None = None,
     max_share: float = 1.0,
+    worst_misfit: float = math.inf,
+    worst_rounds: int = 0,
 ) -> np.ndarray:
     """(K,) bool: which identified corners ``ids`` (K,) at ``xy`` (K, 2) lie where the ``neighbours``
     other corners nearest them on the board put them: the map of those corners (:func:`local_maps`;
@@ -276,10 +278,14 @@ def neighbour_check(
     board step there) of its position. A corner the growth took at an occluder's edge (a T-junction
     a fraction of a square off), or at the end of a row slid by one square, misses it. A wrong
     corner bends its neighbours' maps, so the check runs twice, the second time with the maps of
-    the corners the first kept. Corners without a posed map (under four others, all on a line)
-    are kept, and so are all of them where more than ``max_share`` would be dropped: then the
-    maps are at fault, not the corners (no lens to take the bend out, and a bend no homography
-    follows)."""
+    the corners the first kept. Then, up to ``worst_rounds`` times, the one corner that misses
+    most goes where it misses by more than ``worst_misfit`` and another corner that does too
+    misses by less than half as much without it: a wrong corner at a row's end (a T-junction at
+    an occluder's edge) and its right neighbour bend each other's maps about alike, and only once
+    the wrong one is gone does the other fit. Corners without a posed map (under four
+    others, all on a line) are kept, and so are all of them where more than ``max_share`` would
+    be dropped: then the maps are at fault, not the corners (no lens to take the bend out, and a
+    bend no homography follows)."""
     K = len(ids)
     keep = np.ones(K, bool)
     if min(neighbours, K - 1) < 4:
@@ -298,6 +304,19 @@ def neighbour_check(
     keep = ~(misfit(keep) > max_misfit)
     if not keep.all() and min(neighbours, int(keep.sum()) - 1) >= 4:
         keep = ~(misfit(keep) > max_misfit)
+    for _ in range(worst_rounds):
+        if min(neighbours, int(keep.sum()) - 1) < 5:
+            break
+        off = np.where(keep, misfit(keep), 0.0)
+        worst = int(np.argmax(off))
+        if not off[worst] > worst_misfit:
+            break
+        without = keep.copy()
+        without[worst] = False
+        bent = (off > worst_misfit) & (np.where(without, misfit(without), np.inf) < off / 2)
+        if not bent.any():
+            break  # no other corner it bent: a corner the lens guess fits less well, not a wrong one
+        keep = without
     return keep if np.mean(~keep) <= max_share else np.ones(K, bool)
 
 
