@@ -142,10 +142,13 @@ def test_votes_alone_must_be_surer_than_votes_with_geometry():
     sure the network's votes; turned on, the votes must win by ``min_margin_votes_alone``, and by
     ``min_votes_per_corner`` per lattice corner (a network biased on a whole view, a dark frame,
     adds its bias up over every corner); where the geometry backs it, ``min_margin_backed`` is
-    enough."""
+    enough, even where the votes lean the other way by a few nats (an over-exposed frame, whose
+    white the network was not trained on: geometry 15 ahead, votes 5 behind)."""
     from cotrain.detect.grid_pass import placement_is_sure
 
     shipped = GridConfig()
+    assert placement_is_sure(15.0 - 5.0, 15.0, 16, shipped)
+    assert not placement_is_sure(20.0, shipped.min_geometry_margin - 1, 16, shipped)  # backed too little: min_margin
     assert not placement_is_sure(1e6, 0.0, 12, shipped) and not placement_is_sure(1e6, -3.0, 40, shipped)
     assert placement_is_sure(shipped.min_margin + 1, 5.0, 12, shipped)
     cfg = GridConfig(min_margin_votes_alone=35.0)
