@@ -85,7 +85,8 @@ class GridConfig:
     edge_end_max: float = 1.6  # ... and no farther
     edge_predict_min_px: float = 15.0  # margin evidence reads along the predicted next step if this long (else the last step)
     margin_band_start: float = 0.1  # steps beyond the squares' end where the white margin is sampled ...
-    margin_band_end: float = 0.25  # ... up to here
+    margin_band_end: float = 0.25  # ... up to here, at least half-way to white ...
+    margin_max_brighter: float = 0.5  # ... and not brighter than the white squares by over this much of their contrast (paper)
     max_violated_edges: float = 2.5  # margin evidence (corners' worth) a placement may contradict before the lattice is rejected
     max_violated_share: float = 0.35  # ... or this share of all the lattice's margin evidence, when that is more
     cut_at_margins: bool = True  # a lattice so rejected, or placed unsurely, is placed again cut at a line of margin evidence ...

@@ -174,6 +174,8 @@ def edge_evidence(blur: np.ndarray, lat: Lattice, cfg: GridConfig | None = None)
         white = max(A[i_half], B[i_half]) - 0.5 * contrast
         if not seen[band].all() or not band.any() or min(A[band].min(), B[band].min()) < white:
             continue
+        if np.median(np.concatenate([A[band], B[band]])) > max(A[i_half], B[i_half]) + cfg.margin_max_brighter * contrast:
+            continue  # far brighter than the white squares: no paper of theirs, a light occluder or the scene
         out.append((k, da, db, float(np.clip(1 - np.abs(A[band] - B[band]).mean() / contrast, 0, 1))))
     return out
 

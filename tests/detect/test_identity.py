@@ -64,6 +64,24 @@ def test_margin_evidence_on_a_lattice_one_row_deep():
     assert {k for k, da, db, e in ev if (da, db) == (-1, 0) and e > 0.8} == {0}
 
 
+def test_margin_evidence_is_the_paper_not_a_light_occluder():
+    """The top corner row of a board lit at half (white squares 0.46): the margin above it, paper
+    as white as the squares, is evidence that the board ends there. Where something far brighter
+    than the squares' white lies there instead (0.9: a light occluder along the row, the scene),
+    it is no margin of this print and gives no evidence (a light occluder over the last square
+    row read as margin placed a whole board a row off on a held-out set)."""
+    img, q = board_image()
+    dim = img * 0.5
+    ids = np.arange(NX)[q[:NX, 0] < img.shape[1] - 12]
+    lat = Lattice(q[ids], np.stack([ids, np.zeros_like(ids)], 1), np.zeros(len(ids), bool))
+    up = lambda ev: {k for k, da, db, e in ev if (da, db) == (0, -1) and e > 0.8}  # noqa: E731
+    assert up(edge_evidence(smooth_for(dim, -1), lat)) == set(range(len(ids)))
+    lit = dim.copy()
+    margin_above = (np.arange(img.shape[0])[:, None] < 36) & (img > 0.9)  # above square row 0 (y < 36), the margin
+    lit[margin_above] = 0.9
+    assert not up(edge_evidence(smooth_for(lit, -1), lat))
+
+
 def test_board_symmetries_of_known_boards():
     """Turns that map a board onto itself, colours included: none for 10 x 7 squares, the half
     turn for 7 x 5 and 6 x 6, all three turns for 5 x 5 (squares; inner corners are one less)."""
