@@ -6,7 +6,7 @@ import pytest
 from scipy.ndimage import map_coordinates
 
 from cotrain.detect.grid_config import GridConfig
-from cotrain.detect.saddle import fit_saddles, saddle_fit, smooth_for
+from cotrain.detect.saddle import fit_saddles, pixel_index, saddle_fit, smooth_for
 
 
 def _x_junction(x0: float, y0: float, size: int = 41, angle: float = 0.3, ss: int = 8) -> np.ndarray:
@@ -187,3 +187,15 @@ def test_saddle_fit_takes_thousands_of_points_and_checks_the_rim_size():
     assert ok.all() and np.abs(xy - [20.3, 19.65]).max() < 0.05
     with pytest.raises(ValueError, match="differ in size"):
         saddle_fit(sm, pts[:1], 5, rim_dist=np.ones((10, 10), np.float32))
+
+
+def test_pixel_index_rounds_clamps_and_takes_nan_without_a_warning():
+    """Nearest pixels clamped into the image; a NaN point (a prediction behind the lens's
+    horizon) and points far outside land on the border pixels, and no cast warning is raised."""
+    import warnings
+
+    q = np.array([[2.4, 3.6], [-5.0, 40.0], [np.nan, 3.0], [1e30, -1e30]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        got = pixel_index(q, 20, 15)
+    np.testing.assert_array_equal(got, [[2, 4], [0, 14], [0, 3], [19, 0]])
