@@ -37,7 +37,8 @@ MIN_CONTOUR_PX = 40  # contours of the black frame shorter than this are specks 
 INLIER_PX = 2.0  # px: edge pixels this close to the circle are on it (the frame's edge is found at half resolution)
 MIN_INLIERS = 0.6  # share of the black frame's edge on the narrowing fit's circle (else a dark scene joins it: the consensus fit)
 CONSENSUS_TRIES = 128  # circles through three edge pixels that the consensus fit tries ...
-CONSENSUS_RETRY_TRIES = 1024  # ... and where its circle fails, in a second, larger draw (a dark scene joined to most of the edge)
+CONSENSUS_RETRY_TRIES = 1024  # ... and where its circle fails, in a second, larger draw (a dark scene joined to most of the edge) ...
+CONSENSUS_RESCORED = 32  # ... whose circles are scored on a quarter of the points, and these best on all of them
 CONSENSUS_POINTS = 600  # ... each scored on about this many of the edge pixels (every n-th)
 RING_PX = 6.0  # the black frame must lie this far outside the circle (px; its edge, found at half resolution, is 2-4 px soft) ...
 MIN_RING_OUTSIDE = 0.95  # ... on this share of the ring there inside the image
@@ -200,7 +201,9 @@ def _consensus_circle(
     """The circle through most of the edge pixels p (N, 2) of an image of ``shape`` (H, W): of
     ``tries`` circles through three of them (a fixed random draw from ``seed``) with a radius
     of a fifth of the image's shorter side to twice its longer, the one with the most within
-    :data:`INLIER_PX`, fitted again to those; None where under :data:`MIN_ARC_PX` lie on it."""
+    :data:`INLIER_PX`, fitted again to those; None where under :data:`MIN_ARC_PX` lie on it. A
+    draw larger than :data:`CONSENSUS_TRIES` is scored on a quarter of the points first and its
+    :data:`CONSENSUS_RESCORED` best circles on all of them."""
     H, W = shape
     sub = p[:: max(1, len(p) // CONSENSUS_POINTS)]
     tri = sub[np.random.default_rng(seed).integers(0, len(sub), (tries, 3))]  # (T, 3, 2)
@@ -211,11 +214,21 @@ def _consensus_circle(
     c = np.linalg.solve(np.where(ok[:, None, None], A, np.eye(2)), np.where(ok[:, None], b, 0.0)[..., None])[..., 0]
     r = np.hypot(tri[:, 0, 0] - c[:, 0], tri[:, 0, 1] - c[:, 1])
     ok &= (r > 0.2 * min(H, W)) & (r < 2 * max(H, W))
-    # Within INLIER_PX of a circle: squared distances between (r - INLIER_PX)^2 and (r + INLIER_PX)^2 (no roots).
-    d2 = (sub[None, :, 0] - c[:, None, 0]) ** 2 + (sub[None, :, 1] - c[:, None, 1]) ** 2  # (T, n)
-    lo = np.maximum(r - INLIER_PX, 0.0) ** 2
-    on = (d2 > lo[:, None]) & (d2 < ((r + INLIER_PX) ** 2)[:, None])
-    score = np.where(ok, on.sum(1), -1)
+
+    def inliers(c: np.ndarray, r: np.ndarray, pts: np.ndarray) -> np.ndarray:
+        # Within INLIER_PX of a circle: squared distances between (r - INLIER_PX)^2 and (r + INLIER_PX)^2 (no roots).
+        d2 = (pts[None, :, 0] - c[:, None, 0]) ** 2 + (pts[None, :, 1] - c[:, None, 1]) ** 2  # (T, n)
+        lo = np.maximum(r - INLIER_PX, 0.0) ** 2
+        return ((d2 > lo[:, None]) & (d2 < ((r + INLIER_PX) ** 2)[:, None])).sum(1)
+
+    if tries > CONSENSUS_TRIES:
+        # A large draw: every circle scored on a quarter of the points, the best few on all of them.
+        pre = np.where(ok, inliers(c, r, sub[::4]), -1)
+        top = np.argsort(-pre, kind="stable")[:CONSENSUS_RESCORED]
+        score = np.full(tries, -1)
+        score[top] = np.where(ok[top], inliers(c[top], r[top], sub), -1)
+    else:
+        score = np.where(ok, inliers(c, r, sub), -1)
     k = int(np.argmax(score))
     if score[k] < 3:
         return None
