@@ -52,7 +52,10 @@ def _design(half: int) -> np.ndarray:
 def pixel_index(q: np.ndarray, W: int, H: int) -> np.ndarray:
     """The nearest pixel (K, 2) int of points q (K, 2), clamped into a W x H image (a NaN point:
     pixel 0, as its integer cast clamped gave, without the cast's warning)."""
-    qi = np.rint(np.clip(np.nan_to_num(q, nan=0.0), -1.0, np.array([W, H], np.float64))).astype(int)
+    r = np.rint(q)
+    if not (np.abs(r) < MAX_COORD).all():  # NaN or far out: the cast would warn (checked first: this runs thousands of times a frame)
+        r = np.clip(np.nan_to_num(r, nan=0.0), -1.0, np.array([W, H], np.float64))
+    qi = r.astype(int)
     return np.minimum(np.maximum(qi, 0), np.array([W - 1, H - 1]))
 
 

@@ -301,22 +301,27 @@ def neighbour_check(
         off = np.linalg.norm(q0 - xy, axis=1) / np.maximum(square, 1e-9)
         return np.where(posed & np.isfinite(off), off, 0.0)
 
-    keep = ~(misfit(keep) > max_misfit)
+    off, support = misfit(keep), keep  # each corner's misfit, from the maps of the corners in support
+    keep = ~(off > max_misfit)
     if not keep.all() and min(neighbours, int(keep.sum()) - 1) >= 4:
-        keep = ~(misfit(keep) > max_misfit)
+        off, support = misfit(keep), keep
+        keep = ~(off > max_misfit)
     for _ in range(worst_rounds):
         if min(neighbours, int(keep.sum()) - 1) < 5:
             break
-        off = np.where(keep, misfit(keep), 0.0)
-        worst = int(np.argmax(off))
-        if not off[worst] > worst_misfit:
+        if not np.array_equal(support, keep):
+            off, support = misfit(keep), keep
+        kept_off = np.where(keep, off, 0.0)
+        worst = int(np.argmax(kept_off))
+        if not kept_off[worst] > worst_misfit:
             break
         without = keep.copy()
         without[worst] = False
-        bent = (off > worst_misfit) & (np.where(without, misfit(without), np.inf) < off / 2)
+        off_without = misfit(without)
+        bent = (kept_off > worst_misfit) & (np.where(without, off_without, np.inf) < kept_off / 2)
         if not bent.any():
             break  # no other corner it bent: a corner the lens guess fits less well, not a wrong one
-        keep = without
+        keep, off, support = without, off_without, without
     return keep if np.mean(~keep) <= max_share else np.ones(K, bool)
 
 
