@@ -392,6 +392,21 @@ def test_rays_along_reads_a_corner_next_to_the_image_border_on_a_smaller_circle(
     assert not rays_along(checker(*q2), q2, to_image, q2, gap, gap, cfg)
 
 
+def _board_72_deg_off_axis():
+    """A 10 x 7 checkerboard whose plane's centre lies 0.3 m away, 72 deg off the axis, turned 30
+    deg toward the camera, through an equidistant lens of 220 degrees: the board, the lens and
+    every corner's pixel position (54, 2)."""
+    board = make_target(TargetConfig(kind="checkerboard", squares_x=10, squares_y=7, square_size=0.04))
+    lens = EquidistantLens((640.0, 360.0), 340.0 / np.radians(110))
+    P = board.board_xy()
+    off, turn = np.radians(72), np.radians(30)
+    c = 0.3 * np.array([np.sin(off), 0.0, np.cos(off)])
+    ex = np.array([np.cos(off + turn), 0.0, -np.sin(off + turn)])
+    ey = np.array([0.0, 1.0, 0.0])
+    X = c + (P[:, :1] - P[:, 0].mean()) * ex + (P[:, 1:] - P[:, 1].mean()) * ey
+    return board, lens, lens.project(X)
+
+
 def test_neighbour_check_drops_a_corner_off_where_its_neighbours_put_it():
     """A 10 x 7 checkerboard about 72 deg off-axis through an equidistant lens of 220 degrees (squares
     bent and foreshortened): with the lens, every exact corner fits its neighbours' map and is kept;
@@ -399,16 +414,7 @@ def test_neighbour_check_drops_a_corner_off_where_its_neighbours_put_it():
     neighbours, whose maps it bends, are kept by the second pass; one moved by 0.1 stays. Without
     the lens the bend alone puts many corners off by more than the pixel maps can follow, and
     where more than ``max_share`` would be dropped, none is."""
-    board = make_target(TargetConfig(kind="checkerboard", squares_x=10, squares_y=7, square_size=0.04))
-    lens = EquidistantLens((640.0, 360.0), 340.0 / np.radians(110))
-    P = board.board_xy()
-    # The board's plane: centre 0.3 m away, 72 deg off the axis, turned 30 deg toward the camera.
-    off, turn = np.radians(72), np.radians(30)
-    c = 0.3 * np.array([np.sin(off), 0.0, np.cos(off)])
-    ex = np.array([np.cos(off + turn), 0.0, -np.sin(off + turn)])
-    ey = np.array([0.0, 1.0, 0.0])
-    X = c + (P[:, :1] - P[:, 0].mean()) * ex + (P[:, 1:] - P[:, 1].mean()) * ey
-    q = lens.project(X)
+    board, lens, q = _board_72_deg_off_axis()
     ids = np.arange(board.n_corners)
     assert neighbour_check(board, ids, q, 7, 0.2, lens).all()
     square = np.linalg.norm(q[23] - q[22])
@@ -433,17 +439,9 @@ def test_neighbour_check_drops_the_worst_corner_where_it_bends_a_neighbour():
     keep it; the worst-first rounds drop it, because without it that neighbour misses by less
     than half as much, and keep the other seven. The exact corners are all kept, and so is a
     corner 0.17 off among the whole board's, whose neighbours it does not bend."""
-    board = make_target(TargetConfig(kind="checkerboard", squares_x=10, squares_y=7, square_size=0.04))
-    lens = EquidistantLens((640.0, 360.0), 340.0 / np.radians(110))
-    P = board.board_xy()
-    off, turn = np.radians(72), np.radians(30)
-    c = 0.3 * np.array([np.sin(off), 0.0, np.cos(off)])
-    ex = np.array([np.cos(off + turn), 0.0, -np.sin(off + turn)])
-    ey = np.array([0.0, 1.0, 0.0])
-    X = c + (P[:, :1] - P[:, 0].mean()) * ex + (P[:, 1:] - P[:, 1].mean()) * ey
-    nx = board.nx
-    ids = np.array([r * nx + k for r in range(2) for k in range(4)])
-    q = lens.project(X)[ids]
+    board, lens, q_all = _board_72_deg_off_axis()
+    ids = np.array([r * board.nx + k for r in range(2) for k in range(4)])
+    q = q_all[ids]
     assert neighbour_check(board, ids, q, 7, 0.2, lens, 0.2, 0.15, 3).all()
     moved = q.copy()
     moved[5] += 0.21 * np.linalg.norm(q[1] - q[0]) * np.array([np.cos(np.radians(30)), np.sin(np.radians(30))])
@@ -452,7 +450,6 @@ def test_neighbour_check_drops_the_worst_corner_where_it_bends_a_neighbour():
     assert not keep[5] and keep.sum() == len(ids) - 1
     # On the whole board a corner 0.17 of a square off bends no neighbour that far: it stays (a
     # corner the lens guess fits less well is not dropped for missing by a little).
-    q_all = lens.project(X)
     square = np.linalg.norm(q_all[23] - q_all[22])
     moved_all = q_all.copy()
     moved_all[22] += np.array([0.17 * square, 0.0])
