@@ -473,9 +473,9 @@ def grid_pass(
             cfg.misfit_neighbours,
             cfg.max_neighbour_misfit,
             lens,
-            cfg.max_misfit_share,
-            cfg.worst_neighbour_misfit,
-            cfg.worst_misfit_rounds,
+            max_share=cfg.max_misfit_share,
+            worst_misfit=cfg.worst_neighbour_misfit,
+            worst_rounds=cfg.worst_misfit_rounds,
         )
         ids, q, conf = ids[ok], q[ok], conf[ok]
     if cfg.complete_rounds and 4 <= len(ids) < board.n_corners:

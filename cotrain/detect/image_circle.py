@@ -12,7 +12,8 @@ Double Sphere), since it is only used for the inside of one tag from its four co
 
 - :func:`fit_image_circle`: the circle (centre, radius) of the black frame's inner edge, or
   None where no such circle shows (a frame without a black frame: pixels are read through
-  homographies then); :func:`guess_lens`: the lens from it.
+  homographies then; :func:`frame_edge`: the pixels it is fitted to); :func:`guess_lens`: the
+  lens from it.
 - :class:`EquidistantLens`: ``lift`` pixels to unit rays and ``project`` rays to pixels.
 - :func:`ray_homographies`: per tag, the homography from its unit square to its corners' rays.
 - :func:`local_views` and :class:`PlaneMaps`: a set of corners' own pinhole view of their rays,
@@ -112,13 +113,7 @@ def fit_image_circle(outside: np.ndarray) -> tuple[np.ndarray, float] | None:
     among circles through three of them (:func:`_consensus_circle`), if it passes. None where the
     edge is too short or no circle passes (no black frame, or a dark scene's round edge)."""
     H, W = outside.shape
-    contours, _ = cv2.findContours(outside.astype(np.uint8), cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
-    contours = [c for c in contours if len(c) >= MIN_CONTOUR_PX]  # not the specks noise leaves in the frame
-    if not contours:
-        return None
-    p = np.concatenate([c.reshape(-1, 2) for c in contours]).astype(np.float64)  # the frame's pixels along its edge
-    inner = (p[:, 0] >= 3) & (p[:, 0] < W - 3) & (p[:, 1] >= 3) & (p[:, 1] < H - 3)  # the image border is no edge of the circle
-    p = p[inner]
+    p = frame_edge(outside)
     if len(p) < MIN_ARC_PX:
         return None
 
@@ -178,6 +173,19 @@ def beyond_circle(outside: np.ndarray, circle: tuple[np.ndarray, float] | None) 
     shift = 4  # the circle drawn to 1/16 px
     cv2.circle(inside, (round(cx * 16), round(cy * 16)), max(round((r - CIRCLE_INSIDE_PX) * 16), 0), 1, -1, cv2.LINE_8, shift)
     return outside & (inside == 0)
+
+
+def frame_edge(outside: np.ndarray) -> np.ndarray:
+    """The black frame ``outside`` (H, W) bool's pixels along its edge (N, 2), px: its contours
+    without the specks noise leaves in it (under :data:`MIN_CONTOUR_PX`) and without the image's
+    border, which is no edge of the circle."""
+    H, W = outside.shape
+    contours, _ = cv2.findContours(outside.astype(np.uint8), cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
+    contours = [c for c in contours if len(c) >= MIN_CONTOUR_PX]
+    if not contours:
+        return np.zeros((0, 2))
+    p = np.concatenate([c.reshape(-1, 2) for c in contours]).astype(np.float64)
+    return p[(p[:, 0] >= 3) & (p[:, 0] < W - 3) & (p[:, 1] >= 3) & (p[:, 1] < H - 3)]
 
 
 def _narrowing_circle(p: np.ndarray) -> tuple[np.ndarray, float] | None:

@@ -62,17 +62,19 @@ _REMAP_COLS = 1024  # points per row of the maps of :func:`values_at` for long l
 
 
 def values_at(img: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """Bilinear values (...) of ``img`` (H, W) at points (..., 2); NaN outside the image."""
+    """Bilinear values (...) of ``img`` (H, W) at points (..., 2); NaN outside the image. With
+    channels (``img`` (H, W, C), up to 4): (..., C)."""
+    chans = img.shape[2:]
     flat = pts.reshape(-1, 2).astype(np.float32)
     n = len(flat)
     if n == 0:
-        return np.zeros(pts.shape[:-1], np.float32)
+        return np.zeros((*pts.shape[:-1], *chans), np.float32)
     if n > _REMAP_COLS:  # cv2.remap maps must stay under 32767 rows: lay long lists out in rows
         flat = np.concatenate([flat, np.zeros((-n % _REMAP_COLS, 2), np.float32)]).reshape(-1, _REMAP_COLS, 2)
     else:
         flat = flat[:, None]
-    v = cv2.remap(img, flat[..., 0], flat[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
-    return v.reshape(-1)[:n].reshape(pts.shape[:-1])
+    v = cv2.remap(img, flat[..., 0], flat[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=(np.nan,) * 4)
+    return v.reshape(-1, *chans)[:n].reshape(*pts.shape[:-1], *chans)
 
 
 RAY_SAMPLES = 48  # samples on the circle around a candidate that finds its four edge rays

@@ -491,16 +491,10 @@ def print_fit(
     ok = np.isfinite(plane).all(1)
     printed = np.where(ok, board.intensity(np.where(ok[:, None], plane, 0.0))[0], 0.5).reshape(nyf, nxf).astype(np.float32)
 
-    rows = -(-len(px) // 256)
-
     def match(stack: np.ndarray, shift: np.ndarray) -> tuple[np.ndarray, float, float] | None:
         """The moved model's values and gradients at the pixels (N, 3), and its black level and
         contrast fitted to them; None where it leaves the grid or its contrast is not positive."""
-        at = np.zeros((rows * 256, 2), np.float32)  # OpenCV's maps: at most 32767 rows, so 256 points a row
-        at[: len(px)] = (px - shift - [fx0, fy0]) * f
-        at = at.reshape(rows, 256, 2)
-        v = cv2.remap(stack, at[..., 0], at[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=(np.nan,) * 3)
-        v = v.reshape(-1, 3)[: len(px)]
+        v = values_at(stack, (px - shift - [fx0, fy0]) * f)
         if not np.isfinite(v).all():
             return None
         mean = float(v[:, 0].sum()) / len(v)

@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 
 from cotrain.detect.image_circle import (
-    MIN_CONTOUR_PX,
     EquidistantLens,
     PlaneMaps,
     _black_all_around,
     _consensus_circle,
     beyond_circle,
     fit_image_circle,
+    frame_edge,
     local_views,
     parallelogram_corner,
     ray_homographies,
@@ -171,14 +171,6 @@ def test_fit_image_circle_finds_the_circle_whole_or_cut_by_the_frame(c, r, dark_
     assert fit[1] == pytest.approx(r, abs=2.5)
 
 
-def _edge_pixels(outside: np.ndarray) -> np.ndarray:
-    """The black frame's edge pixels off the image border, as fit_image_circle collects them."""
-    H, W = outside.shape
-    contours, _ = cv2.findContours(outside.astype(np.uint8), cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
-    p = np.concatenate([c.reshape(-1, 2) for c in contours if len(c) >= MIN_CONTOUR_PX]).astype(np.float64)
-    return p[(p[:, 0] >= 3) & (p[:, 0] < W - 3) & (p[:, 1] >= 3) & (p[:, 1] < H - 3)]
-
-
 @pytest.mark.parametrize("seed", [0, 1, 2, 3])
 def test_fit_image_circle_finds_a_circle_cut_by_the_frame_with_dark_scene_at_its_border(seed):
     """A circle larger than the frame (black only in its four corners), with dark scene along the
@@ -198,7 +190,7 @@ def test_fit_image_circle_finds_a_circle_cut_by_the_frame_with_dark_scene_at_its
     np.testing.assert_allclose(fit[0], c, atol=0.5)
     assert fit[1] == pytest.approx(r, abs=2.5)
     if seed == 3:
-        first = _consensus_circle(_edge_pixels(outside), outside.shape)
+        first = _consensus_circle(frame_edge(outside), outside.shape)
         assert first is None or not _black_all_around(outside, *first)
 
 

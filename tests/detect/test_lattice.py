@@ -107,6 +107,16 @@ def test_values_at_is_bilinear_for_any_number_of_points():
     assert values_at(img, np.zeros((0, 2))).shape == (0,)
     assert values_at(img, np.zeros((3, 4, 2))).shape == (3, 4)
     assert np.isnan(values_at(img, np.array([[-5.0, 3.0], [10.0, H + 5.0]]))).all()
+    # With channels: each channel as alone (for short and long lists), NaN outside in every one.
+    stack = np.dstack([img, -img, img * 0.5])
+    for n in (5, 3000):
+        p = rng.uniform([0, 0], [W - 1, H - 1], (n, 2))
+        got = values_at(stack, p)
+        assert got.shape == (n, 3)
+        for c in range(3):
+            np.testing.assert_array_equal(got[:, c], values_at(np.ascontiguousarray(stack[..., c]), p))
+    assert values_at(stack, np.zeros((0, 2))).shape == (0, 3)
+    assert np.isnan(values_at(stack, np.array([[-5.0, 3.0]]))).all()
 
 
 def test_step_has_edge_along_lattice_steps_only():

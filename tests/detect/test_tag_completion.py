@@ -456,6 +456,16 @@ def test_neighbour_check_drops_the_worst_corner_where_it_bends_a_neighbour():
     assert neighbour_check(board, np.arange(board.n_corners), moved_all, 7, 0.2, lens, 0.2, 0.15, 3).all()
 
 
+def _sensor_view(g, H: np.ndarray, size: tuple[int, int], blur: float) -> np.ndarray:
+    """The print of target ``g`` seen through the homography ``H`` (board metres -> pixels) in an
+    image of ``size`` (W, H), integrated over each pixel (4 x 4 point samples) as a sensor does and
+    blurred by ``blur`` px: black 0.1, white 0.8."""
+    k = 4
+    up = np.diag([k, k, 1.0]) @ np.array([[1.0, 0, 0.5], [0, 1, 0.5], [0, 0, 1]]) @ H  # pixel centres at (i + 0.5) / k - 0.5
+    fine = flat_view(g, np.array([[1.0, 0, -0.5], [0, 1, -0.5], [0, 0, 1]]) @ up, size=(size[0] * k, size[1] * k), blur=1e-3)
+    return cv2.GaussianBlur(cv2.resize(fine, size, interpolation=cv2.INTER_AREA), (0, 0), blur)
+
+
 def test_print_fit_finds_corners_in_gaps_of_a_few_pixels():
     """A grey print (black 0.35, white 0.75) seen through a homography with gaps of 3-5.5 px
     (tags of 10-18 px), blurred by 1.2 px, with noise (no renderer involved): from predictions
@@ -465,11 +475,7 @@ def test_print_fit_finds_corners_in_gaps_of_a_few_pixels():
     g = make_target(TargetConfig(kind="aprilgrid"))
     H = np.array([[240.0, 20.0, 200.0], [-15.0, -230.0, 300.0], [0.1, 0.05, 1.0]])
     rng = np.random.default_rng(3)
-    k = 4  # the print integrated over each pixel (4 x 4 point samples), as a sensor does, then blurred
-    up = np.diag([k, k, 1.0]) @ np.array([[1.0, 0, 0.5], [0, 1, 0.5], [0, 0, 1]]) @ H  # pixel centres at (i + 0.5) / k - 0.5
-    fine = flat_view(g, np.array([[1.0, 0, -0.5], [0, 1, -0.5], [0, 0, 1]]) @ up, size=(420 * k, 360 * k), blur=1e-3)
-    v = cv2.resize(fine, (420, 360), interpolation=cv2.INTER_AREA)
-    v = cv2.GaussianBlur(v, (0, 0), 1.2)
+    v = _sensor_view(g, H, (420, 360), 1.2)
     img = (0.35 + (v - 0.1) / 0.7 * 0.4 + rng.normal(0, 0.01, v.shape)).astype(np.float32)
     rim = np.full(img.shape, 100.0, np.float32)
     cfg = CompletionConfig()
@@ -509,10 +515,7 @@ def test_complete_board_finds_corners_just_inside_the_rim_by_their_print():
     true position; without it, none of them. Nothing is reported in the black region."""
     g = make_target(TargetConfig(kind="aprilgrid"))
     H = np.array([[420.0, 30.0, 180.0], [-20.0, -400.0, 420.0], [0.1, 0.05, 1.0]])
-    k = 4  # the print integrated over each pixel, then blurred (as in the print fit's own test)
-    up = np.diag([k, k, 1.0]) @ np.array([[1.0, 0, 0.5], [0, 1, 0.5], [0, 0, 1]]) @ H
-    fine = flat_view(g, np.array([[1.0, 0, -0.5], [0, 1, -0.5], [0, 0, 1]]) @ up, size=(560 * k, 480 * k), blur=1e-3)
-    v = cv2.GaussianBlur(cv2.resize(fine, (560, 480), interpolation=cv2.INTER_AREA), (0, 0), 0.9)
+    v = _sensor_view(g, H, (560, 480), 0.9)
     rng = np.random.default_rng(5)
     to_image = PlaneMaps(H[None])
     P = g.points().numpy()[:, :2]
