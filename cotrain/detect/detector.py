@@ -196,7 +196,8 @@ class Detector:
             return g
         if np.mean(maps[1] > 0.5) < cfg.half_min_board_share:
             return g  # measured: no board under 0.4 % of the map was found at half resolution alone
-        g_half = grid_pass(halve(grey), Letterbox(w // 2, h // 2, self.input_size), *maps, self.target, cfg)
+        half_box = Letterbox(w // 2, h // 2, self.input_size)
+        g_half = grid_pass(halve(grey), half_box, *maps, self.target, cfg, extent_rim_px=cfg.half_rim_px / 2)
         return merge_half_resolution(grey, g, g_half, self.target, cfg)
 
     def grid_result(self, image: np.ndarray, grid: GridConfig | None = None) -> GridResult:

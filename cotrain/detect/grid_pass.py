@@ -56,7 +56,15 @@ from cotrain.detect.half_resolution import corners_at_half_resolution
 from cotrain.detect.identity import Placement, assign_ids, canonical_ids, cell_darkness, corner_votes, edge_evidence
 from cotrain.detect.image_circle import beyond_circle, lens_of_circle
 from cotrain.detect.lattice import STEPS, Lattice, grow_lattice, largest_component, refine_positions, skipped_corners, verify_lattice
-from cotrain.detect.saddle import fit_saddles, outside_and_circle, saddle_candidates, saddle_response, smooth_cached, window_half
+from cotrain.detect.saddle import (
+    fit_saddles,
+    outside_and_circle,
+    pixel_index,
+    saddle_candidates,
+    saddle_response,
+    smooth_cached,
+    window_half,
+)
 from cotrain.detect.tag_completion import CompletionConfig, complete_board, neighbour_check
 from cotrain.geometry.letterbox import CELLS, Letterbox
 from cotrain.targets import ROTATIONS, Checkerboard
@@ -148,6 +156,14 @@ def contrast_scaled(cfg: GridConfig, grey: np.ndarray, roi: np.ndarray) -> GridC
         min_seed_contrast=cfg.min_seed_contrast * k,
         min_edge_contrast=cfg.min_edge_contrast * k,
     )
+
+
+def extent_weight(lat: Lattice, rim_dist: np.ndarray, rim_px: float) -> np.ndarray:
+    """The weight (K,) of each lattice corner as evidence of the board's extent (its off-board
+    penalty in :func:`cotrain.detect.identity.assign_ids`): 0 for a corner nearer than ``rim_px``
+    to the image circle's rim (``rim_dist`` (H, W), px), which the pass would not report, else 1."""
+    x, y = pixel_index(lat.xy, rim_dist.shape[1], rim_dist.shape[0]).T
+    return np.where(rim_dist[y, x] < rim_px, 0.0, 1.0)
 
 
 def placement_is_sure(margin: float, geometry_margin: float, n_corners: int, cfg: GridConfig) -> bool:
@@ -342,6 +358,7 @@ def grid_pass(
     logp_row: np.ndarray,
     board: Checkerboard,
     cfg: GridConfig,
+    extent_rim_px: float = 0.0,
 ) -> GridResult:
     """Corners with ids from the network's dense outputs and the full-resolution image.
 
@@ -351,6 +368,10 @@ def grid_pass(
         probability at 1/4 processing resolution; logp_col: (nx + 2, h, w), logp_row: (ny + 2, h, w)
         for ``board`` (nx x ny inner corners)
         column / row log-probabilities.
+        extent_rim_px: lattice corners nearer the image circle's rim than this (px of ``grey``)
+        are no evidence of the board's extent (:func:`extent_weight`): the half-resolution
+        reading does not report them (``cfg.half_rim_px``), since the board's edge against the
+        dark rim makes X-junctions of its own there.
     """
     empty = GridResult(np.zeros(0, int), np.zeros((0, 2)), np.zeros(0), float("nan"))
     # Work on the crop around the network's corner / board region (all full-resolution filtering
@@ -422,7 +443,7 @@ def grid_pass(
             return None  # a line of corners (or a diagonal) is not a checker lattice
         lc, lr = corner_votes(lat, logp_col, offset, box, cfg), corner_votes(lat, logp_row, offset, box, cfg)
         edges = edge_evidence(blur1, lat, cfg)
-        placed = assign_ids(lat.ab, lc, lr, dark, board, cfg, edges)
+        placed = assign_ids(lat.ab, lc, lr, dark, board, cfg, edges, extent_weight(lat, rim_dist, extent_rim_px))
         return placed, edges, placed.violated <= max(cfg.max_violated_edges, cfg.max_violated_share * sum(e[3] for e in edges))
 
     for lat in grown:

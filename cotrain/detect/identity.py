@@ -201,6 +201,7 @@ def assign_ids(
     board: Checkerboard,
     cfg: GridConfig,
     edges: list[tuple[int, int, int, float]] | None = None,
+    extent_weight: np.ndarray | None = None,
 ) -> tuple[np.ndarray, float, float, float]:
     """Place the lattice on the board.
 
@@ -208,7 +209,9 @@ def assign_ids(
         ab: (K, 2) lattice coordinates; logp_col: (K, nx + 2) / logp_row: (K, ny + 2) the network's
         log-probabilities of the corner column -1 .. nx / row -1 .. ny at each corner;
         dark: cell darkness (see :func:`cell_darkness`); board: the checkerboard (nx x ny inner
-        corners); edges: margin evidence (see :func:`edge_evidence`).
+        corners); edges: margin evidence (see :func:`edge_evidence`); extent_weight: (K,) each
+        corner's weight as evidence of the board's extent, times ``cfg.offboard_penalty`` where a
+        placement puts it off the board (None: 1 for all).
     Returns a :class:`Placement`: ids (K,) (-1 where the placement puts a corner off the board),
     best score, margin over the best placement that gives any corner another id (turns of a
     symmetric board, see ``board.symmetries()``, do not count), the margin evidence the best
@@ -221,6 +224,7 @@ def assign_ids(
     lr = np.maximum(logp_row, cfg.logp_floor)
     cells = np.array(list(dark.keys()), int).reshape(-1, 2)
     dsign = np.array(list(dark.values()))
+    pen = cfg.offboard_penalty * (np.ones(len(ab)) if extent_weight is None else extent_weight)  # (K,)
     scored = []  # per turn r: (total (n_oi, n_oj), geometry's part (n_oi, n_oj), ois, ojs)
     for R in ROTATIONS:
         ij0 = ab @ R.T  # (K, 2) before the offset
@@ -229,10 +233,10 @@ def assign_ids(
         ojs = np.arange(-ij0[:, 1].max() - 1, ny - ij0[:, 1].min() + 1)
         ii = ij0[:, 0][:, None] + ois[None]  # (K, n_oi)
         jj = ij0[:, 1][:, None] + ojs[None]
-        sc = np.where((ii >= 0) & (ii < nx), np.take_along_axis(lc, np.clip(ii + 1, 0, nx + 1), 1), -cfg.offboard_penalty).sum(0)
-        sr = np.where((jj >= 0) & (jj < ny), np.take_along_axis(lr, np.clip(jj + 1, 0, ny + 1), 1), -cfg.offboard_penalty).sum(0)
-        off_c = -cfg.offboard_penalty * ((ii < 0) | (ii >= nx)).sum(0)  # the geometry's part of sc, sr
-        off_r = -cfg.offboard_penalty * ((jj < 0) | (jj >= ny)).sum(0)
+        sc = np.where((ii >= 0) & (ii < nx), np.take_along_axis(lc, np.clip(ii + 1, 0, nx + 1), 1), -pen[:, None]).sum(0)
+        sr = np.where((jj >= 0) & (jj < ny), np.take_along_axis(lr, np.clip(jj + 1, 0, ny + 1), 1), -pen[:, None]).sum(0)
+        off_c = -(pen[:, None] * ((ii < 0) | (ii >= nx))).sum(0)  # the geometry's part of sc, sr
+        off_r = -(pen[:, None] * ((jj < 0) | (jj >= ny))).sum(0)
         # Parity: the cell's min corner after rotation decides its colour; black when i + j even.
         par = np.zeros(2)
         if len(cells):

@@ -346,16 +346,17 @@ def test_completion_recovers_corners_the_growth_did_not_reach(monkeypatch):
 def test_half_resolution_pass_only_where_the_network_sees_a_board(monkeypatch):
     """A frame where the full-resolution pass finds nothing is read at half resolution too only
     where the network's board map covers GridConfig.half_min_board_share of its cells (the spy
-    wraps the real grid pass and records the image sizes it ran on)."""
+    wraps the real grid pass and records the image sizes it ran on). There, corners nearer the
+    rim than the half-resolution corners are reported are no evidence of the board's extent."""
     import cotrain.detect.detector as detector_module
     from cotrain.detect.detector import Detector
 
     seen = []
     real = detector_module.grid_pass
 
-    def spy(grey, *args):
-        seen.append(grey.shape)
-        return real(grey, *args)
+    def spy(grey, *args, **kwargs):
+        seen.append((grey.shape, kwargs.get("extent_rim_px", 0.0)))
+        return real(grey, *args, **kwargs)
 
     monkeypatch.setattr(detector_module, "grid_pass", spy)
     det = Detector()
@@ -367,13 +368,30 @@ def test_half_resolution_pass_only_where_the_network_sees_a_board(monkeypatch):
         "col_logp": np.zeros((1, NX + 2, h, w), np.float32),
         "row_logp": np.zeros((1, NY + 2, h, w), np.float32),
     }
-    share = det.grid.half_min_board_share
-    for cells, runs in ((0, [(720, 1280)]), (int(1.5 * share * h * w) + 1, [(720, 1280), (360, 640)])):
+    share, rim = det.grid.half_min_board_share, det.grid.half_rim_px / 2  # the rim distance in half-resolution px
+    for cells, runs in ((0, [((720, 1280), 0.0)]), (int(1.5 * share * h * w) + 1, [((720, 1280), 0.0), ((360, 640), rim)])):
         mask = np.zeros((h, w), np.float32)
         mask.ravel()[:cells] = 0.9
         seen.clear()
         assert len(det._grid(grey, box, {**out, "mask_prob": mask[None, None]}, det.grid).ids) == 0
         assert seen == runs
+
+
+def test_extent_weight_is_zero_nearer_the_rim_than_the_limit():
+    """Corners of a lattice inside an image circle of radius 100 px: those nearer its rim than
+    ``rim_px`` weigh 0 as evidence of the board's extent, the others 1; a limit of 0 weighs all 1."""
+    import cv2
+
+    from cotrain.detect.grid_pass import extent_weight
+
+    inside = np.zeros((240, 240), np.uint8)
+    cv2.circle(inside, (120, 120), 100, 1, -1)
+    rim_dist = cv2.distanceTransform(inside, cv2.DIST_L2, 3)
+    depth = np.array([2.0, 5.0, 8.0, 30.0, 95.0])  # px inside the rim, along the x axis
+    lat = Lattice(np.stack([220.0 - depth, np.full(5, 120.0)], 1), np.stack([np.arange(5), np.zeros(5, int)], 1), np.zeros(5, bool))
+    np.testing.assert_allclose(rim_dist[120, (220 - depth).astype(int)], depth, rtol=0.05, atol=0.5)  # (a 3x3 mask: within 5 %)
+    np.testing.assert_array_equal(extent_weight(lat, rim_dist, 6.0), [0, 0, 1, 1, 1])
+    np.testing.assert_array_equal(extent_weight(lat, rim_dist, 0.0), np.ones(5))
 
 
 def test_cache_keys_are_strict_json_and_tell_settings_apart():

@@ -238,3 +238,32 @@ def test_one_verified_corner_off_the_board_backs_a_placement():
     before = assign_ids(ab, flat_c, flat_r, dark, BOARD, former, edges)
     assert before.geometry_margin == pytest.approx(10.0)
     assert not placement_is_sure(former.min_margin_backed + 1, before.geometry_margin, len(ab), former)
+
+
+def test_a_corner_without_extent_weight_gives_the_geometry_no_margin():
+    """Column 0 of the board, whole (6 corners), and column 1, with one more corner beyond its end
+    (as a board's outer corner against the dark beyond the image circle's rim makes: a half X).
+    Taken as a verified corner, it puts the lattice along a 9-corner row, a quarter turn off, by
+    one off-board penalty; weighted 0 (``extent_weight``), the geometry cannot tell the two apart."""
+    ids, ij = _board_ab()
+    sel = ij[:, 0] < 2
+    ab = np.concatenate([ij[sel], [[0, NY]]])  # the last: one step past the column's end
+    seen = {tuple(x) for x in ab.tolist()}
+    dark = {(i, j): (1.0 if (i + j) % 2 == 0 else -1.0) for i, j in seen if {(i + 1, j), (i, j + 1), (i + 1, j + 1)} <= seen}
+    edges = [(k, -1, 0, 1.0) for k, (i, j) in enumerate(ab) if i == 0]  # the margin left of column 0 ...
+    edges += [(k, 0, -1, 1.0) for k, (i, j) in enumerate(ab) if j == 0]  # ... and above row 0
+    flat_c = np.full((len(ab), NX + 2), -np.log(NX + 2))
+    flat_r = np.full((len(ab), NY + 2), -np.log(NY + 2))
+    cfg = GridConfig()
+    fooled = assign_ids(ab, flat_c, flat_r, dark, BOARD, cfg, edges)
+    assert (fooled.ids >= 0).all()  # the extra corner on the board: the lattice lies along a row
+    assert not np.array_equal(fooled.ids[:-1], ids[sel])
+    assert fooled.geometry_margin == pytest.approx(cfg.offboard_penalty)
+    weight = np.ones(len(ab))
+    weight[-1] = 0.0
+    unsure = assign_ids(ab, flat_c, flat_r, dark, BOARD, cfg, edges, extent_weight=weight)
+    assert unsure.geometry_margin == pytest.approx(0.0)
+    # Corners weighted 1 are the shipped penalty: the same placement and margins as without weights.
+    same = assign_ids(ab, flat_c, flat_r, dark, BOARD, cfg, edges, extent_weight=np.ones(len(ab)))
+    np.testing.assert_array_equal(same.ids, fooled.ids)
+    assert (same.margin, same.geometry_margin) == (fooled.margin, fooled.geometry_margin)
