@@ -26,7 +26,11 @@ identified one (a grid step away) is
    ``min_corr_margin`` than with the pattern around each of its eight grid neighbours: a saddle at
    the crossing square's other corner or at a data junction matches another pattern. Under
    ``sure_corr`` its four edge rays must also follow the board's axes (:func:`rays_along`): a
-   corner half under an occluder has the occluder's edge for one of them.
+   corner half under an occluder has the occluder's edge for one of them. Among several
+   candidates of the search, one whose rays follow the axes goes before a sure match over a
+   patch under ``sure_inside`` inside the image circle: a patch cut by the rim can match the
+   print at the board's edge against the dark beyond it better than the corner a few pixels
+   away does.
 
 Corners added in a round predict in the next one; a corner that failed is tried again once more
 of its neighbours are identified. The corners added are fitted once more in the tag pass's small
@@ -70,7 +74,8 @@ class CompletionConfig:
     min_corr_margin: float = 0.1  # ... better by this than with the print around each grid neighbour
     ray_radius: float = 0.5  # a corner's edge rays are read on a circle of this fraction of the local gap ...
     max_ray_angle: float = 30.0  # ... and the board's axes must leave along them within this (deg) ...
-    sure_corr: float = 0.7  # ... unless the print correlation reaches this
+    sure_corr: float = 0.7  # ... unless the print correlation reaches this ...
+    sure_inside: float = 0.75  # ... and, among several candidates of the search, over this share of the patch inside the image circle
     check: bool = True  # first, the growth's corners are checked against the print (:func:`print_check`) ...
     check_margin: float = 0.0  # ... and one is dropped where a grid neighbour's print matches it better by more than this ...
     check_large_px: float = 20.0  # ... or, in tags at least this wide (px) ...
@@ -158,6 +163,7 @@ class PrintMatch(NamedTuple):
 
     corr: float  # correlation with the print around the corner
     other: float  # the best correlation with the print around any of its eight grid neighbours
+    inside: float  # the share of the patch's samples inside the image circle that the correlations are over
 
 
 def print_correlation(
@@ -165,13 +171,13 @@ def print_correlation(
 ) -> PrintMatch:
     """The image ``sm`` (H, W) around corner ``t`` against the print there, sampled through
     ``to_image`` (one map, board metres -> pixels) moved by ``shift`` (2,) px over the patch of
-    :func:`print_patches` (see :class:`PrintMatch`). (-1, 1) where fewer than a fifth of the
+    :func:`print_patches` (see :class:`PrintMatch`). (-1, 1) where under :data:`MIN_INSIDE` of the
     samples lie inside the image circle (``rim_dist`` (H, W) over 1.5 px)."""
-    corr, other_ok, enough = _print_correlations(sm, rim_dist, board, to_image, np.asarray(shift, np.float64)[None], np.array([t]), cfg)
-    if not enough[0]:
-        return PrintMatch(-1.0, 1.0)
+    corr, other_ok, inside = _print_correlations(sm, rim_dist, board, to_image, np.asarray(shift, np.float64)[None], np.array([t]), cfg)
+    if not inside[0] >= MIN_INSIDE:
+        return PrintMatch(-1.0, 1.0, float(inside[0]))
     others = corr[0, 1:][other_ok[0]]
-    return PrintMatch(float(corr[0, 0]), float(others.max()) if len(others) else -1.0)
+    return PrintMatch(float(corr[0, 0]), float(others.max()) if len(others) else -1.0, float(inside[0]))
 
 
 def _print_correlations(
@@ -182,8 +188,8 @@ def _print_correlations(
     ``shift`` (K, 2) px, correlated with the print around each corner and around its eight grid
     neighbours. Returns the correlations (K, 9) (the corner's own first; -1 without contrast),
     which neighbours count (K, 8): on the board and printed otherwise than the corner (a
-    checkerboard's diagonal neighbours are printed alike), and whether a fifth of the samples
-    lie inside the image circle (``rim_dist`` over 1.5 px) (K,)."""
+    checkerboard's diagonal neighbours are printed alike), and the share of the samples inside
+    the image circle (``rim_dist`` over 1.5 px) (K,)."""
     U, printed = print_patches(board, cfg)
     p = board.board_xy()[ids]
     q = to_image(p[:, None] + U[None]) + shift[:, None]
@@ -203,7 +209,10 @@ def _print_correlations(
     den = np.sqrt((pat * pat).sum(2) * (seen * seen).sum(2))
     corr = np.where(den > 1e-12, (pat * seen).sum(2) / np.maximum(den, 1e-12), -1.0)
     same = np.abs(printed[nb] - printed[ids][:, None]).max(2) < 1e-6
-    return corr, on & ~same, inside.sum(1) >= len(U) / 5
+    return corr, on & ~same, inside.mean(1)
+
+
+MIN_INSIDE = 0.2  # print matches need this share of the patch's samples inside the image circle
 
 
 _GRID8 = np.array([(a, b) for b in (-1, 0, 1) for a in (-1, 0, 1) if a or b])  # a corner's eight grid neighbours (column, row steps)
@@ -383,8 +392,8 @@ def _uncontradicted(
     to_image, posed = local_maps(kP[near], xy[near], lens)
     # The patch through each corner's homography, moved so that the corner lands on its position.
     q0 = to_image(kP[:, None])  # (K, 1, 2)
-    corr, other_ok, enough = _print_correlations(sm, rim_dist, board, to_image, xy - q0[:, 0], ids, cfg)
-    enough &= posed & np.isfinite(q0[:, 0, 0])
+    corr, other_ok, inside = _print_correlations(sm, rim_dist, board, to_image, xy - q0[:, 0], ids, cfg)
+    enough = (inside >= MIN_INSIDE) & posed & np.isfinite(q0[:, 0, 0])
     other = np.where(other_ok, corr[:, 1:], -np.inf).max(1)
     # The tag's width there (px): the shorter image of a tag side along the board's axes (NaN: large).
     ends = to_image(kP[:, None] + np.array([[board.spacing, 0.0], [0.0, board.spacing]]))
@@ -553,6 +562,52 @@ class Completion(NamedTuple):
     unfound: np.ndarray  # (U,) corners beside identified ones, not predicted off the view, not found (or not tried: rounds ran out)
 
 
+def best_option(
+    sm: np.ndarray,
+    rim_dist: np.ndarray,
+    board: Target,
+    to_image: PlaneMaps,
+    q0: np.ndarray,
+    t: int,
+    gap: float,
+    options: list[np.ndarray],
+    searched: bool,
+    gap_px: float,
+    known_q: np.ndarray,
+    rim_px: float,
+    cfg: CompletionConfig,
+) -> tuple[np.ndarray | None, float]:
+    """The position among ``options`` (each (2,) px) that corner ``t``, predicted at q0 (2,)
+    through ``to_image`` (one map) with a local gap of ``gap_px`` (the board's ``gap`` metres,
+    :func:`smallest_step`), is found at (step 3 of the module's docstring), and its print
+    correlation; (None, -inf) where none holds. An option
+    nearer than ``cfg.crowd`` of the gap to a known corner (``known_q`` (K, 2)) or nearer than
+    ``rim_px`` to the rim (``rim_dist`` (H, W)) is refused; the others must match the print around
+    t by ``cfg.min_corr``, by ``cfg.min_corr_margin`` more than a grid neighbour's, and have
+    their edge rays along the board's axes unless their match is sure (``cfg.sure_corr``). The
+    best match wins; but among several ``searched`` candidates, those whose rays follow the axes
+    go before a sure match over a patch under ``cfg.sure_inside`` inside the image circle."""
+    p = board.board_xy()[t]
+    best, best_key = None, (False, -np.inf)
+    for q in options:
+        if np.linalg.norm(known_q - q, axis=1).min() < cfg.crowd * gap_px or _value(rim_dist, q) < rim_px:
+            continue
+        m = print_correlation(sm, rim_dist, board, to_image, q - q0, t, cfg)
+        if not (m.corr >= cfg.min_corr and m.corr - m.other >= cfg.min_corr_margin):
+            continue
+        sure = m.corr >= cfg.sure_corr
+        # A patch cut by the rim can match the print at the board's edge against the dark beyond
+        # it better than the corner a few pixels away does: among several candidates, one whose
+        # rays follow the board's axes goes before a sure match over such a patch.
+        cut = searched and len(options) > 1 and m.inside < cfg.sure_inside
+        rays = rays_along(sm, q, to_image, p, gap, gap_px, cfg) if not sure or cut else True
+        if not (sure or rays):
+            continue
+        if (rays, m.corr) >= best_key:
+            best, best_key = q, (rays, m.corr)
+    return best, best_key[1]
+
+
 def complete_board(
     grey: np.ndarray,
     smoothed: dict[int, np.ndarray],
@@ -653,19 +708,12 @@ def complete_board(
                 if not options and (g_px < cfg.print_fit_gap_px or at_rim):
                     q_print = print_fit(grey, rim_dist, board, to_image, t, g_px, cfg, cfg.reach if at_rim else cfg.search)
                     options = [] if q_print is None else [q_print]
-                if tree is not None and not options and not at_rim:
+                searched = tree is not None and not options and not at_rim
+                if searched:
                     options = [candidates[j] for j in tree.query_ball_point(q0, cfg.search * g_px)]
+                rim_px = cfg.print_fit_rim_px if at_rim else cfg.min_rim_px
                 allq = np.array(list(known.values()))
-                best, best_corr = None, -np.inf
-                for q in options:
-                    rim_px = cfg.print_fit_rim_px if at_rim else cfg.min_rim_px
-                    if np.linalg.norm(allq - q, axis=1).min() < cfg.crowd * g_px or _value(rim_dist, q) < rim_px:
-                        continue
-                    m = print_correlation(sm, rim_dist, board, to_image, q - q0, t, cfg)
-                    if m.corr < cfg.sure_corr and not rays_along(sm, q, to_image, P[t], gap, g_px, cfg):
-                        continue
-                    if m.corr >= max(cfg.min_corr, best_corr) and m.corr - m.other >= cfg.min_corr_margin:
-                        best, best_corr = q, m.corr
+                best, best_corr = best_option(sm, rim_dist, board, to_image, q0, t, gap, options, searched, g_px, allq, rim_px, cfg)
                 if best is None:
                     failed[t] = beside
                     if at_rim:

@@ -10,6 +10,7 @@ from cotrain.detect.image_circle import EquidistantLens, PlaneMaps, fit_image_ci
 from cotrain.detect.saddle import outside_circle
 from cotrain.detect.tag_completion import (
     CompletionConfig,
+    best_option,
     complete_board,
     local_homographies,
     local_homography,
@@ -19,6 +20,7 @@ from cotrain.detect.tag_completion import (
     print_check,
     print_correlation,
     print_fit,
+    smallest_step,
 )
 from cotrain.detect.tag_pass import TagConfig, tag_candidates, tag_pass
 from cotrain.targets import TargetConfig, make_target
@@ -92,13 +94,43 @@ def test_print_correlation_is_highest_for_the_corners_own_pattern():
     cfg = CompletionConfig()
     P = g.points().numpy()[:, :2]
     for t in (26, 27, 38, 39, 64, 77, 90, 101):
-        corr, other = print_correlation(sm, rim, g, PlaneMaps(H[None]), np.zeros(2), t, cfg)
+        corr, other, _ = print_correlation(sm, rim, g, PlaneMaps(H[None]), np.zeros(2), t, cfg)
         assert corr > 0.85 and corr - other > 0.2, (t, corr, other)
     # Corner 27 (page column 3, row 2) and 28 (column 4) are the two sides of a crossing square.
     h = np.c_[P[[27, 28]], np.ones(2)] @ H.T
     q = h[:, :2] / h[:, 2:]
-    corr, other = print_correlation(sm, rim, g, PlaneMaps(H[None]), q[1] - q[0], 27, cfg)
+    corr, other, _ = print_correlation(sm, rim, g, PlaneMaps(H[None]), q[1] - q[0], 27, cfg)
     assert other > corr + 0.3
+
+
+def test_a_candidate_where_the_board_meets_the_dark_beyond_the_rim_is_not_taken_for_the_corner():
+    """Large tags (gaps of 50 px) seen flat, the image dark beyond a rim 10 px past corner 54.
+    Where the corner's tag edge meets the rim (3.8 px inside it) the black, the white gap and the
+    dark beyond make an X whose patch, cut by the rim as the corner's is, matches the print better
+    than the corner does (about half of each patch is inside). Among the searched candidates the
+    corner, whose edge rays follow the board's axes, goes before that X, whose rays do not.
+    Counted as sure whatever its patch (``sure_inside`` 0), the X was chosen."""
+    g = make_target(TargetConfig(kind="aprilgrid"))
+    t, scale, at = 54, 3000.0, np.array([300.0, 300.0])
+    H = np.diag([scale, scale, 1.0])
+    H[:2, 2] = at - scale * g.board_xy()[t]
+    yy, xx = np.mgrid[0:600, 0:600]
+    inside = xx < at[0] + 10.0  # the rim: a vertical line 10 px right of the corner
+    img = np.where(inside, flat_view(g, H, size=(600, 600), blur=1.0), 0.02).astype(np.float32)
+    rim = cv2.distanceTransform(inside.astype(np.uint8), cv2.DIST_L2, 3)
+    sm = cv2.GaussianBlur(img, (0, 0), 1.0)
+    to_image, gap = PlaneMaps(H[None]), smallest_step(g)
+    x_junction = at + [10.0 - 3.8, 0.0]  # along the corner's edge towards +x, to the rim
+    cfg = CompletionConfig()
+    m_x, m_t = (print_correlation(sm, rim, g, to_image, q - at, t, cfg) for q in (x_junction, at))
+    assert m_x.corr > m_t.corr > cfg.sure_corr and max(m_x.inside, m_t.inside) < cfg.sure_inside
+    far = np.array([[0.0, 0.0]])  # no known corner near
+    chosen = [
+        best_option(sm, rim, g, to_image, at, t, gap, [x_junction, at], True, gap * scale, far, cfg.min_rim_px, c)[0]
+        for c in (cfg, CompletionConfig(sure_inside=0.0))
+    ]
+    np.testing.assert_allclose(chosen[0], at)
+    np.testing.assert_allclose(chosen[1], x_junction)
 
 
 def test_print_check_drops_a_corner_moved_across_its_gap_and_keeps_the_rest():
