@@ -158,6 +158,9 @@ def local_maps(P: np.ndarray, q: np.ndarray, lens: EquidistantLens | None = None
     return PlaneMaps(H, R, lens), posed & ok
 
 
+MIN_INSIDE = 0.2  # print matches need this share of the patch's samples inside the image circle
+
+
 class PrintMatch(NamedTuple):
     """How the image around a corner matches the print (:func:`print_correlation`)."""
 
@@ -210,9 +213,6 @@ def _print_correlations(
     corr = np.where(den > 1e-12, (pat * seen).sum(2) / np.maximum(den, 1e-12), -1.0)
     same = np.abs(printed[nb] - printed[ids][:, None]).max(2) < 1e-6
     return corr, on & ~same, inside.mean(1)
-
-
-MIN_INSIDE = 0.2  # print matches need this share of the patch's samples inside the image circle
 
 
 _GRID8 = np.array([(a, b) for b in (-1, 0, 1) for a in (-1, 0, 1) if a or b])  # a corner's eight grid neighbours (column, row steps)
@@ -580,13 +580,14 @@ def best_option(
     """The position among ``options`` (each (2,) px) that corner ``t``, predicted at q0 (2,)
     through ``to_image`` (one map) with a local gap of ``gap_px`` (the board's ``gap`` metres,
     :func:`smallest_step`), is found at (step 3 of the module's docstring), and its print
-    correlation; (None, -inf) where none holds. An option
-    nearer than ``cfg.crowd`` of the gap to a known corner (``known_q`` (K, 2)) or nearer than
-    ``rim_px`` to the rim (``rim_dist`` (H, W)) is refused; the others must match the print around
-    t by ``cfg.min_corr``, by ``cfg.min_corr_margin`` more than a grid neighbour's, and have
-    their edge rays along the board's axes unless their match is sure (``cfg.sure_corr``). The
-    best match wins; but among several ``searched`` candidates, those whose rays follow the axes
-    go before a sure match over a patch under ``cfg.sure_inside`` inside the image circle."""
+    correlation; (None, -inf) where none holds. An option nearer than ``cfg.crowd`` of the gap to
+    a known corner (``known_q`` (K, 2)) or nearer than ``rim_px`` to the rim (``rim_dist`` (H, W))
+    is refused; the others must match the print around t by ``cfg.min_corr``, by
+    ``cfg.min_corr_margin`` more than a grid neighbour's, and have their edge rays along the
+    board's axes unless their match is sure (``cfg.sure_corr``). The best match wins; but among
+    several ``searched`` candidates (the tag pass's, not a fit at the prediction), those whose
+    rays follow the axes go before a sure match over a patch under ``cfg.sure_inside`` inside the
+    image circle."""
     p = board.board_xy()[t]
     best, best_key = None, (False, -np.inf)
     for q in options:
