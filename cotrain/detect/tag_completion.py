@@ -569,6 +569,7 @@ def best_option(
     to_image: PlaneMaps,
     q0: np.ndarray,
     t: int,
+    p: np.ndarray,
     gap: float,
     options: list[np.ndarray],
     searched: bool,
@@ -578,9 +579,9 @@ def best_option(
     cfg: CompletionConfig,
 ) -> tuple[np.ndarray | None, float]:
     """The position among ``options`` (each (2,) px) that corner ``t``, predicted at q0 (2,)
-    through ``to_image`` (one map) with a local gap of ``gap_px`` (the board's ``gap`` metres,
-    :func:`smallest_step`), is found at (step 3 of the module's docstring), and its print
-    correlation; (None, -inf) where none holds. An option nearer than ``cfg.crowd`` of the gap to
+    through ``to_image`` (one map) from its board point p (2,) with a local gap of ``gap_px``
+    (the board's ``gap`` metres, :func:`smallest_step`), is found at (step 3 of the module's
+    docstring), and its print correlation; (None, -inf) where none holds. An option nearer than ``cfg.crowd`` of the gap to
     a known corner (``known_q`` (K, 2)) or nearer than ``rim_px`` to the rim (``rim_dist`` (H, W))
     is refused; the others must match the print around t by ``cfg.min_corr``, by
     ``cfg.min_corr_margin`` more than a grid neighbour's, and have their edge rays along the
@@ -588,7 +589,6 @@ def best_option(
     several ``searched`` candidates (the tag pass's, not a fit at the prediction), those whose
     rays follow the axes go before a sure match over a patch under ``cfg.sure_inside`` inside the
     image circle."""
-    p = board.board_xy()[t]
     best, best_key = None, (False, -np.inf)
     for q in options:
         if np.linalg.norm(known_q - q, axis=1).min() < cfg.crowd * gap_px or _value(rim_dist, q) < rim_px:
@@ -714,7 +714,7 @@ def complete_board(
                     options = [candidates[j] for j in tree.query_ball_point(q0, cfg.search * g_px)]
                 rim_px = cfg.print_fit_rim_px if at_rim else cfg.min_rim_px
                 allq = np.array(list(known.values()))
-                best, best_corr = best_option(sm, rim_dist, board, to_image, q0, t, gap, options, searched, g_px, allq, rim_px, cfg)
+                best, best_corr = best_option(sm, rim_dist, board, to_image, q0, t, P[t], gap, options, searched, g_px, allq, rim_px, cfg)
                 if best is None:
                     failed[t] = beside
                     if at_rim:

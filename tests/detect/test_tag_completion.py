@@ -126,7 +126,7 @@ def test_a_candidate_where_the_board_meets_the_dark_beyond_the_rim_is_not_taken_
     assert m_x.corr > m_t.corr > cfg.sure_corr and max(m_x.inside, m_t.inside) < cfg.sure_inside
     far = np.array([[0.0, 0.0]])  # no known corner near
     chosen = [
-        best_option(sm, rim, g, to_image, at, t, gap, [x_junction, at], True, gap * scale, far, cfg.min_rim_px, c)[0]
+        best_option(sm, rim, g, to_image, at, t, g.board_xy()[t], gap, [x_junction, at], True, gap * scale, far, cfg.min_rim_px, c)[0]
         for c in (cfg, CompletionConfig(sure_inside=0.0))
     ]
     np.testing.assert_allclose(chosen[0], at)
