@@ -510,9 +510,17 @@ def grid_pass(
         rim_c = cv2.distanceTransform(inside.astype(np.uint8), cv2.DIST_L2, 3)
         # A checker's print tells only the two parities apart: a saddle at an occluder's edge, or
         # the rim's, can match it, so every corner added must also have its four edge rays along
-        # the board's axes and a correlation of cfg.complete_min_corr.
+        # the board's axes and a correlation of cfg.complete_min_corr. Nor is a corner judged again
+        # under the map through it (CompletionConfig.refit_gap_px): with a map fitted to it, a
+        # checker's print matched a saddle 15 px off at the rim (a new wrong corner, no new right one
+        # over the eight checkerboard sets).
         complete = CompletionConfig(
-            rounds=cfg.complete_rounds, min_rim_px=cfg.complete_rim_px, min_corr=cfg.complete_min_corr, check=False, sure_corr=math.inf
+            rounds=cfg.complete_rounds,
+            min_rim_px=cfg.complete_rim_px,
+            min_corr=cfg.complete_min_corr,
+            check=False,
+            sure_corr=math.inf,
+            refit_gap_px=0.0,
         )
         given = dict(zip(ids.tolist(), conf.tolist()))
         ids, q, corr, _ = complete_board(grey, smoothed, rim_c, xy, board, ids, q, complete, cfg, lens)

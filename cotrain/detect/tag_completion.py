@@ -40,7 +40,9 @@ docs/conventions.md. The pixel thresholds are not scaled when the tag pass enlar
 
 from __future__ import annotations
 
+import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import NamedTuple
 
@@ -91,6 +93,10 @@ class CompletionConfig:
     print_fit_min_r2: float = 0.8  # ... and it must explain this share of their variance
     print_fit_rim_px: float = 1.5  # a prediction nearer the rim than min_rim_px but this far (px; 0: never) is found by print_fit alone ...
     print_fit_rim_gap_px: float = 20.0  # ... in a gap under this (px), within reach of it
+    refit_gap_px: float = 16.0  # in a gap of this or more (px; 0: never), an option whose print the moved map misses ...
+    # ... is judged again under the map through it (map_through) ...
+    refit_margin: float = 0.3  # ... where it must match better than each grid neighbour's print by this ...
+    refit_inside: float = 0.5  # ... over this share of the patch inside the image circle, and have its edge rays along the board's axes
 
 
 _PATCHES: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}  # print_patches' results per board and patch
@@ -145,6 +151,19 @@ def local_map(P: np.ndarray, q: np.ndarray, lens: EquidistantLens | None = None)
     g, R, ok = local_views(np.asarray(q, np.float64)[None], lens)
     H = local_homography(P, g[0]) if ok[0] else None
     return None if H is None else PlaneMaps(H[None], R, lens)
+
+
+def map_through(
+    P: np.ndarray, q: np.ndarray, p: np.ndarray, q_p: np.ndarray, lens: EquidistantLens | None, max_px: float
+) -> PlaneMaps | None:
+    """:func:`local_map` of board points P (K, 2) at pixels q (K, 2) and of one more, p (2,) at
+    q_p (2,): the map through a corner's candidate position. None where that map does not fit
+    all K + 1 points within ``max_px``."""
+    P1, q1 = np.vstack([P, p]), np.vstack([q, q_p])
+    m = local_map(P1, q1, lens)
+    if m is None or not np.linalg.norm(m(P1[None])[0] - q1, axis=1).max() <= max_px:
+        return None
+    return m
 
 
 def local_maps(P: np.ndarray, q: np.ndarray, lens: EquidistantLens | None = None) -> tuple[PlaneMaps, np.ndarray]:
@@ -577,6 +596,7 @@ def best_option(
     known_q: np.ndarray,
     rim_px: float,
     cfg: CompletionConfig,
+    refit: Callable[[np.ndarray], PlaneMaps | None] | None = None,
 ) -> tuple[np.ndarray | None, float]:
     """The position among ``options`` (each (2,) px) that corner ``t``, predicted at q0 (2,)
     through ``to_image`` (one map) from its board point p (2,) with a local gap of ``gap_px``
@@ -594,14 +614,26 @@ def best_option(
         if np.linalg.norm(known_q - q, axis=1).min() < cfg.crowd * gap_px or _value(rim_dist, q) < rim_px:
             continue
         m = print_correlation(sm, rim_dist, board, to_image, q - q0, t, cfg)
+        refitted = False
         if not (m.corr >= cfg.min_corr and m.corr - m.other >= cfg.min_corr_margin):
-            continue
+            # Across large tags bent by a lens the guess does not know, the map extrapolated from
+            # the neighbours misses the print's shape there: judged again under the map through q,
+            # more strictly (that map was fitted to q).
+            through = None if refit is None else refit(q)
+            if through is None:
+                continue
+            m = print_correlation(sm, rim_dist, board, through, np.zeros(2), t, cfg)
+            if not (m.corr >= cfg.min_corr and m.corr - m.other >= cfg.refit_margin and m.inside >= cfg.refit_inside):
+                continue
+            if not rays_along(sm, q, through, p, gap, gap_px, cfg):
+                continue
+            refitted = True
         sure = m.corr >= cfg.sure_corr
         # A patch cut by the rim can match the print at the board's edge against the dark beyond
         # it better than the corner a few pixels away does: among several candidates, one whose
         # rays follow the board's axes goes before a sure match over such a patch.
         cut = searched and len(options) > 1 and m.inside < cfg.sure_inside
-        rays = rays_along(sm, q, to_image, p, gap, gap_px, cfg) if not sure or cut else True
+        rays = refitted or (rays_along(sm, q, to_image, p, gap, gap_px, cfg) if not sure or cut else True)
         if not (sure or rays):
             continue
         if (rays, m.corr) >= best_key:
@@ -685,7 +717,7 @@ def complete_board(
                 failed[t] = beside
                 unfound.add(t)  # too small to fit, or a poor prediction: it may be in view
                 continue
-            todo.append((t, q0, g_px, to_image, beside, at_rim))
+            todo.append((t, q0, g_px, to_image, beside, at_rim, near))
         if not todo:
             break
         added = 0
@@ -704,7 +736,7 @@ def complete_board(
                 pts = np.array([todo[sel[k]][1] for k in small])
                 fitted[small], ok[small], _ = fit_saddles(grey, smoothed, pts, int(h), small_cfg, rim_dist)
             for k, q_fit, ok_k in zip(sel, fitted, ok):
-                t, q0, g_px, to_image, beside, at_rim = todo[k]
+                t, q0, g_px, to_image, beside, at_rim, near = todo[k]
                 options = [q_fit] if ok_k and np.linalg.norm(q_fit - q0) < cfg.reach * g_px else []
                 if not options and (g_px < cfg.print_fit_gap_px or at_rim):
                     q_print = print_fit(grey, rim_dist, board, to_image, t, g_px, cfg, cfg.reach if at_rim else cfg.search)
@@ -714,7 +746,13 @@ def complete_board(
                     options = [candidates[j] for j in tree.query_ball_point(q0, cfg.search * g_px)]
                 rim_px = cfg.print_fit_rim_px if at_rim else cfg.min_rim_px
                 allq = np.array(list(known.values()))
-                best, best_corr = best_option(sm, rim_dist, board, to_image, q0, t, P[t], gap, options, searched, g_px, allq, rim_px, cfg)
+                # The map through an option, for a second look (best_option); in gaps of refit_gap_px on.
+                refit = None
+                if 0 < cfg.refit_gap_px <= g_px:
+                    refit = functools.partial(map_through, kP[near], kq[near], P[t], lens=lens, max_px=cfg.max_residual * g_px)
+                best, best_corr = best_option(
+                    sm, rim_dist, board, to_image, q0, t, P[t], gap, options, searched, g_px, allq, rim_px, cfg, refit
+                )
                 if best is None:
                     failed[t] = beside
                     if at_rim:
