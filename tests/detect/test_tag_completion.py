@@ -241,25 +241,38 @@ def _circle_view(grey: np.ndarray):
     return lens, rim, smoothed, cand
 
 
+def _completed_close_view(model: str, fov: float, z: float, block: list[int], runs: dict) -> dict:
+    """A board ``z`` m from a ``model`` lens of ``fov`` deg, looking half a metre aside (a rim
+    view of large bent tags), completed from the tags of ``block`` at their labels under each
+    ``runs`` entry (name -> ``"lens"`` (guessed from the image circle, 210 deg) or None (pixel
+    homographies), and a CompletionConfig): every corner found is visible and within 0.5 px of its
+    label. Returns how many corners each adds."""
+    g = make_target(TargetConfig(kind="aprilgrid", margin=0.3))
+    c = np.array(centre(g))
+    img, q, vis, _ = render(g, model, fov, (c + [0.0, 0.0, z]).tolist(), (c + [-0.5, 0.05, 0.0]).tolist())
+    grey = img.astype(np.float32) / 255
+    lens, rim, smoothed, cand = _circle_view(grey)
+    given = _anchor(g, block)
+    assert vis[given].all()
+    found = {}
+    for name, (through, cfg) in runs.items():
+        ids, xy, _, _ = complete_board(
+            grey, smoothed, rim, cand, g, given, q[given], cfg, GridConfig(), lens if through == "lens" else None
+        )
+        assert vis[ids].all()
+        err = np.linalg.norm(xy - q[ids], axis=1)
+        assert err.max() < 0.5, f"{name}: corner {ids[err.argmax()]} is {err.max():.2f} px off"
+        found[name] = len(ids) - len(given)
+    return found
+
+
 def test_complete_board_through_the_lens_recovers_more_of_a_close_rim_view():
     """A board 8 cm from a 200-degree Kannala-Brandt lens, 40-90 deg off-axis (tags 30-110 px,
     bent), given the four tags of a 2 x 2 block: through the lens guessed from the image circle
     (210 deg) completion finds more of the visible corners than through pixel homographies, each
     at its own label."""
-    g = make_target(TargetConfig(kind="aprilgrid", margin=0.3))
-    c = np.array(centre(g))
-    img, q, vis, _ = render(g, "kb4", 200, (c + [0.0, 0.0, 0.08]).tolist(), (c + [-0.5, 0.05, 0.0]).tolist())
-    grey = img.astype(np.float32) / 255
-    lens, rim, smoothed, cand = _circle_view(grey)
-    given = _anchor(g, [13, 14, 19, 20])
-    assert vis[given].all()
-    found = {}
-    for name, lens_or_none in (("lens", lens), ("pixels", None)):
-        ids, xy, _, _ = complete_board(grey, smoothed, rim, cand, g, given, q[given], CompletionConfig(), GridConfig(), lens_or_none)
-        assert vis[ids].all()
-        err = np.linalg.norm(xy - q[ids], axis=1)
-        assert err.max() < 0.5, f"{name}: corner {ids[err.argmax()]} is {err.max():.2f} px off"
-        found[name] = len(ids) - len(given)
+    runs = {"lens": ("lens", CompletionConfig()), "pixels": (None, CompletionConfig())}
+    found = _completed_close_view("kb4", 200, 0.08, [13, 14, 19, 20], runs)
     assert found["lens"] > found["pixels"] + 5, found
 
 
@@ -282,22 +295,9 @@ def test_complete_board_judges_a_bent_corner_again_under_the_map_through_it():
     homography from a corner's neighbours misses the bend of the large tags toward the rim, so
     their print fails there. Judged again under the map through each candidate (refit_gap_px),
     completion finds more of the visible corners, each at its own label."""
-    g = make_target(TargetConfig(kind="aprilgrid", margin=0.3))
-    c = np.array(centre(g))
-    img, q, vis, _ = render(g, "ucm", 240, (c + [0.0, 0.0, 0.12]).tolist(), (c + [-0.5, 0.05, 0.0]).tolist())
-    grey = img.astype(np.float32) / 255
-    _, rim, smoothed, cand = _circle_view(grey)
-    given = _anchor(g, [14, 15, 20, 21])
-    assert vis[given].all()
-    found = {}
-    for refit_gap_px in (0.0, CompletionConfig().refit_gap_px):
-        cfg = CompletionConfig(refit_gap_px=refit_gap_px)
-        ids, xy, _, _ = complete_board(grey, smoothed, rim, cand, g, given, q[given], cfg, GridConfig(), None)
-        assert vis[ids].all()
-        err = np.linalg.norm(xy - q[ids], axis=1)
-        assert err.max() < 0.5, f"refit from {refit_gap_px} px: corner {ids[err.argmax()]} is {err.max():.2f} px off"
-        found[refit_gap_px] = len(ids)
-    assert found[CompletionConfig().refit_gap_px] >= found[0.0] + 10, found
+    runs = {"refit": (None, CompletionConfig()), "no refit": (None, CompletionConfig(refit_gap_px=0.0))}
+    found = _completed_close_view("ucm", 240, 0.12, [14, 15, 20, 21], runs)
+    assert found["refit"] >= found["no refit"] + 10, found
 
 
 def test_complete_board_adds_nothing_where_the_board_is_covered():
@@ -536,100 +536,85 @@ def _sensor_view(g, H: np.ndarray, size: tuple[int, int], blur: float) -> np.nda
     return cv2.GaussianBlur(cv2.resize(fine, size, interpolation=cv2.INTER_AREA), (0, 0), blur)
 
 
-def test_print_fit_finds_corners_in_gaps_of_a_few_pixels():
-    """A grey print (black 0.35, white 0.75) seen through a homography with gaps of 3-5.5 px
-    (tags of 10-18 px), blurred by 1.2 px, with noise (no renderer involved): from predictions
-    1.5 px off in any direction (maps moved by that much), the print moved onto the image lands
-    within 0.1 px of each inner corner (0.05 on median). On a flat patch, and from a prediction
-    farther off than ``search`` of the gap, it finds nothing."""
+def _grey_print(H: np.ndarray, size: tuple[int, int], blur: float, noise: float, streak: int = 1):
+    """A grey print (black 0.35, white 0.75) of the default AprilGrid seen through homography
+    ``H`` in an image of ``size``, blurred by ``blur`` px (and along x over ``streak`` px), with
+    noise of ``noise`` (no renderer involved). Returns the board, the image, a rim map that never
+    cuts, every corner's pixel (N, 2), the inner corners' ids and their local gaps (px)."""
     g = make_target(TargetConfig(kind="aprilgrid"))
-    H = np.array([[240.0, 20.0, 200.0], [-15.0, -230.0, 300.0], [0.1, 0.05, 1.0]])
     rng = np.random.default_rng(3)
-    v = _sensor_view(g, H, (420, 360), 1.2)
-    img = (0.35 + (v - 0.1) / 0.7 * 0.4 + rng.normal(0, 0.01, v.shape)).astype(np.float32)
+    v = cv2.filter2D(_sensor_view(g, H, size, blur), -1, np.full((1, streak), 1 / streak, np.float32))
+    img = (0.35 + (v - 0.1) / 0.7 * 0.4 + rng.normal(0, noise, v.shape)).astype(np.float32)
     rim = np.full(img.shape, 100.0, np.float32)
-    cfg = CompletionConfig()
     to_image = PlaneMaps(H[None])
     P = g.points().numpy()[:, :2]
     q = to_image(P[None])[0]
     c, r = np.arange(g.n_corners) % g.nx, np.arange(g.n_corners) // g.nx
     inner = np.nonzero((c > 0) & (c < g.nx - 1) & (r > 0) & (r < g.ny - 1))[0]
     gaps = np.linalg.norm(to_image((P[inner] + [g.gap, 0])[None])[0] - q[inner], axis=1)
-    assert 3.0 < gaps.min() and gaps.max() < 5.5
+    return g, img, rim, q, inner, gaps
+
+
+def _print_fit_errors(g, img, rim, H, q, inner, gaps, off_px: float, cfg: CompletionConfig) -> np.ndarray:
+    """print_fit at every inner corner from a prediction ``off_px`` away in a direction that
+    varies by corner (the map H moved by that much): the distances to the corners (NaN where it
+    finds nothing)."""
     errs = []
     for t, gap_px in zip(inner, gaps):
-        off = 1.5 * np.array([np.cos(t), np.sin(t)])
+        off = off_px * np.array([np.cos(t), np.sin(t)])
         moved = PlaneMaps((np.array([[1.0, 0, off[0]], [0, 1, off[1]], [0, 0, 1]]) @ H)[None])  # predicts q[t] + off
         found = print_fit(img, rim, g, moved, t, gap_px, cfg)
-        assert found is not None, t
-        errs.append(np.linalg.norm(found - q[t]))
-    assert max(errs) < 0.1 and np.median(errs) < 0.05, (max(errs), np.median(errs))
-    flat = np.full_like(img, 0.5) + rng.normal(0, 0.01, img.shape).astype(np.float32)
-    assert print_fit(flat, rim, g, to_image, inner[0], gaps[0], cfg) is None
-    far = PlaneMaps((np.array([[1.0, 0, 1.2 * cfg.search * gaps[5]], [0, 1, 0], [0, 0, 1]]) @ H)[None])
+        errs.append(np.nan if found is None else np.linalg.norm(found - q[t]))
+    return np.array(errs)
+
+
+_SMALL_GAPS = np.array([[240.0, 20.0, 200.0], [-15.0, -230.0, 300.0], [0.1, 0.05, 1.0]])  # gaps of 3-5.5 px in 420 x 360
+
+
+def test_print_fit_finds_corners_in_gaps_of_a_few_pixels():
+    """A grey print seen through a homography with gaps of 3-5.5 px (tags of 10-18 px), blurred
+    by 1.2 px, with noise: from predictions 1.5 px off in any direction (maps moved by that much),
+    the print moved onto the image lands within 0.1 px of each inner corner (0.05 on median). On
+    a flat patch, and from a prediction farther off than ``search`` of the gap, it finds nothing."""
+    g, img, rim, q, inner, gaps = _grey_print(_SMALL_GAPS, (420, 360), 1.2, 0.01)
+    assert 3.0 < gaps.min() and gaps.max() < 5.5
+    cfg = CompletionConfig()
+    errs = _print_fit_errors(g, img, rim, _SMALL_GAPS, q, inner, gaps, 1.5, cfg)
+    assert errs.max() < 0.1 and np.median(errs) < 0.05, (errs.max(), np.median(errs))  # NaN (not found) fails too
+    flat = np.full_like(img, 0.5) + np.random.default_rng(4).normal(0, 0.01, img.shape).astype(np.float32)
+    assert print_fit(flat, rim, g, PlaneMaps(_SMALL_GAPS[None]), inner[0], gaps[0], cfg) is None
+    far = PlaneMaps((np.array([[1.0, 0, 1.2 * cfg.search * gaps[5]], [0, 1, 0], [0, 0, 1]]) @ _SMALL_GAPS)[None])
     assert print_fit(img, rim, g, far, inner[5], gaps[5], cfg) is None
 
 
 def test_print_fit_holds_in_gaps_up_to_its_limit_under_a_blur_along_one_axis():
     """Gaps of 7-9 px, up to ``print_fit_gap_px`` (10), where the saddle fits failing on rendered
-    frames were still the print fit's to take (at the rim, under motion blur): a grey print blurred
-    by 1.5 px and along x over 7 px, with noise, from predictions 1 px off. The print moved onto
-    the image lands within 0.2 px of every inner corner (0.05 on median)."""
-    g = make_target(TargetConfig(kind="aprilgrid"))
+    frames were still the print fit's to take (at the rim, under motion blur): the grey print
+    blurred by 1.5 px and along x over 7 px, with noise, from predictions 1 px off. The print moved
+    onto the image lands within 0.2 px of every inner corner (0.05 on median)."""
     H = np.array([[552.0, 46.0, 172.5], [-34.5, -529.0, 644.0], [0.1, 0.05, 1.0]])
-    rng = np.random.default_rng(4)
-    v = cv2.filter2D(_sensor_view(g, H, (800, 720), 1.5), -1, np.full((1, 7), 1 / 7, np.float32))
-    img = (0.35 + (v - 0.1) / 0.7 * 0.4 + rng.normal(0, 0.01, v.shape)).astype(np.float32)
-    rim = np.full(img.shape, 100.0, np.float32)
-    to_image = PlaneMaps(H[None])
-    P = g.points().numpy()[:, :2]
-    q = to_image(P[None])[0]
-    c, r = np.arange(g.n_corners) % g.nx, np.arange(g.n_corners) // g.nx
-    inner = np.nonzero((c > 0) & (c < g.nx - 1) & (r > 0) & (r < g.ny - 1))[0]
-    gaps = np.linalg.norm(to_image((P[inner] + [g.gap, 0])[None])[0] - q[inner], axis=1)
+    g, img, rim, q, inner, gaps = _grey_print(H, (800, 720), 1.5, 0.01, streak=7)
     assert 7.0 < gaps.min() and gaps.max() < CompletionConfig().print_fit_gap_px
-    errs = []
-    for t, gap_px in zip(inner, gaps):
-        off = np.array([np.cos(t), np.sin(t)])
-        moved = PlaneMaps((np.array([[1.0, 0, off[0]], [0, 1, off[1]], [0, 0, 1]]) @ H)[None])  # predicts q[t] + off
-        found = print_fit(img, rim, g, moved, t, gap_px, CompletionConfig())
-        assert found is not None, t
-        errs.append(np.linalg.norm(found - q[t]))
-    assert max(errs) < 0.2 and np.median(errs) < 0.05, (max(errs), np.median(errs))
+    errs = _print_fit_errors(g, img, rim, H, q, inner, gaps, 1.0, CompletionConfig())
+    assert errs.max() < 0.2 and np.median(errs) < 0.05, (errs.max(), np.median(errs))
 
 
 def test_print_fit_holds_under_noise_of_a_tenth_of_the_contrast():
-    """The grey print of the test above under noise of a tenth of its contrast (0.04 against
+    """The grey print of gaps of 3-5.5 px under noise of a tenth of its contrast (0.04 against
     0.4), as a dim or under-exposed frame gives: the print moved onto the image explains 0.7 of
     the variance (``print_fit_min_r2``) at every inner corner and lands within 0.25 px of each
     (0.12 on median); a bar of 0.8 refuses a third of them. On a flat patch with that noise it
     finds nothing."""
-    g = make_target(TargetConfig(kind="aprilgrid"))
-    H = np.array([[240.0, 20.0, 200.0], [-15.0, -230.0, 300.0], [0.1, 0.05, 1.0]])
-    rng = np.random.default_rng(3)
-    v = _sensor_view(g, H, (420, 360), 1.2)
-    img = (0.35 + (v - 0.1) / 0.7 * 0.4 + rng.normal(0, 0.04, v.shape)).astype(np.float32)
-    rim = np.full(img.shape, 100.0, np.float32)
-    to_image = PlaneMaps(H[None])
-    P = g.points().numpy()[:, :2]
-    q = to_image(P[None])[0]
-    c, r = np.arange(g.n_corners) % g.nx, np.arange(g.n_corners) // g.nx
-    inner = np.nonzero((c > 0) & (c < g.nx - 1) & (r > 0) & (r < g.ny - 1))[0]
-    gaps = np.linalg.norm(to_image((P[inner] + [g.gap, 0])[None])[0] - q[inner], axis=1)
-    found = {}
-    for r2 in (CompletionConfig().print_fit_min_r2, 0.8):
-        errs = []
-        for t, gap_px in zip(inner, gaps):
-            off = 1.5 * np.array([np.cos(t), np.sin(t)])
-            moved = PlaneMaps((np.array([[1.0, 0, off[0]], [0, 1, off[1]], [0, 0, 1]]) @ H)[None])  # predicts q[t] + off
-            q_fit = print_fit(img, rim, g, moved, t, gap_px, CompletionConfig(print_fit_min_r2=r2))
-            if q_fit is not None:
-                errs.append(np.linalg.norm(q_fit - q[t]))
-        found[r2] = len(errs)
-        assert not errs or (max(errs) < 0.25 and np.median(errs) < 0.15), (r2, max(errs), np.median(errs))
-    assert found[CompletionConfig().print_fit_min_r2] == len(inner) and found[0.8] < 0.75 * len(inner), found
-    flat = np.full_like(img, 0.5) + rng.normal(0, 0.04, img.shape).astype(np.float32)
-    assert all(print_fit(flat, rim, g, to_image, t, gap_px, CompletionConfig()) is None for t, gap_px in zip(inner[:40], gaps[:40]))
+    g, img, rim, q, inner, gaps = _grey_print(_SMALL_GAPS, (420, 360), 1.2, 0.04)
+    errs = _print_fit_errors(g, img, rim, _SMALL_GAPS, q, inner, gaps, 1.5, CompletionConfig())
+    assert errs.max() < 0.25 and np.median(errs) < 0.15, (errs.max(), np.median(errs))
+    strict = _print_fit_errors(g, img, rim, _SMALL_GAPS, q, inner, gaps, 1.5, CompletionConfig(print_fit_min_r2=0.8))
+    assert np.isfinite(strict).sum() < 0.75 * len(inner), np.isfinite(strict).sum()
+    flat = np.full_like(img, 0.5) + np.random.default_rng(4).normal(0, 0.04, img.shape).astype(np.float32)
+    assert all(
+        print_fit(flat, rim, g, PlaneMaps(_SMALL_GAPS[None]), t, gap_px, CompletionConfig()) is None
+        for t, gap_px in zip(inner[:40], gaps[:40])
+    )
 
 
 def test_complete_board_finds_corners_of_small_tags_by_their_print():
