@@ -47,6 +47,7 @@ from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import cv2
+import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -90,7 +91,8 @@ class CompletionConfig:
     print_fit_min_share: float = 0.5  # ... and this share of the disc ...
     print_fit_iterations: int = 12  # ... by at most this many Gauss-Newton steps per blur tried ...
     print_fit_max_blur: float = 0.5  # ... blurs up to this fraction of the gap (a wider one washes the corner out) ...
-    print_fit_min_r2: float = 0.7  # ... and it must explain this share of their variance
+    print_fit_min_r2: float = 0.7  # ... and it must explain this share of their variance through the lens ...
+    print_fit_min_r2_pixels: float = 0.8  # ... or this share through a pixel homography (which misses the bend at the rim)
     print_fit_rim_px: float = 1.5  # a prediction nearer the rim than min_rim_px but this far (px; 0: never) is found by print_fit alone ...
     print_fit_rim_gap_px: float = 20.0  # ... in a gap under this (px), within reach of it
     refit_gap_px: float = 16.0  # in a gap of this or more (px; 0: never), an option whose print the moved map misses ...
@@ -474,7 +476,8 @@ def print_fit(
     each from the last one's shift, until a narrower one matches worse. Only pixels inside the
     frame and the image circle (``rim_dist`` over 1.5 px) are compared. None where fewer than
     ``cfg.print_fit_min_pixels`` of them, or under ``cfg.print_fit_min_share`` of the disc, are
-    left, the match explains less than ``cfg.print_fit_min_r2`` of their variance, or the shift
+    left, the match explains less than ``cfg.print_fit_min_r2`` of their variance (through the
+    lens; ``cfg.print_fit_min_r2_pixels`` through a pixel homography), or the shift
     exceeds ``reach`` (default ``cfg.search``) of the gap. Measured on the independent renderer's
     10 x 8 AprilGrid frames (gaps of 3-5 px, grey prints): 0.06 px from the labels on median,
     0.19 px at the 90th percentile, where the prediction was 0.1-2.9 px off."""
@@ -519,56 +522,110 @@ def print_fit(
     ok = np.isfinite(plane).all(1)
     printed = np.where(ok, board.intensity(np.where(ok[:, None], plane, 0.0))[0], 0.5).reshape(nyf, nxf).astype(np.float32)
 
-    def match(stack: np.ndarray, shift: np.ndarray) -> tuple[np.ndarray, float, float] | None:
-        """The moved model's values and gradients at the pixels (N, 3), and its black level and
-        contrast fitted to them; None where it leaves the grid or its contrast is not positive."""
-        v = values_at(stack, (px - shift - [fx0, fy0]) * f)
-        if not np.isfinite(v).all():
-            return None
-        mean = float(v[:, 0].sum()) / len(v)
-        m = v[:, 0] - mean
-        var = float(m @ m)
-        b = float(m @ obs_c) / var if var > 1e-12 else 0.0
-        return (v, obs_mean - b * mean, b) if b > 0 else None
-
     best = None  # (sum of squared residuals, shift)
-    shift = np.zeros(2)
+    origin = np.array([fx0, fy0], np.float64)
     for sigma in sigmas[::-1]:  # widest first: each blur starts from the best shift so far
         model = cv2.GaussianBlur(printed, (0, 0), sigma * f)
         grads = [cv2.Sobel(model, cv2.CV_32F, dx, 1 - dx, ksize=1, scale=0.5 * f) for dx in (1, 0)]  # per pixel
         stack = cv2.merge([model, *grads])
-        shift = np.zeros(2) if best is None else best[1].copy()
-        for _ in range(cfg.print_fit_iterations):
-            got = match(stack, shift)
-            if got is None:
-                break
-            v, a, b = got
-            r = obs - a - b * v[:, 0]
-            # Gauss-Newton: the residual's derivative by the shift is the contrast times the model's
-            # gradient; its 2 x 2 normal equations solved in closed form.
-            gx, gy = b * v[:, 1].astype(np.float64), b * v[:, 2].astype(np.float64)
-            sxx, sxy, syy, rx, ry = gx @ gx, gx @ gy, gy @ gy, gx @ r, gy @ r
-            det = sxx * syy - sxy * sxy
-            if det < 1e-12:
-                break
-            step = -np.array([syy * rx - sxy * ry, sxx * ry - sxy * rx]) / det
-            norm = math.hypot(step[0], step[1])
-            step *= min(1.0, PRINT_FIT_MAX_STEP / max(norm, 1e-12))  # a trust region: the model is linear over a fraction of a pixel
-            shift = shift + step
-            if math.hypot(shift[0], shift[1]) > reach or norm < PRINT_FIT_STOP_STEP:
-                break
-        got = match(stack, shift) if np.hypot(*shift) <= reach else None
-        if got is None:
-            continue
-        v, a, b = got
-        res = obs - a - b * v[:, 0]
-        sse = float(res @ res)
-        if best is not None and sse >= best[0]:
+        start = np.zeros(2) if best is None else best[1]
+        out = _shift_steps(
+            stack, px, obs, origin, float(f), start, reach, cfg.print_fit_iterations, PRINT_FIT_MAX_STEP, PRINT_FIT_STOP_STEP
+        )
+        if not np.isfinite(out[2]):
+            continue  # the model left the grid, or matched with a contrast that is not positive
+        if best is not None and out[2] >= best[0]:
             break  # past the image's own blur: narrower ones match worse still
-        best = (sse, shift.copy())
-    if best is None or 1 - best[0] / obs_ss < cfg.print_fit_min_r2:
+        best = (float(out[2]), out[:2].copy())
+    if best is None or 1 - best[0] / obs_ss < (cfg.print_fit_min_r2 if to_image.lens is not None else cfg.print_fit_min_r2_pixels):
         return None
     return q0 + best[1]
+
+
+@numba.njit(cache=True, nogil=True)
+def _model_at(stack, px, origin, f, sx, sy, v):
+    """:func:`print_fit`'s model moved by (sx, sy) px: its value and gradients (``stack`` (h, w, 3),
+    a grid ``f`` times finer than the pixels with its (0, 0) at ``origin`` (2,) px) bilinear at the
+    pixels ``px`` (N, 2) into ``v`` (N, 3); False where one of them falls off the grid."""
+    h, w = stack.shape[0], stack.shape[1]
+    for i in range(px.shape[0]):
+        u, t = (px[i, 0] - sx - origin[0]) * f, (px[i, 1] - sy - origin[1]) * f
+        if not (0.0 <= u <= w - 1 and 0.0 <= t <= h - 1):
+            return False
+        x0, y0 = min(int(u), w - 2), min(int(t), h - 2)
+        ax, ay = u - x0, t - y0
+        for c in range(3):
+            top = stack[y0, x0, c] * (1 - ax) + stack[y0, x0 + 1, c] * ax
+            bottom = stack[y0 + 1, x0, c] * (1 - ax) + stack[y0 + 1, x0 + 1, c] * ax
+            v[i, c] = top * (1 - ay) + bottom * ay
+    return True
+
+
+@numba.njit(cache=True, nogil=True)
+def _levels(v, obs):
+    """The black level a and contrast b that fit ``a + b v[:, 0]`` to ``obs`` (N,) (least squares)."""
+    n = v.shape[0]
+    mv, mo = 0.0, 0.0
+    for i in range(n):
+        mv += v[i, 0]
+        mo += obs[i]
+    mv, mo = mv / n, mo / n
+    var, cov = 0.0, 0.0
+    for i in range(n):
+        var += (v[i, 0] - mv) ** 2
+        cov += (v[i, 0] - mv) * (obs[i] - mo)
+    b = cov / var if var > 1e-12 else 0.0
+    return mo - b * mv, b
+
+
+@numba.njit(cache=True, nogil=True)
+def _shift_steps(stack, px, obs, origin, f, start, reach, iterations, max_step, stop_step):
+    """Gauss-Newton steps of :func:`print_fit`'s shift for one blurred model (see
+    :func:`_model_at`), from ``start`` (2,): at each, the print's black level and contrast are
+    fitted linearly, the residual's derivative by the shift is the contrast times the model's
+    gradient, and its 2 x 2 normal equations are solved in closed form; a step is at most
+    ``max_step`` px (the model is linear over a fraction of a pixel), and the steps stop after
+    ``iterations``, below ``stop_step``, or beyond ``reach``. Returns (shift x, shift y, sum of
+    squared residuals there), the last NaN where the model leaves the grid or its contrast is not
+    positive, or the shift ends beyond ``reach``."""
+    n = px.shape[0]
+    v = np.empty((n, 3))
+    sx, sy = start[0], start[1]
+    for _ in range(iterations):
+        if not _model_at(stack, px, origin, f, sx, sy, v):
+            break
+        a, b = _levels(v, obs)
+        if not b > 0:
+            break
+        sxx, sxy, syy, rx, ry = 0.0, 0.0, 0.0, 0.0, 0.0
+        for i in range(n):
+            r = obs[i] - a - b * v[i, 0]
+            gx, gy = b * v[i, 1], b * v[i, 2]
+            sxx += gx * gx
+            sxy += gx * gy
+            syy += gy * gy
+            rx += gx * r
+            ry += gy * r
+        det = sxx * syy - sxy * sxy
+        if det < 1e-12:
+            break
+        dx, dy = -(syy * rx - sxy * ry) / det, -(sxx * ry - sxy * rx) / det
+        norm = math.hypot(dx, dy)
+        scale = min(1.0, max_step / max(norm, 1e-12))
+        sx, sy = sx + dx * scale, sy + dy * scale
+        if math.hypot(sx, sy) > reach or norm < stop_step:
+            break
+    out = np.array([sx, sy, np.nan])
+    if math.hypot(sx, sy) > reach or not _model_at(stack, px, origin, f, sx, sy, v):
+        return out
+    a, b = _levels(v, obs)
+    if not b > 0:
+        return out
+    sse = 0.0
+    for i in range(n):
+        sse += (obs[i] - a - b * v[i, 0]) ** 2
+    out[2] = sse
+    return out
 
 
 class Completion(NamedTuple):
