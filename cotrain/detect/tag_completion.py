@@ -30,7 +30,10 @@ identified one (a grid step away) is
    candidates of the search, one whose rays follow the axes goes before a sure match over a
    patch under ``sure_inside`` inside the image circle: a patch cut by the rim can match the
    print at the board's edge against the dark beyond it better than the corner a few pixels
-   away does.
+   away does. In gaps of ``refit_gap_px`` or more, a candidate the moved homography refuses is
+   judged again under the homography fitted to the neighbours and to it (:func:`map_through`),
+   by ``refit_margin`` and with its rays: across large tags bent by a lens the guess does not
+   know, the neighbours' homography misses the print's shape at the corner.
 
 Corners added in a round predict in the next one; a corner that failed is tried again once more
 of its neighbours are identified. The corners added are fitted once more in the tag pass's small
@@ -95,8 +98,7 @@ class CompletionConfig:
     print_fit_min_r2_pixels: float = 0.8  # ... or this share through a pixel homography (which misses the bend at the rim)
     print_fit_rim_px: float = 1.5  # a prediction nearer the rim than min_rim_px but this far (px; 0: never) is found by print_fit alone ...
     print_fit_rim_gap_px: float = 20.0  # ... in a gap under this (px), within reach of it
-    refit_gap_px: float = 16.0  # in a gap of this or more (px; 0: never), an option whose print the moved map misses ...
-    # ... is judged again under the map through it (map_through) ...
+    refit_gap_px: float = 16.0  # from this gap on (px; 0: never), an option the moved map refuses is judged under the map through it ...
     refit_margin: float = 0.3  # ... where it must match better than each grid neighbour's print by this ...
     refit_inside: float = 0.5  # ... over this share of the patch inside the image circle, and have its edge rays along the board's axes
 
@@ -665,7 +667,10 @@ def best_option(
     board's axes unless their match is sure (``cfg.sure_corr``). The best match wins; but among
     several ``searched`` candidates (the tag pass's, not a fit at the prediction), those whose
     rays follow the axes go before a sure match over a patch under ``cfg.sure_inside`` inside the
-    image circle."""
+    image circle. With ``refit`` (an option -> the map through it, :func:`map_through`, or None),
+    an option the moved map refuses is judged again under the map through it, by
+    ``cfg.refit_margin`` over each grid neighbour's print, over ``cfg.refit_inside`` of the patch
+    inside the image circle, and with its edge rays along that map's axes."""
     best, best_key = None, (False, -np.inf)
     for q in options:
         if np.linalg.norm(known_q - q, axis=1).min() < cfg.crowd * gap_px or _value(rim_dist, q) < rim_px:
