@@ -45,7 +45,9 @@ from cotrain.targets import AprilGrid, Checkerboard, Target
 # 6: the black frame found where a camera lifts its black level (saddle.black_level).
 # 7: AprilGrid board coordinates in exact float64 (Target.board_xy; they were float32-rounded).
 # 8: saddle fits compiled, with exact bilinear windows (fits move by up to 1e-4 px; a few growths and frames go otherwise).
-OUTPUT_VERSION = 8
+# 9: completion's print fit in gaps under 10 px, at 0.7 of the variance through the lens, compiled; AprilGrid
+#    candidates judged again under the map through them.
+OUTPUT_VERSION = 9
 
 
 def settings(cfg) -> dict:

@@ -86,7 +86,8 @@ class TagConfig:
     candidate_min_symmetry: float = 0.5  # a candidate's fit needs this point symmetry (the grid pass's min_symmetry for the rest)
     max_candidates: int = 1500  # strongest response maxima kept (all true corners of the evaluation set rank within 1500)
     # --- growth ---
-    seed_axis_angle: float = 12.0  # deg: a seed's neighbours lie within this of its edge rays
+    seed_axis_angle: float = 12.0  # deg: a seed's neighbours lie within this of its edge rays ...
+    retry_seed_angle: float = 16.0  # ... or, in a frame where nothing is found, within this in a second look (0: none)
     ray_search: int = 96  # nearest candidates searched for ray neighbours
     ray_tries: int = 5  # candidates tried along each edge ray, nearest first, for ones reached along an edge
     ray_edge_depth: float = 0.6  # that edge test samples at most this multiple of the nearest-candidate distance aside
@@ -1538,8 +1539,27 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
     than ``cfg.half_below`` corners are found, is read again at half resolution (blurred tags,
     large tags), and the corners only that finds are added where the print check keeps them
     (:func:`cotrain.detect.tag_completion.print_check`); not where completion found every corner
-    it predicted in view (``TagResult.unfound`` 0: a partial view found whole)."""
+    it predicted in view (``TagResult.unfound`` 0: a partial view found whole).
+
+    A frame where nothing is found is read once more (both resolutions) with seeds whose
+    neighbours lie within ``cfg.retry_seed_angle`` of their edge rays; its corners are reported
+    where that finds any."""
     cfg = cfg or TagConfig()
+    r = _tag_pass_both(grey, board, cfg)
+    if len(r.ids) or cfg.retry_seed_angle <= 0:
+        return r
+    # Nothing found: once more with a wider cone for the ray neighbours. Where tags are small the
+    # edge rays are read on circles of a few pixels, their angles coarse, and the neighbours fall
+    # outside the cone: the lattices stop after a tag or two and no placement holds. Widened in
+    # every frame, the cone changes which seeds grow first elsewhere and lost whole frames
+    # (docs/detector.md, tag pass step 12).
+    again = _tag_pass_both(grey, board, replace(cfg, seed_axis_angle=cfg.retry_seed_angle))
+    return again if len(again.ids) else r
+
+
+def _tag_pass_both(grey: np.ndarray, board: AprilGrid, cfg: TagConfig) -> TagResult:
+    """:func:`tag_pass` without its second look: at full resolution, then at half resolution where
+    few corners were found."""
     r = _tag_pass_circle(grey, board, cfg)
     if len(r.ids) >= cfg.half_below or r.scale > 1 or min(grey.shape) < cfg.half_min_side:
         return r
