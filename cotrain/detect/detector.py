@@ -46,7 +46,7 @@ from cotrain.targets import AprilGrid, Checkerboard, Target
 # 7: AprilGrid board coordinates in exact float64 (Target.board_xy; they were float32-rounded).
 # 8: saddle fits compiled, with exact bilinear windows (fits move by up to 1e-4 px; a few growths and frames go otherwise).
 # 9: completion's print fit in gaps under 10 px, at 0.7 of the variance through the lens, compiled; AprilGrid
-#    candidates judged again under the map through them.
+#    candidates judged again under the map through them; AprilGrid frames that give nothing read a second time.
 OUTPUT_VERSION = 9
 
 
