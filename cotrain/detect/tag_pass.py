@@ -1541,7 +1541,7 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
     (:func:`cotrain.detect.tag_completion.print_check`); not where completion found every corner
     it predicted in view (``TagResult.unfound`` 0: a partial view found whole).
 
-    A frame where nothing is found is read once more (both resolutions) with seeds whose
+    A frame where nothing is found is read once more at full resolution with seeds whose
     neighbours lie within ``cfg.retry_seed_angle`` of their edge rays; its corners are reported
     where that finds any."""
     cfg = cfg or TagConfig()
@@ -1552,8 +1552,9 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
     # edge rays are read on circles of a few pixels, their angles coarse, and the neighbours fall
     # outside the cone: the lattices stop after a tag or two and no placement holds. Widened in
     # every frame, the cone changes which seeds grow first elsewhere and lost whole frames
-    # (docs/detector.md, tag pass step 12).
-    again = _tag_pass_both(grey, board, replace(cfg, seed_axis_angle=cfg.retry_seed_angle))
+    # (docs/detector.md, tag pass step 12). Full resolution only: the tags it is for are small,
+    # and the half-resolution reading has had its look.
+    again = _tag_pass_circle(grey, board, replace(cfg, seed_axis_angle=cfg.retry_seed_angle))
     return again if len(again.ids) else r
 
 
