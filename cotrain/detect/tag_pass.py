@@ -66,6 +66,7 @@ from dataclasses import dataclass, field, replace
 from typing import NamedTuple
 
 import cv2
+import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -368,6 +369,155 @@ def fourth_corner(
     return int(near[0]) if len(near) == 1 else None
 
 
+# :func:`_seed_quads`' answers for a quad's fourth corner besides a candidate index:
+_NO_FOURTH = -1  # none (the sides disagree, or lead too far from the parallelogram's corner)
+_ASK_TREE = -2  # neither side's ray leads anywhere: the candidate near the parallelogram's corner, if it is the only one
+_ASK_PYTHON = -3  # a ray neighbour without its candidate index: :func:`fourth_corner` decides
+
+
+@numba.njit(cache=True, nogil=True)
+def _ray_target(step, index, vx, vy, cos_min, lo, hi):
+    """:func:`ray_step` of a candidate whose ray neighbours' targets are known and with nothing used
+    (as :func:`fourth_corner` asks it), compiled: the target of the nearest neighbour along a ray
+    (``step`` (axis, way, option, 2), ``index`` (axis, way, option)) most in the direction (vx,
+    vy), within the cone ``cos_min`` and the step-length ratios lo .. hi; -1 where none,
+    :data:`_ASK_PYTHON` where that neighbour has no index."""
+    nv = math.hypot(vx, vy)
+    best, best_cos = -1, -np.inf
+    for a in range(2):
+        for w in range(2):
+            sx, sy = step[a, w, 0, 0], step[a, w, 0, 1]
+            if sx != sx:
+                continue
+            n = math.hypot(sx, sy)
+            cos = (sx * vx + sy * vy) / max(n * nv, 1e-9)
+            if cos >= cos_min and lo * nv <= n <= hi * nv and cos > best_cos:  # ties: the first, as sorted() keeps them
+                best, best_cos = index[a, w, 0], cos
+    return _ASK_PYTHON if best_cos > -np.inf and best < 0 else best
+
+
+@numba.njit(cache=True, nogil=True)
+def _seed_quads(seed, steps, index, xy, rays, use_lens, cx, cy, focal, spacing, min_long_short, cos_min, lo, hi, fourth_radius):
+    """:func:`_seed_frames` and each frame's :func:`fourth_corner` for candidate ``seed`` at once,
+    compiled (the seeds try about 60 candidates a frame, most of which are no tag corner): the
+    same frames in the same order (F, axis, kind, 2), their candidates ja, jb (F,) along a and
+    b, and the fourth corner (F,): a candidate index, or :data:`_NO_FOURTH`, :data:`_ASK_TREE`
+    (then the parallelogram's corner ``pred`` (F, 2) and radius ``r`` (F,) to look in) or
+    :data:`_ASK_PYTHON`. ``steps`` (K, axis, way, option, 2) and ``index`` (K, axis, way,
+    option): :class:`RayNeighbours`; ``rays`` (K, 3) the candidates' unit rays under the lens
+    (centre cx, cy, ``focal``) where ``use_lens``."""
+    n_opt = steps.shape[3]
+    # The options along each axis and way: (x, y, length, candidate), NaN rows skipped.
+    ox = np.empty((2, 2, n_opt))
+    oy = np.empty((2, 2, n_opt))
+    on = np.empty((2, 2, n_opt))
+    oj = np.empty((2, 2, n_opt), np.int64)
+    cnt = np.zeros((2, 2), np.int64)
+    for a in range(2):
+        for w in range(2):
+            for k in range(n_opt):
+                x, y = steps[seed, a, w, k, 0], steps[seed, a, w, k, 1]
+                if x == x:
+                    c = cnt[a, w]
+                    ox[a, w, c], oy[a, w, c], on[a, w, c], oj[a, w, c] = x, y, math.hypot(x, y), index[seed, a, w, k]
+                    cnt[a, w] = c + 1
+    F = 4 * n_opt * n_opt
+    frames = np.empty((F, 2, 2, 2))
+    ja, jb = np.empty(F, np.int64), np.empty(F, np.int64)
+    key = np.empty(F, np.int64)
+    nf = 0
+    for s1 in range(2):
+        for s2 in range(2):
+            for i in range(cnt[0, s1]):
+                ax, ay, nA, j_a = ox[0, s1, i], oy[0, s1, i], on[0, s1, i], oj[0, s1, i]
+                for j in range(cnt[1, s2]):
+                    bx, by, nB, j_b = ox[1, s2, j], oy[1, s2, j], on[1, s2, j], oj[1, s2, j]
+                    cross = ax * by - ay * bx
+                    if abs(cross) < 0.3 * nA * nB:
+                        continue
+                    rank = 0
+                    # The short step behind the corner along a (then b): the nearest option the
+                    # other way where it is shorter by min_long_short, else the target's gap.
+                    if cnt[0, 1 - s1] > 0 and on[0, 1 - s1, 0] * min_long_short <= nA:
+                        gax, gay = -ox[0, 1 - s1, 0], -oy[0, 1 - s1, 0]
+                    else:
+                        gax, gay = ax * spacing, ay * spacing
+                        if cnt[0, 1 - s1] > 0 and on[0, 1 - s1, 0] > nA:
+                            rank += 1  # the other way is longer: less likely the tag
+                    if cnt[1, 1 - s2] > 0 and on[1, 1 - s2, 0] * min_long_short <= nB:
+                        gbx, gby = -ox[1, 1 - s2, 0], -oy[1, 1 - s2, 0]
+                    else:
+                        gbx, gby = bx * spacing, by * spacing
+                        if cnt[1, 1 - s2] > 0 and on[1, 1 - s2, 0] > nB:
+                            rank += 1
+                    if cross < 0:  # turned: b first, to keep a x b > 0
+                        frames[nf, 0, 0, 0], frames[nf, 0, 0, 1], frames[nf, 0, 1, 0], frames[nf, 0, 1, 1] = bx, by, gbx, gby
+                        frames[nf, 1, 0, 0], frames[nf, 1, 0, 1], frames[nf, 1, 1, 0], frames[nf, 1, 1, 1] = ax, ay, gax, gay
+                        ja[nf], jb[nf] = j_b, j_a
+                    else:
+                        frames[nf, 0, 0, 0], frames[nf, 0, 0, 1], frames[nf, 0, 1, 0], frames[nf, 0, 1, 1] = ax, ay, gax, gay
+                        frames[nf, 1, 0, 0], frames[nf, 1, 0, 1], frames[nf, 1, 1, 0], frames[nf, 1, 1, 1] = bx, by, gbx, gby
+                        ja[nf], jb[nf] = j_a, j_b
+                    key[nf] = ((i + j) * 8 + rank) * F + nf  # nearest options, then rank, then the order found
+                    nf += 1
+    order = np.argsort(key[:nf])
+    frames, ja, jb = frames[:nf][order], ja[:nf][order], jb[:nf][order]
+    fourth = np.empty(nf, np.int64)
+    pred = np.empty((nf, 2))
+    radius = np.empty(nf)
+    x0, y0 = xy[seed, 0], xy[seed, 1]
+    for f in range(nf):
+        a, b = ja[f], jb[f]
+        xa, ya, xb, yb = xy[a, 0], xy[a, 1], xy[b, 0], xy[b, 1]
+        px, py, have = 0.0, 0.0, False
+        if use_lens:  # parallelogram_corner, in the same arithmetic
+            v0, va, vb = rays[seed], rays[a], rays[b]
+            zx, zy, zz = v0[0] + va[0] + vb[0], v0[1] + va[1] + vb[1], v0[2] + va[2] + vb[2]
+            n = math.sqrt(zx * zx + zy * zy + zz * zz)
+            if n >= 1e-12:
+                zx, zy, zz = zx / n, zy / n, zz / n
+                d0 = v0[0] * zx + v0[1] * zy + v0[2] * zz
+                d1 = va[0] * zx + va[1] * zy + va[2] * zz
+                d2 = vb[0] * zx + vb[1] * zy + vb[2] * zz
+                if min(d0, d1, d2) > 0.1:
+                    x = va[0] / d1 + vb[0] / d2 - v0[0] / d0
+                    y = va[1] / d1 + vb[1] / d2 - v0[1] / d0
+                    z = va[2] / d1 + vb[2] / d2 - v0[2] / d0
+                    rho = math.hypot(x, y)
+                    k = focal * math.atan2(rho, z) / rho if rho > 1e-12 else 0.0
+                    px, py, have = cx + x * k, cy + y * k, True
+        if not have:
+            px, py = xa + xb - x0, ya + yb - y0
+        r = fourth_radius * min(math.hypot(xa - x0, ya - y0), math.hypot(xb - x0, yb - y0))
+        pred[f, 0], pred[f, 1], radius[f] = px, py, r
+        # The candidates the ray neighbours of p0 + A (toward B) and of p0 + B (toward A) lead to.
+        t1 = _ray_target(steps[a], index[a], xb - x0, yb - y0, cos_min, lo, hi)
+        t2 = _ray_target(steps[b], index[b], xa - x0, ya - y0, cos_min, lo, hi)
+        if t1 == _ASK_PYTHON or t2 == _ASK_PYTHON:
+            fourth[f] = _ASK_PYTHON
+        elif t1 >= 0 and t2 >= 0 and t1 != t2:
+            fourth[f] = _NO_FOURTH  # the two sides disagree
+        elif t1 >= 0 or t2 >= 0:
+            t = t1 if t1 >= 0 else t2
+            fourth[f] = t if math.hypot(xy[t, 0] - px, xy[t, 1] - py) < r else _NO_FOURTH
+        else:
+            fourth[f] = _ASK_TREE
+    return frames, ja, jb, fourth, pred, radius
+
+
+def _shortest_side_of(p0: np.ndarray, frame: np.ndarray, p2: np.ndarray) -> float:
+    """:func:`shortest_side` of the quad p0, p0 + frame[0, 0], p2, p0 + frame[1, 0], in scalar
+    arithmetic (the same sums as numpy's norm: it runs for each quad a seed tries)."""
+    x0, y0 = float(p0[0]), float(p0[1])
+    pts = (
+        (x0, y0),
+        (x0 + float(frame[0, 0, 0]), y0 + float(frame[0, 0, 1])),
+        (float(p2[0]), float(p2[1])),
+        (x0 + float(frame[1, 0, 0]), y0 + float(frame[1, 0, 1])),
+    )
+    return min(math.sqrt((pts[i][0] - pts[i - 1][0]) ** 2 + (pts[i][1] - pts[i - 1][1]) ** 2) for i in range(4))
+
+
 def seed_tag(
     xy: np.ndarray,
     nbr: RayNeighbours,
@@ -377,7 +527,7 @@ def seed_tag(
     cfg: TagConfig,
     tree: cKDTree,
     lens: EquidistantLens | None = None,
-    rays: list[list[float]] | None = None,
+    rays: np.ndarray | None = None,
 ) -> tuple[np.ndarray, list[int], bool] | None:
     """A seed for the growth: candidate ``seed`` (of xy (K, 2), neighbours along its edges ``nbr``,
     see :func:`axis_neighbours`) is a tag corner whose tag, lattice cell
@@ -390,13 +540,36 @@ def seed_tag(
     at the gap crossings. With ``lens``, ``rays`` (K, 3) are the candidates' unit rays under it
     (:func:`fourth_corner`)."""
     p0 = xy[seed]
-    for frame, ja, jb in _seed_frames(nbr.step[seed], nbr.index[seed], spacing, cfg):
-        j = fourth_corner(xy, nbr, tree, (seed, ja, jb), cfg, lens, rays)
-        if j is None:
+    if lens is not None and rays is None:
+        rays = lens.lift(xy)
+    # The frames and their fourth corners (_seed_frames and fourth_corner, compiled).
+    frames, jas, jbs, fourth, pred, radius = _seed_quads(
+        seed,
+        nbr.step,
+        nbr.index,
+        xy,
+        _SEED_NO_RAYS if rays is None else rays,
+        lens is not None,
+        *((lens.centre[0], lens.centre[1], lens.focal) if lens is not None else (0.0, 0.0, 1.0)),
+        float(spacing),
+        cfg.min_long_short,
+        math.cos(math.radians(cfg.ray_step_angle)),
+        cfg.min_step_ratio,
+        cfg.max_step_ratio,
+        cfg.fourth_radius,
+    )
+    for frame, ja, jb, j, q, r in zip(frames, jas.tolist(), jbs.tolist(), fourth.tolist(), pred, radius.tolist()):
+        if j == _ASK_TREE:
+            near = tree.query_ball_point(q, r)
+            j = int(near[0]) if len(near) == 1 else _NO_FOURTH
+        elif j == _ASK_PYTHON:
+            j = fourth_corner(xy, nbr, tree, (seed, ja, jb), cfg, lens, None if rays is None else rays.tolist())
+            j = _NO_FOURTH if j is None else j
+        if j == _NO_FOURTH:
+            continue
+        if _shortest_side_of(p0, frame, xy[j]) / CELLS < cfg.min_cell_px:
             continue
         c = np.array([p0, p0 + frame[0, 0], xy[j], p0 + frame[1, 0]])
-        if shortest_side(c) / CELLS < cfg.min_cell_px:
-            continue
         if not ring_in_gaps(img, c, spacing):
             continue  # a quick look first: most quads of candidates are no tag
         look = look_at_tag(img, c, spacing, sharpen=cfg.sharpen, max_side_misfit=cfg.max_side_misfit, lens=lens)
@@ -407,6 +580,9 @@ def seed_tag(
         decodes = decode_bits(look.white)[2] <= cfg.max_hamming
         return frame, [ja, int(j), jb], decodes
     return None
+
+
+_SEED_NO_RAYS = np.zeros((0, 3))  # :func:`_seed_quads`' rays where no lens is guessed
 
 
 def shortest_side(corners: np.ndarray) -> float:
@@ -1639,7 +1815,7 @@ def _tag_pass_in(grey: np.ndarray, allowed: np.ndarray, board: AprilGrid, cfg: T
     rays = corner_rays(sm, xy, cfg.ray_radius * near)
     nbr = axis_neighbours(xy, rays, tree, sm, cfg)
     spacing = board.cfg.tag_spacing
-    rays_xyz = None if lens is None else lens.lift(xy).tolist()  # the candidates' unit rays, for the seeds
+    rays_xyz = None if lens is None else lens.lift(xy)  # the candidates' unit rays (K, 3), for the seeds
     covered = np.zeros(len(xy), bool)
     grown: list[Lattice] = []
     # Seeds whose tag decodes alone grow first; the others (small or blurred tags, and quads of

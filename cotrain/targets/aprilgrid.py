@@ -19,9 +19,11 @@ are OpenCV's marker bits turned by a half turn.
 from __future__ import annotations
 
 import functools
+import math
 from typing import TYPE_CHECKING
 
 import cv2
+import numba
 import numpy as np
 
 if TYPE_CHECKING:  # torch loads on first use: the detector path imports targets without it
@@ -64,6 +66,35 @@ def _as_index(x):
 def _as_type(x, like):
     """``x`` (numpy or torch) in the dtype of ``like``."""
     return x.astype(like.dtype) if isinstance(x, (np.ndarray, np.generic)) else x.to(like.dtype)
+
+
+@numba.njit(cache=True, nogil=True)
+def _point_intensity(x, y, bits, P, S, tc, tr, x0, y0, x1, y1):
+    """:meth:`AprilGrid.intensity`'s point samples at finite board points x, y (N,) float64,
+    compiled in the arithmetic of :meth:`AprilGrid._value` (tag period ``P``, side ``S``, ``tc`` x
+    ``tr`` tags, ``bits`` (T, 6, 6) as printed; the sheet ``x0, y0, x1, y1``): intensity and
+    coverage (N,)."""
+    n = x.shape[0]
+    value, cover = np.empty(n), np.empty(n)
+    cell = S / CELLS
+    for i in range(n):
+        kx, ky = math.floor(x[i] / P), math.floor(y[i] / P)
+        fx, fy = x[i] - kx * P, y[i] - ky * P
+        in_x, in_y = fx < S, fy < S
+        if in_x and in_y and 0 <= kx < tc and 0 <= ky < tr:
+            bx = int(min(max(math.floor(fx / cell), 0.0), CELLS - 1.0))
+            by = int(min(max(math.floor(fy / cell), 0.0), CELLS - 1.0))
+            if BORDER_BITS <= bx < CELLS - BORDER_BITS and BORDER_BITS <= by < CELLS - BORDER_BITS:
+                v = float(bits[int(ky) * tc + int(kx), by - BORDER_BITS, bx - BORDER_BITS])
+            else:
+                v = 0.0  # the border is black
+        else:
+            v = 1.0
+        if not in_x and not in_y and -1 <= kx < tc and -1 <= ky < tr:
+            v = 0.0  # a gap crossing's square
+        c = 1.0 if x0 <= x[i] <= x1 and y0 <= y[i] <= y1 else 0.0
+        value[i], cover[i] = (v if c > 0 else 1.0), c
+    return value, cover
 
 
 class AprilGrid:
@@ -223,6 +254,22 @@ class AprilGrid:
         x0, y0, x1, y1 = self.extent()
         if footprint is None:
             xp = array_module(xy)
+            if xp is np and xy.dtype == np.float64 and xy.size and np.isfinite(xy).all():
+                # Compiled (the detector renders patches of the print many times a frame); the same arithmetic.
+                v, cover = _point_intensity(
+                    np.ascontiguousarray(x).ravel(),
+                    np.ascontiguousarray(y).ravel(),
+                    self.printed,
+                    self.P,
+                    self.S,
+                    self.tc,
+                    self.tr,
+                    x0,
+                    y0,
+                    x1,
+                    y1,
+                )
+                return v.reshape(x.shape), cover.reshape(x.shape)
             bits = self.printed if xp is np else xp.from_numpy(self.printed).to(xy.device)
             v = self._value(x, y, bits)
             cover = _as_type((x >= x0) & (x <= x1) & (y >= y0) & (y <= y1), x)

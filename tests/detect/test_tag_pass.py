@@ -11,20 +11,26 @@ import torch
 from scipy.spatial import cKDTree
 
 from cotrain.detect.detector import AprilGridDetector
+from cotrain.detect.image_circle import EquidistantLens
 from cotrain.detect.lattice import Lattice
 from cotrain.detect.tag_completion import CompletionConfig
 from cotrain.detect.tag_pass import (
+    _ASK_TREE,
+    _NO_FOURTH,
     Placement,
+    RayNeighbours,
     TagCell,
     TagConfig,
     _Board,
     _seed_frames,
+    _seed_quads,
     _turn_index,
     consistent_boards,
     corner_rays,
     decode_bits,
     decode_many,
     edges_along,
+    fourth_corner,
     join_lattices,
     lattice_link,
     look_at_tag,
@@ -384,6 +390,57 @@ def test_seed_frames_name_the_candidates_their_long_steps_lead_to():
     assert (ja, jb) == (1, 3)
     np.testing.assert_allclose(first[:, 1], [[9.0, 0.5], [0.0, 10.0]])  # the gaps behind the corner, pointing +a and +b
     assert {(a, b) for _, a, b in frames} >= {(4, 1), (3, 2)}  # turned quadrants: axes swapped to keep a x b > 0
+
+
+@pytest.mark.parametrize("with_lens", [False, True])
+def test_compiled_seed_quads_are_the_readable_search(with_lens):
+    """The seeds' compiled quad search (:func:`_seed_quads`) gives, for every candidate of a
+    jittered lattice of junctions with random ray neighbours (some missing, some pointing
+    nowhere useful), the frames of :func:`_seed_frames` in their order and the fourth corners of
+    :func:`fourth_corner`, exactly; through a lens and in pixels."""
+    cfg = TagConfig()
+    rng = np.random.default_rng(5)
+    g = np.stack(np.meshgrid(np.arange(8), np.arange(8)), -1).reshape(-1, 2)
+    xy = 100.0 + g * [26.0, 24.0] + rng.normal(0, 1.5, g.shape)  # some steps fall outside the cones
+    K = len(xy)
+    tree = cKDTree(xy)
+    step = np.full((K, 2, 2, cfg.ray_options, 2), np.nan)
+    index = np.full((K, 2, 2, cfg.ray_options), -1)
+    for k in range(K):
+        for axis in range(2):
+            for way in range(2):
+                n = rng.integers(0, cfg.ray_options + 1)  # 0 .. 3 options
+                d = np.zeros(2)
+                d[axis] = 1 if way == 0 else -1
+                target = xy[k] + d * [26.0, 24.0]
+                _, near = tree.query(target + rng.normal(0, 6, (n, 2)))
+                for o, j in enumerate(np.atleast_1d(near)[:n]):
+                    if j != k:
+                        step[k, axis, way, o], index[k, axis, way, o] = xy[j] - xy[k], j
+    nbr = RayNeighbours(step, index)
+    lens = EquidistantLens((420.0, 380.0), 150.0) if with_lens else None
+    rays = lens.lift(xy) if with_lens else np.zeros((0, 3))
+    cos_min = np.cos(np.radians(cfg.ray_step_angle))
+    asked = found = 0
+    for seed in range(K):
+        frames = _seed_frames(step[seed], index[seed], 0.3, cfg)
+        got = _seed_quads(
+            seed, step, index, xy, rays, with_lens, *((420.0, 380.0, 150.0) if with_lens else (0.0, 0.0, 1.0)),
+            0.3, cfg.min_long_short, cos_min, cfg.min_step_ratio, cfg.max_step_ratio, cfg.fourth_radius,
+        )  # fmt: skip
+        assert len(got[0]) == len(frames)
+        for f, (frame, ja, jb) in enumerate(frames):
+            np.testing.assert_array_equal(got[0][f], frame)
+            assert (got[1][f], got[2][f]) == (ja, jb)
+            want = fourth_corner(xy, nbr, tree, (seed, ja, jb), cfg, lens, rays.tolist() if with_lens else None)
+            j = int(got[3][f])
+            if j == _ASK_TREE:
+                asked += 1
+                near = tree.query_ball_point(got[4][f], got[5][f])
+                j = int(near[0]) if len(near) == 1 else _NO_FOURTH
+            assert j == (_NO_FOURTH if want is None else want)
+            found += want is not None
+    assert asked > 10 and found > 10  # both ways of finding the fourth corner were exercised
 
 
 def test_edges_along_a_narrow_border_needs_a_shallow_look():

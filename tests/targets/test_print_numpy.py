@@ -8,7 +8,15 @@ import torch
 from cotrain.targets import AprilGrid, Checkerboard, TargetConfig
 
 
-@pytest.mark.parametrize("board", [Checkerboard(), Checkerboard(TargetConfig(squares_x=7, squares_y=5, square_size=0.03)), AprilGrid()])
+@pytest.mark.parametrize(
+    "board",
+    [
+        Checkerboard(),
+        Checkerboard(TargetConfig(squares_x=7, squares_y=5, square_size=0.03)),
+        AprilGrid(),
+        AprilGrid(TargetConfig(kind="aprilgrid", tag_cols=10, tag_rows=8, tag_size=0.03, tag_spacing=0.3)),
+    ],
+)
 def test_numpy_print_and_corners_are_the_torch_ones(board):
     """The detector reads the print and the corners' board coordinates in numpy (no torch): the
     same values as the renderer's torch, at random points, on every corner and on grid lines."""
@@ -19,6 +27,8 @@ def test_numpy_print_and_corners_are_the_torch_ones(board):
             rng.uniform([x0 - 0.02, y0 - 0.02], [x1 + 0.02, y1 + 0.02], (5000, 2)),
             board.board_xy(),  # exactly on corners (grid lines cross there)
             board.board_xy() + [[0.0, board.spacing / 3]],
+            # On the lines between cells (an AprilGrid's data cells are a tenth of its tag).
+            (board.board_xy()[:, None] + np.arange(-3, 14)[None, :, None] * (board.spacing / 10)).reshape(-1, 2),
         ]
     )
     v_np, c_np = board.intensity(P)
@@ -29,6 +39,9 @@ def test_numpy_print_and_corners_are_the_torch_ones(board):
     # One point alone (its coordinates numpy scalars) is read the same way, without torch types.
     v1, c1 = board.intensity(P[7])
     assert float(v1) == v_np[7] and float(c1) == c_np[7]
+    # float32 points take numpy's general path (the compiled one reads float64).
+    v32, _ = board.intensity(P[:50].astype(np.float32))
+    np.testing.assert_array_equal(v32, board.intensity(torch.from_numpy(P[:50].astype(np.float32)))[0].numpy())
     assert board.board_xy().dtype == np.float64
     np.testing.assert_array_equal(board.points()[:, 2].numpy(), 0.0)
 
