@@ -63,7 +63,14 @@ _REMAP_COLS = 1024  # points per row of the maps of :func:`values_at` for long l
 
 def values_at(img: np.ndarray, pts: np.ndarray) -> np.ndarray:
     """Bilinear values (...) of ``img`` (H, W) at points (..., 2); NaN outside the image. With
-    channels (``img`` (H, W, C), up to 4): (..., C)."""
+    channels (``img`` (H, W, C), up to 4): (..., C).
+
+    As ``cv2.remap`` gives them (float32 coordinates; NaN wherever the 2 x 2 pixels a point falls
+    between leave the image); for a float32 image without channels, the same values compiled
+    (:func:`_remap_values`: most calls read a few points, where remap's own set-up dominates)."""
+    if img.ndim == 2 and img.dtype == np.float32:
+        flat = np.ascontiguousarray(pts, np.float64).reshape(-1, 2)
+        return _remap_values(img, flat).reshape(pts.shape[:-1])
     chans = img.shape[2:]
     flat = pts.reshape(-1, 2).astype(np.float32)
     n = len(flat)
@@ -75,6 +82,35 @@ def values_at(img: np.ndarray, pts: np.ndarray) -> np.ndarray:
         flat = flat[:, None]
     v = cv2.remap(img, flat[..., 0], flat[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=(np.nan,) * 4)
     return v.reshape(-1, *chans)[:n].reshape(*pts.shape[:-1], *chans)
+
+
+@numba.njit(cache=True, nogil=True)
+def _lerp32(t, a, b):
+    """a + t (b - a) in float32 with one rounding, as a fused multiply-add gives it (the product of
+    two float32 is exact in float64)."""
+    return np.float32(np.float64(t) * np.float64(np.float32(b - a)) + np.float64(a))
+
+
+@numba.njit(cache=True, nogil=True)
+def _remap_values(img, pts):
+    """:func:`values_at` of a float32 image ``img`` (H, W) at points ``pts`` (N, 2), compiled, in
+    ``cv2.remap``'s arithmetic (OpenCV 5, INTER_LINEAR, a constant NaN border): the coordinates in
+    float32, a fused multiply-add along x, then along y; NaN where one of the four pixels lies
+    outside. -> (N,) float32."""
+    H, W = img.shape
+    out = np.empty(pts.shape[0], np.float32)
+    for i in range(pts.shape[0]):
+        x, y = np.float32(pts[i, 0]), np.float32(pts[i, 1])
+        fx0, fy0 = math.floor(x), math.floor(y)
+        if not (0 <= fx0 and fx0 + 1 < W and 0 <= fy0 and fy0 + 1 < H):  # also NaN coordinates
+            out[i] = np.nan
+            continue
+        ix, iy = int(fx0), int(fy0)
+        ax, ay = np.float32(x - np.float32(fx0)), np.float32(y - np.float32(fy0))
+        top = _lerp32(ax, img[iy, ix], img[iy, ix + 1])
+        bottom = _lerp32(ax, img[iy + 1, ix], img[iy + 1, ix + 1])
+        out[i] = _lerp32(ay, top, bottom)
+    return out
 
 
 RAY_SAMPLES = 48  # samples on the circle around a candidate that finds its four edge rays

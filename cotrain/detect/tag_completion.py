@@ -517,12 +517,8 @@ def print_fit(
     ncx, ncy = (nxf - 1) // f + 2, (nyf - 1) // f + 2
     cy, cx = np.mgrid[0:ncy, 0:ncx]
     coarse = to_image.to_plane(np.stack([fx0 + cx, fy0 + cy], -1).reshape(1, -1, 2).astype(np.float64))[0].reshape(ncy, ncx, 2)
-    jx, jy = np.arange(nxf) // f, np.arange(nyf) // f
-    wx, wy = (np.arange(nxf) % f / f)[None, :, None], (np.arange(nyf) % f / f)[:, None, None]
-    along = coarse[:, jx] * (1 - wx) + coarse[:, jx + 1] * wx  # (ncy, nxf, 2)
-    plane = (along[jy] * (1 - wy) + along[jy + 1] * wy).reshape(-1, 2)
-    ok = np.isfinite(plane).all(1)
-    printed = np.where(ok, board.intensity(np.where(ok[:, None], plane, 0.0))[0], 0.5).reshape(nyf, nxf).astype(np.float32)
+    plane, ok = _fine_grid(coarse, f, nxf, nyf)
+    printed = np.where(ok, board.intensity(plane)[0], 0.5).reshape(nyf, nxf).astype(np.float32)
 
     best = None  # (sum of squared residuals, shift)
     origin = np.array([fx0, fy0], np.float64)
@@ -542,6 +538,30 @@ def print_fit(
     if best is None or 1 - best[0] / obs_ss < (cfg.print_fit_min_r2 if to_image.lens is not None else cfg.print_fit_min_r2_pixels):
         return None
     return q0 + best[1]
+
+
+@numba.njit(cache=True, nogil=True)
+def _fine_grid(coarse, f, nxf, nyf):
+    """:func:`print_fit`'s fine grid: the board points ``coarse`` (ncy, ncx, 2) at whole pixels,
+    interpolated linearly to ``f`` points per pixel, (nyf * nxf, 2) row by row, along x first;
+    and (nyf * nxf,) bool whether a point is finite (the others are given as 0)."""
+    plane = np.empty((nyf * nxf, 2))
+    ok = np.empty(nyf * nxf, np.bool_)
+    for r in range(nyf):
+        jy, wy = r // f, (r % f) / f
+        for c in range(nxf):
+            jx, wx = c // f, (c % f) / f
+            i = r * nxf + c
+            good = True
+            for k in range(2):
+                top = coarse[jy, jx, k] * (1 - wx) + coarse[jy, jx + 1, k] * wx
+                bottom = coarse[jy + 1, jx, k] * (1 - wx) + coarse[jy + 1, jx + 1, k] * wx
+                plane[i, k] = top * (1 - wy) + bottom * wy
+                good = good and np.isfinite(plane[i, k])
+            ok[i] = good
+            if not good:
+                plane[i, 0], plane[i, 1] = 0.0, 0.0
+    return plane, ok
 
 
 @numba.njit(cache=True, nogil=True)

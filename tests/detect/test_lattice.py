@@ -1,5 +1,6 @@
 """Lattice growth helpers (cotrain.detect.lattice): step prediction and skipped-corner checks."""
 
+import cv2
 import numpy as np
 import pytest
 
@@ -103,7 +104,7 @@ def test_values_at_is_bilinear_for_any_number_of_points():
     rng = np.random.default_rng(0)
     for n in (1, 40000):
         p = rng.uniform([0, 0], [W - 1, H - 1], (n, 2))
-        np.testing.assert_allclose(values_at(img, p), 2 * p[:, 0] + 3 * p[:, 1], atol=0.1)  # remap may round to 1/32 px
+        np.testing.assert_allclose(values_at(img, p), 2 * p[:, 0] + 3 * p[:, 1], rtol=1e-6)  # float32 coordinates
     assert values_at(img, np.zeros((0, 2))).shape == (0,)
     assert values_at(img, np.zeros((3, 4, 2))).shape == (3, 4)
     assert np.isnan(values_at(img, np.array([[-5.0, 3.0], [10.0, H + 5.0]]))).all()
@@ -117,6 +118,28 @@ def test_values_at_is_bilinear_for_any_number_of_points():
             np.testing.assert_array_equal(got[:, c], values_at(np.ascontiguousarray(stack[..., c]), p))
     assert values_at(stack, np.zeros((0, 2))).shape == (0, 3)
     assert np.isnan(values_at(stack, np.array([[-5.0, 3.0]]))).all()
+
+
+def test_values_at_compiled_are_cv2_remaps_values():
+    """A float32 image is sampled by compiled code: bit for bit what cv2.remap (INTER_LINEAR, a
+    NaN border) gives, at random points, at whole pixels, on and beyond the last row and column,
+    and at coordinates that are not finite."""
+    rng = np.random.default_rng(4)
+    H, W = 37, 53
+    img = rng.random((H, W)).astype(np.float32)
+    p = np.concatenate(
+        [
+            rng.uniform(-2, [W + 1, H + 1], (5000, 2)),
+            rng.integers(-1, [W + 1, H + 1], (1000, 2)).astype(np.float64),
+            [[W - 1, 3.0], [W - 1.5, H - 1], [-1e-7, 2.0], [np.nan, 1.0], [1.0, np.inf], [1e12, 2.0]],
+        ]
+    )
+    flat = p.astype(np.float32)[:, None]
+    want = cv2.remap(img, flat[..., 0], flat[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=(np.nan,) * 4)[:, 0]
+    got = values_at(img, p)
+    assert got.dtype == np.float32
+    np.testing.assert_array_equal(got, want)  # NaN where NaN
+    assert np.isnan(got).sum() > 100 and np.isfinite(got).sum() > 4000
 
 
 def test_step_has_edge_along_lattice_steps_only():
