@@ -65,12 +65,15 @@ def values_at(img: np.ndarray, pts: np.ndarray) -> np.ndarray:
     """Bilinear values (...) of ``img`` (H, W) at points (..., 2); NaN outside the image. With
     channels (``img`` (H, W, C), up to 4): (..., C).
 
-    As ``cv2.remap`` gives them (float32 coordinates; NaN wherever the 2 x 2 pixels a point falls
-    between leave the image); for a float32 image without channels, the same values compiled
-    (:func:`_remap_values`: most calls read a few points, where remap's own set-up dominates)."""
-    if img.ndim == 2 and img.dtype == np.float32:
+    As OpenCV 5's ``cv2.remap`` gives them (float32 coordinates; NaN wherever the 2 x 2 pixels a
+    point falls between leave the image): compiled for float32 images (:func:`_remap_values`;
+    most calls read a few points, where remap's own set-up dominates), through remap otherwise."""
+    if img.dtype == np.float32:
         flat = np.ascontiguousarray(pts, np.float64).reshape(-1, 2)
-        return _remap_values(img, flat).reshape(pts.shape[:-1])
+        if img.ndim == 2:
+            return _remap_values(img, flat).reshape(pts.shape[:-1])
+        chans = [_remap_values(np.ascontiguousarray(img[..., c]), flat) for c in range(img.shape[2])]
+        return np.stack(chans, -1).reshape(*pts.shape[:-1], img.shape[2])
     chans = img.shape[2:]
     flat = pts.reshape(-1, 2).astype(np.float32)
     n = len(flat)
