@@ -1721,7 +1721,8 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
     neighbours lie within ``cfg.retry_seed_angle`` of their edge rays; its corners are reported
     where that finds any."""
     cfg = cfg or TagConfig()
-    r = _tag_pass_both(grey, board, cfg)
+    view = _view_of(grey, cfg)
+    r = _tag_pass_both(grey, board, cfg, view)
     if len(r.ids) or cfg.retry_seed_angle <= 0:
         return r
     # Nothing found: once more with a wider cone for the ray neighbours. Where tags are small the
@@ -1729,15 +1730,16 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
     # outside the cone: the lattices stop after a tag or two and no placement holds. Widened in
     # every frame, the cone changes which seeds grow first elsewhere and lost whole frames
     # (docs/detector.md, tag pass step 12). Full resolution only: the tags it is for are small,
-    # and the half-resolution reading has had its look.
-    again = _tag_pass_circle(grey, board, replace(cfg, seed_axis_angle=cfg.retry_seed_angle))
+    # and the half-resolution reading has had its look. The frame as the first look read it (the
+    # crop, the lens, the candidates and their rays) is the same.
+    again = _tag_pass_circle(grey, board, replace(cfg, seed_axis_angle=cfg.retry_seed_angle), view)
     return again if len(again.ids) else r
 
 
-def _tag_pass_both(grey: np.ndarray, board: AprilGrid, cfg: TagConfig) -> TagResult:
-    """:func:`tag_pass` without its second look: at full resolution, then at half resolution where
-    few corners were found."""
-    r = _tag_pass_circle(grey, board, cfg)
+def _tag_pass_both(grey: np.ndarray, board: AprilGrid, cfg: TagConfig, view: _View | None = None) -> TagResult:
+    """:func:`tag_pass` without its second look: at full resolution (``view``: the frame as read
+    for it, :func:`_view_of`), then at half resolution where few corners were found."""
+    r = _tag_pass_circle(grey, board, cfg, view)
     if len(r.ids) >= cfg.half_below or r.scale > 1 or min(grey.shape) < cfg.half_min_side:
         return r
     if r.unfound == 0:
@@ -1766,12 +1768,33 @@ def _tag_pass_both(grey: np.ndarray, board: AprilGrid, cfg: TagConfig) -> TagRes
     )
 
 
-def _tag_pass_circle(grey: np.ndarray, board: AprilGrid, cfg: TagConfig) -> TagResult:
-    """:func:`tag_pass` at one resolution: on the image circle's bounding box, a small frame enlarged."""
+class _Candidates(NamedTuple):
+    """What a pass reads off its image before the seeds (:func:`_candidates_of`)."""
+
+    rim_dist: np.ndarray  # (H, W) px to the image circle's rim
+    smoothed: dict[int, np.ndarray]  # the image's blurs (saddle.smooth_cached)
+    xy: np.ndarray  # (K, 2) fitted saddle points, strongest first (tag_candidates)
+    tree: cKDTree | None  # of xy; None where there are fewer than cfg.min_corners
+    rays: np.ndarray | None  # (K, 4, 2) their edge rays (lattice.corner_rays)
+
+
+class _View(NamedTuple):
+    """A frame as one pass reads it (:func:`_view_of`)."""
+
+    scale: float  # the factor the frame was enlarged by (enlargement)
+    origin: tuple[int, int]  # (x0, y0): the crop's top-left corner in the (enlarged) frame
+    grey: np.ndarray  # (H, W) the crop: the image circle's bounding box grown by CIRCLE_PAD_PX
+    allowed: np.ndarray  # (H, W) bool: inside the image circle
+    lens: EquidistantLens | None  # the lens guessed from the image circle (in the crop's pixels)
+    candidates: _Candidates
+
+
+def _view_of(grey: np.ndarray, cfg: TagConfig) -> _View:
+    """The frame ``grey`` as :func:`_tag_pass_circle` reads it: a small frame enlarged, cropped to
+    the image circle's bounding box, its lens guessed, its candidates found."""
     f = enlargement(grey.shape, cfg)
     if f > 1:
         grey = cv2.resize(grey, None, fx=f, fy=f, interpolation=cv2.INTER_LINEAR)
-        cfg = replace(cfg, **{k: getattr(cfg, k) * f for k in ("small_tag_px", "small_gap_px", "keep_unfitted_px", "rim_strict_px")})
     outside = outside_circle(grey)
     allowed = ~outside
     allowed[[0, -1], :] = False
@@ -1781,8 +1804,19 @@ def _tag_pass_circle(grey: np.ndarray, board: AprilGrid, cfg: TagConfig) -> TagR
     y0, y1 = (max(0, ys[0] - CIRCLE_PAD_PX), min(H, ys[-1] + 1 + CIRCLE_PAD_PX)) if len(ys) else (0, H)
     x0, x1 = (max(0, xs[0] - CIRCLE_PAD_PX), min(W, xs[-1] + 1 + CIRCLE_PAD_PX)) if len(xs) else (0, W)
     lens = guess_lens(outside, cfg.lens_fov, (x0, y0))
-    r = _tag_pass_in(grey[y0:y1, x0:x1], allowed[y0:y1, x0:x1], board, cfg, lens)
-    xy = r.xy + np.array([x0, y0], np.float64)
+    crop, inside = grey[y0:y1, x0:x1], allowed[y0:y1, x0:x1]
+    return _View(f, (x0, y0), crop, inside, lens, _candidates_of(crop, inside, cfg))
+
+
+def _tag_pass_circle(grey: np.ndarray, board: AprilGrid, cfg: TagConfig, view: _View | None = None) -> TagResult:
+    """:func:`tag_pass` at one resolution: on the image circle's bounding box, a small frame
+    enlarged (``view``: the frame as read already, :func:`_view_of`, else read here)."""
+    view = view or _view_of(grey, cfg)
+    f = view.scale
+    if f > 1:
+        cfg = replace(cfg, **{k: getattr(cfg, k) * f for k in ("small_tag_px", "small_gap_px", "keep_unfitted_px", "rim_strict_px")})
+    r = _tag_pass_in(view.grey, view.allowed, board, cfg, view.lens, view.candidates)
+    xy = r.xy + np.array(view.origin, np.float64)
     if f > 1:
         xy = (xy + 0.5) / f - 0.5  # pixel centres: x' = (x + 0.5) f - 0.5
     return replace(r, xy=xy, scale=f)
@@ -1797,22 +1831,39 @@ def enlargement(shape: tuple[int, int], cfg: TagConfig) -> float:
     return min(cfg.min_side_px / short, cfg.max_enlarge)
 
 
-def _tag_pass_in(grey: np.ndarray, allowed: np.ndarray, board: AprilGrid, cfg: TagConfig, lens: EquidistantLens | None) -> TagResult:
-    """:func:`tag_pass` on ``grey`` (H, W) where ``allowed`` (H, W) bool is the image circle;
-    tags are read through ``lens`` where one is guessed (:mod:`cotrain.detect.image_circle`)."""
-
-    def empty(foreign: int = 0) -> TagResult:
-        return TagResult(np.zeros(0, int), np.zeros((0, 2)), np.zeros(0), np.zeros(0, int), np.zeros(0, int), 0, foreign)
-
+def _candidates_of(grey: np.ndarray, allowed: np.ndarray, cfg: TagConfig) -> _Candidates:
+    """The candidates of ``grey`` (H, W) inside ``allowed`` (H, W) bool, with what was read to
+    find them (see :class:`_Candidates`)."""
     rim_dist = cv2.distanceTransform(allowed.astype(np.uint8), cv2.DIST_L2, 3)
     smoothed: dict[int, np.ndarray] = {}
     xy, _ = tag_candidates(grey, allowed, cfg, smoothed, rim_dist)
     if len(xy) < cfg.min_corners:
-        return empty()
+        return _Candidates(rim_dist, smoothed, xy, None, None)
     tree = cKDTree(xy)
     near = tree.query(xy, k=2)[0][:, 1]
+    rays = corner_rays(smooth_cached(smoothed, grey, 1), xy, cfg.ray_radius * near)
+    return _Candidates(rim_dist, smoothed, xy, tree, rays)
+
+
+def _tag_pass_in(
+    grey: np.ndarray,
+    allowed: np.ndarray,
+    board: AprilGrid,
+    cfg: TagConfig,
+    lens: EquidistantLens | None,
+    candidates: _Candidates | None = None,
+) -> TagResult:
+    """:func:`tag_pass` on ``grey`` (H, W) where ``allowed`` (H, W) bool is the image circle;
+    tags are read through ``lens`` where one is guessed (:mod:`cotrain.detect.image_circle`);
+    ``candidates``: found already (:func:`_candidates_of`), else found here."""
+
+    def empty(foreign: int = 0) -> TagResult:
+        return TagResult(np.zeros(0, int), np.zeros((0, 2)), np.zeros(0), np.zeros(0, int), np.zeros(0, int), 0, foreign)
+
+    rim_dist, smoothed, xy, tree, rays = candidates or _candidates_of(grey, allowed, cfg)
+    if tree is None:
+        return empty()
     sm = smooth_cached(smoothed, grey, 1)
-    rays = corner_rays(sm, xy, cfg.ray_radius * near)
     nbr = axis_neighbours(xy, rays, tree, sm, cfg)
     spacing = board.cfg.tag_spacing
     rays_xyz = None if lens is None else lens.lift(xy)  # the candidates' unit rays (K, 3), for the seeds
