@@ -66,13 +66,13 @@ def values_at(img: np.ndarray, pts: np.ndarray) -> np.ndarray:
     channels (``img`` (H, W, C), up to 4): (..., C).
 
     As OpenCV 5's ``cv2.remap`` gives them (float32 coordinates; NaN wherever the 2 x 2 pixels a
-    point falls between leave the image): compiled for float32 images (:func:`_remap_values`;
+    point falls between leave the image): compiled for float32 images (:func:`remap_values`;
     most calls read a few points, where remap's own set-up dominates), through remap otherwise."""
     if img.dtype == np.float32:
         flat = np.ascontiguousarray(pts, np.float64).reshape(-1, 2)
         if img.ndim == 2:
-            return _remap_values(img, flat).reshape(pts.shape[:-1])
-        chans = [_remap_values(np.ascontiguousarray(img[..., c]), flat) for c in range(img.shape[2])]
+            return remap_values(img, flat).reshape(pts.shape[:-1])
+        chans = [remap_values(np.ascontiguousarray(img[..., c]), flat) for c in range(img.shape[2])]
         return np.stack(chans, -1).reshape(*pts.shape[:-1], img.shape[2])
     chans = img.shape[2:]
     flat = pts.reshape(-1, 2).astype(np.float32)
@@ -95,9 +95,9 @@ def _lerp32(t, a, b):
 
 
 @numba.njit(cache=True, nogil=True)
-def _remap_values(img, pts):
-    """:func:`values_at` of a float32 image ``img`` (H, W) at points ``pts`` (N, 2), compiled, in
-    ``cv2.remap``'s arithmetic (OpenCV 5, INTER_LINEAR, a constant NaN border): the coordinates in
+def remap_values(img, pts):
+    """:func:`values_at` of a float32 image ``img`` (H, W) at points ``pts`` (N, 2), for compiled
+    callers too, in ``cv2.remap``'s arithmetic (OpenCV 5, INTER_LINEAR, a constant NaN border): the coordinates in
     float32, a fused multiply-add along x, then along y; NaN where one of the four pixels lies
     outside. -> (N,) float32."""
     H, W = img.shape

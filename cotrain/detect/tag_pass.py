@@ -73,7 +73,17 @@ from scipy.spatial import cKDTree
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.half_resolution import corners_at_half_resolution, halve
 from cotrain.detect.image_circle import EquidistantLens, guess_lens, parallelogram_corner, ray_homographies
-from cotrain.detect.lattice import STEPS, Lattice, beside_points, corner_rays, edge_sample_points, final_fits, shortest_steps, values_at
+from cotrain.detect.lattice import (
+    STEPS,
+    Lattice,
+    beside_points,
+    corner_rays,
+    edge_sample_points,
+    final_fits,
+    remap_values,
+    shortest_steps,
+    values_at,
+)
 from cotrain.detect.saddle import fit_saddles, outside_circle, saddle_response, smooth_cached, window_half
 from cotrain.detect.tag_completion import CompletionConfig, complete_board, print_check
 from cotrain.targets.aprilgrid import BORDER_BITS, CELLS, DATA_BITS, N_CODES, AprilGrid, printed_bits
@@ -313,6 +323,32 @@ def _seed_frames(nbr: np.ndarray, index: np.ndarray, spacing: float, cfg: TagCon
                         frames.append((i + j, rank, len(frames), (fa, fb), ja, jb))
     frames.sort(key=lambda x: x[:3])
     return [(np.array(f, np.float64), j0, j1) for *_, f, j0, j1 in frames]
+
+
+@numba.njit(cache=True, nogil=True)
+def _edge_contrast(img, rim_dist, px, py, qx, qy, nx, ny, depth):
+    """:func:`edge_contrast` of segment (px, py) -> (qx, qy) with normal (nx, ny), compiled, in
+    its arithmetic (float32 samples and their mean); ``img`` and ``rim_dist`` float32."""
+    dx, dy = qx - px, qy - py
+    sx, sy = depth * nx, depth * ny
+    pts = np.empty((6, 2))
+    for k in range(3):
+        t = 0.25 * (k + 1)
+        pts[k, 0], pts[k, 1] = px + t * dx + sx, py + t * dy + sy
+        pts[k + 3, 0], pts[k + 3, 1] = px + t * dx - sx, py + t * dy - sy
+    vals = remap_values(img, pts)
+    rd = remap_values(rim_dist, pts)
+    total, n, pos, neg = np.float32(0.0), 0, True, True
+    for k in range(3):
+        if rd[k] > 1 and rd[k + 3] > 1 and np.isfinite(vals[k]) and np.isfinite(vals[k + 3]):
+            d = vals[k] - vals[k + 3]
+            total = d if n == 0 else np.float32(total + d)
+            n += 1
+            pos = pos and d > 0
+            neg = neg and d < 0
+    if n == 0:
+        return np.nan
+    return float(np.float32(total / np.float32(n))) if pos or neg else 0.0
 
 
 def edge_contrast(img: np.ndarray, p: np.ndarray, q: np.ndarray, normal: np.ndarray, depth: float, rim_dist: np.ndarray) -> float:
@@ -711,10 +747,14 @@ def step_taken(
         return False
     if np.linalg.norm(placed - q, axis=1).min() < cfg.crowd_radius * s.gap:
         return False
-    if _junction_on_step(s.p, q, xy, tree, cfg.max_step_junction, s.across):
+    depth = cfg.edge_depth * s.gap
+    if sm.dtype == np.float32 and rim_dist.dtype == np.float32:  # as it always is: compiled
+        c = _edge_contrast(sm, rim_dist, *map(float, (s.p[0], s.p[1], q[0], q[1], s.normal[0], s.normal[1])), float(depth))
+    else:
+        c = edge_contrast(sm, s.p, q, s.normal, depth, rim_dist)
+    if not (np.isfinite(c) and s.sign * c >= cfg.min_edge_contrast):
         return False
-    c = edge_contrast(sm, s.p, q, s.normal, cfg.edge_depth * s.gap, rim_dist)
-    return bool(np.isfinite(c) and s.sign * c >= cfg.min_edge_contrast)
+    return not _junction_on_step(s.p, q, xy, tree, cfg.max_step_junction, s.across)
 
 
 def grow_tag_lattice(

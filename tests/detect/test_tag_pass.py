@@ -22,6 +22,7 @@ from cotrain.detect.tag_pass import (
     TagCell,
     TagConfig,
     _Board,
+    _edge_contrast,
     _seed_frames,
     _seed_quads,
     _turn_index,
@@ -29,6 +30,7 @@ from cotrain.detect.tag_pass import (
     corner_rays,
     decode_bits,
     decode_many,
+    edge_contrast,
     edges_along,
     fourth_corner,
     join_lattices,
@@ -441,6 +443,35 @@ def test_compiled_seed_quads_are_the_readable_search(with_lens):
             assert j == (_NO_FOURTH if want is None else want)
             found += want is not None
     assert asked > 10 and found > 10  # both ways of finding the fourth corner were exercised
+
+
+def test_compiled_edge_contrast_is_the_readable_one():
+    """The growth's edge test, compiled (:func:`_edge_contrast`), gives :func:`edge_contrast`'s
+    value exactly: on random segments over a noisy image with an image circle, cut by the rim, off
+    the image, and with one, two or three sample pairs inside."""
+    rng = np.random.default_rng(8)
+    H, W = 90, 120
+    img = cv2.GaussianBlur(rng.random((H, W)).astype(np.float32), (0, 0), 2.0)
+    inside = np.zeros((H, W), np.uint8)
+    cv2.circle(inside, (60, 45), 40, 1, -1)
+    rim = cv2.distanceTransform(inside, cv2.DIST_L2, 3)
+    kinds = {"nan": 0, "zero": 0, "value": 0}
+    for _ in range(3000):
+        p, q = rng.uniform([-10, -10], [W + 10, H + 10], 2), rng.uniform([-10, -10], [W + 10, H + 10], 2)
+        if rng.random() < 0.7:
+            q = p + rng.normal(0, 8, 2)
+        n = rng.normal(size=2)
+        n /= np.linalg.norm(n)
+        depth = rng.uniform(0.5, 4.0)
+        want = edge_contrast(img, p, q, n, depth, rim)
+        got = _edge_contrast(img, rim, p[0], p[1], q[0], q[1], n[0], n[1], depth)
+        if np.isnan(want):
+            assert np.isnan(got)
+            kinds["nan"] += 1
+        else:
+            assert got == want
+            kinds["zero" if want == 0 else "value"] += 1
+    assert min(kinds.values()) > 50
 
 
 def test_edges_along_a_narrow_border_needs_a_shallow_look():
