@@ -157,6 +157,21 @@ def local_map(P: np.ndarray, q: np.ndarray, lens: EquidistantLens | None = None)
     return None if H is None else PlaneMaps(H[None], R, lens)
 
 
+def each_local_map(P: np.ndarray, q: np.ndarray, lens: EquidistantLens | None = None) -> tuple[PlaneMaps, np.ndarray]:
+    """:func:`local_map` of N point sets (P, q (N, K, 2)) each, the same maps as one at a time
+    (the views of the rays found at once, ``cv2.findHomography`` per set): the N maps (the
+    identity where a set gives none) and whether each exists (N,)."""
+    N = len(P)
+    H = np.tile(np.eye(3), (N, 1, 1))
+    posed = np.zeros(N, bool)
+    g, R, ok = (q, None, np.ones(N, bool)) if lens is None else local_views(np.asarray(q, np.float64), lens)
+    for n in range(N):
+        h = local_homography(P[n], g[n]) if ok[n] else None
+        if h is not None:
+            H[n], posed[n] = h, True
+    return PlaneMaps(H, R, lens), posed
+
+
 def map_through(
     P: np.ndarray, q: np.ndarray, p: np.ndarray, q_p: np.ndarray, lens: EquidistantLens | None, max_px: float
 ) -> PlaneMaps | None:
@@ -778,16 +793,24 @@ def complete_board(
         kid = np.array(sorted(known))
         kP, kq = P[kid], np.array([known[i] for i in kid])
         todo = []  # (t, prediction, local gap px, homography, identified neighbours)
-        for t, beside in to_try():
-            near = np.argsort(np.linalg.norm(kP - P[t], axis=1))[: cfg.neighbours]
-            to_image = local_map(kP[near], kq[near], lens)
-            if to_image is None:
+        tries = to_try()
+        nears = np.array([np.argsort(np.linalg.norm(kP - P[t], axis=1))[: cfg.neighbours] for t, _ in tries], int)
+        # Every corner's map from its identified neighbours, and through it its prediction, its
+        # gap's ends and the neighbours again, all at once (each as local_map gives it alone).
+        maps, posed = each_local_map(kP[nears], kq[nears], lens) if len(tries) else (None, np.zeros(0, bool))
+        if len(tries):
+            ahead = maps(P[[t for t, _ in tries]][:, None] + np.array([[0.0, 0.0], [gap, 0], [0, gap]]))  # (N, 3, 2)
+            again = np.linalg.norm(maps(kP[nears]) - kq[nears], axis=2).max(1)  # (N,)
+        for n, (t, beside) in enumerate(tries):
+            near = nears[n]
+            if not posed[n]:
                 failed[t] = beside
                 unfound.add(t)  # no prediction: it may be in view
                 continue
-            q0, *ends = to_image((P[t] + np.array([[0.0, 0.0], [gap, 0], [0, gap]]))[None])[0]
+            to_image = maps.take(n)
+            q0, *ends = ahead[n]
             g_px = min(np.linalg.norm(ends[0] - q0), np.linalg.norm(ends[1] - q0))
-            res = np.linalg.norm(to_image(kP[near][None])[0] - kq[near], axis=1).max()
+            res = again[n]
             in_frame = bool(0 <= q0[0] <= Ww - 1 and 0 <= q0[1] <= Hh - 1)
             rim_q0 = _value(rim_dist, q0)
             at_rim = in_frame and g_px < cfg.print_fit_rim_gap_px and 0 < cfg.print_fit_rim_px <= rim_q0 < cfg.min_rim_px

@@ -12,6 +12,7 @@ from cotrain.detect.tag_completion import (
     CompletionConfig,
     best_option,
     complete_board,
+    each_local_map,
     local_homographies,
     local_homography,
     local_map,
@@ -228,6 +229,27 @@ def test_local_maps_through_the_lens_predict_a_plane_exactly_where_pixel_homogra
     one = local_map(P[0, :7], q[0, :7], lens)
     np.testing.assert_allclose(one(P[:1, 7:]), q[:1, 7:], atol=1e-6)
     np.testing.assert_allclose(maps.take(3)(P[3:4]), q[3:4], atol=1e-6)
+
+
+def test_each_local_map_is_local_map_set_by_set():
+    """Completion's maps of many point sets at once are, bit for bit, the maps of one set at a
+    time (:func:`local_map`), through the lens and in pixels; a set on one line (no map) is
+    marked and does not disturb the others."""
+    lens = EquidistantLens((640.0, 360.0), 380.0 / np.radians(100))
+    P, q = _rim_plane_through_lens(lens, 12, 1)
+    P[5] = np.c_[np.arange(8) * 0.03, np.zeros(8)]  # every point on one board line: no homography
+    pts = P[:, :3] + 0.01
+    for with_lens in (lens, None):
+        maps, posed = each_local_map(P, q, with_lens)
+        assert posed.tolist() == [n != 5 for n in range(12)]
+        got = maps(pts)
+        for n in range(12):
+            one = local_map(P[n], q[n], with_lens)
+            if n == 5:
+                assert one is None
+                continue
+            np.testing.assert_array_equal(maps.take(n).H, one.H)
+            np.testing.assert_array_equal(got[n], one(pts[n][None])[0])
 
 
 def _circle_view(grey: np.ndarray):
