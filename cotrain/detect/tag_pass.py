@@ -294,8 +294,11 @@ def _seed_frames(nbr: np.ndarray, index: np.ndarray, spacing: float, cfg: TagCon
     ``index`` (axis, way, option), each with the candidates its two long steps lead to (along
     axis 0, axis 1). The short steps are the neighbours the other way
     where they are shorter by ``cfg.min_long_short``, otherwise the target's gap (``spacing`` of
-    the side): a corner on the board's outer edge has no gap beyond it."""
-    # Plain floats: this runs for every seed tried.
+    the side): a corner on the board's outer edge has no gap beyond it.
+
+    The readable form of the first half of :func:`_seed_quads`, which the seeds run (compiled)
+    and which a test holds to it."""
+    # Plain floats.
     opts = [
         [[(x, y, math.hypot(x, y), j) for (x, y), j in zip(nbr[a, w].tolist(), index[a, w].tolist()) if x == x] for w in (0, 1)]
         for a in (0, 1)
@@ -383,7 +386,8 @@ def fourth_corner(
     parallelogram's corner than the tag's own. With ``lens`` the parallelogram is closed in the
     three corners' own view of their rays (:func:`cotrain.detect.image_circle.parallelogram_corner`;
     ``rays`` (K, 3): the candidates' unit rays, :meth:`EquidistantLens.lift`, lifted here where not
-    given)."""
+    given). The seeds run it compiled (:func:`_seed_quads`, held to this by a test), and this
+    where a ray neighbour has no candidate index."""
     i0, ja, jb = corners
     (x0, y0), (xa, ya), (xb, yb) = xy[i0].tolist(), xy[ja].tolist(), xy[jb].tolist()
     pred = None
