@@ -128,7 +128,8 @@ class TagConfig:
     min_clean: float = 0.9  # share of its border's inner-ring samples darker, and gap samples lighter, than their midpoint
     max_side_misfit: float = 0.04  # tags are read through a map bent to their sides, where the sides fit it within this (tag widths)
     sharpen: float = 1.5  # weight of the 4-neighbour Laplacian that undoes blur over a tag's cells (rendered tags of 10-30 px)
-    min_cell_px: float = 1.0  # tags whose data cells are smaller than this (px) are not read
+    min_cell_px: float = 1.0  # a seed's tag has data cells of this size (px) at least ...
+    retry_min_cell_px: float = 0.7  # ... or this in a third look at a frame where the second finds nothing either
     lens_fov: float = 210.0  # deg: where an image circle shows, tags are read through an equidistant lens of this FoV filling it (0: never)
     # --- placement ---
     min_margin: float = 12.0  # the board's placement must beat the runner-up by this (correlation; a clean tag gives 36)
@@ -1762,8 +1763,9 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
     it predicted in view (``TagResult.unfound`` 0: a partial view found whole).
 
     A frame where nothing is found is read once more at full resolution with seeds whose
-    neighbours lie within ``cfg.retry_seed_angle`` of their edge rays; its corners are reported
-    where that finds any."""
+    neighbours lie within ``cfg.retry_seed_angle`` of their edge rays, and where that finds
+    nothing, once more with seeds of tags whose data cells are ``cfg.retry_min_cell_px`` wide
+    (instead of ``cfg.min_cell_px``); the corners of the first look that finds any are reported."""
     cfg = cfg or TagConfig()
     view = _view_of(grey, cfg)
     r = _tag_pass_both(grey, board, cfg, view)
@@ -1776,8 +1778,18 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
     # (docs/detector.md, tag pass step 12). Full resolution only: the tags it is for are small,
     # and the half-resolution reading has had its look. The frame as the first look read it (the
     # crop, the lens, the candidates and their rays) is the same.
-    again = _tag_pass_circle(grey, board, replace(cfg, seed_axis_angle=cfg.retry_seed_angle), view)
-    return again if len(again.ids) else r
+    wider = replace(cfg, seed_axis_angle=cfg.retry_seed_angle)
+    looks = [wider]
+    if cfg.retry_min_cell_px < cfg.min_cell_px:
+        # Then with seeds whose tags' data cells are smaller than a pixel (a board of 8-10 px tags
+        # seen whole offers no other seed). Only here: where larger tags show, a quad of a large
+        # tag's data junctions that small can seed first and cover the board's corners.
+        looks.append(replace(wider, min_cell_px=cfg.retry_min_cell_px))
+    for look in looks:
+        again = _tag_pass_circle(grey, board, look, view)
+        if len(again.ids):
+            return again
+    return r
 
 
 def _tag_pass_both(grey: np.ndarray, board: AprilGrid, cfg: TagConfig, view: _View | None = None) -> TagResult:
