@@ -128,8 +128,8 @@ class TagConfig:
     min_clean: float = 0.9  # share of its border's inner-ring samples darker, and gap samples lighter, than their midpoint
     max_side_misfit: float = 0.04  # tags are read through a map bent to their sides, where the sides fit it within this (tag widths)
     sharpen: float = 1.5  # weight of the 4-neighbour Laplacian that undoes blur over a tag's cells (rendered tags of 10-30 px)
-    min_cell_px: float = 1.0  # a seed's tag has data cells of this size (px) at least ...
-    retry_min_cell_px: float = 0.7  # ... or this in a third look at a frame where the second finds nothing either
+    min_cell_px: float = 1.0  # tags whose data cells are smaller than this (px) neither seed a lattice nor are read ...
+    retry_min_cell_px: float = 0.7  # ... or than this, in a third look at a frame where the first two find nothing
     lens_fov: float = 210.0  # deg: where an image circle shows, tags are read through an equidistant lens of this FoV filling it (0: never)
     # --- placement ---
     min_margin: float = 12.0  # the board's placement must beat the runner-up by this (correlation; a clean tag gives 36)
@@ -358,7 +358,8 @@ def _edge_contrast(img, rim_dist, px, py, qx, qy, nx, ny, depth):
 def edge_contrast(img: np.ndarray, p: np.ndarray, q: np.ndarray, normal: np.ndarray, depth: float, rim_dist: np.ndarray) -> float:
     """Mean brightness on the ``+normal`` side of segment p -> q minus the ``-normal`` side, sampled
     at a quarter, half and three quarters of the way, ``depth`` px to each side; NaN where no
-    sample pair lies inside the image circle (``rim_dist`` (H, W) > 1)."""
+    sample pair lies inside the image circle (``rim_dist`` (H, W) > 1). The readable form of
+    :func:`_edge_contrast`, which the growth runs (compiled) and which a test holds to it."""
     pts = edge_sample_points(p, q, normal, depth)
     vals = values_at(img, pts)
     rd = values_at(rim_dist, pts)
@@ -752,11 +753,7 @@ def step_taken(
         return False
     if np.linalg.norm(placed - q, axis=1).min() < cfg.crowd_radius * s.gap:
         return False
-    depth = cfg.edge_depth * s.gap
-    if sm.dtype == np.float32 and rim_dist.dtype == np.float32:  # as it always is: compiled
-        c = _edge_contrast(sm, rim_dist, *map(float, (s.p[0], s.p[1], q[0], q[1], s.normal[0], s.normal[1])), float(depth))
-    else:
-        c = edge_contrast(sm, s.p, q, s.normal, depth, rim_dist)
+    c = _edge_contrast(sm, rim_dist, *map(float, (s.p[0], s.p[1], q[0], q[1], s.normal[0], s.normal[1])), float(cfg.edge_depth * s.gap))
     if not (np.isfinite(c) and s.sign * c >= cfg.min_edge_contrast):
         return False
     return not _junction_on_step(s.p, q, xy, tree, cfg.max_step_junction, s.across)
