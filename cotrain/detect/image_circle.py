@@ -293,6 +293,11 @@ def _algebraic_circle(p: np.ndarray) -> tuple[np.ndarray, float] | None:
     return (np.array([m[0] + cx, m[1] + cy]), float(np.sqrt(r2))) if np.isfinite(r2) and r2 > 0 else None
 
 
+# The unit square's projective basis: [u0 u1 u3] mu = u2 gives mu = (-1, 1, 1), and its map is
+# B = [u0 u1 u3] diag(mu) (corners as homogeneous columns); :func:`ray_homographies` uses B^-1.
+_UNIT_SQUARE_BASIS_INV = np.linalg.inv(np.array([[0.0, 1, 0], [0, 0, 1], [1, 1, 1]]) * np.array([-1.0, 1, 1]))
+
+
 def ray_homographies(v_corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per tag, the homography H (T, 3, 3) with ``v ~ H (u, v, 1)`` that takes the unit square's
     corners (0, 0), (1, 0), (1, 1), (0, 1) to the rays ``v_corners`` (T, 4, 3), scaled so that it
@@ -309,10 +314,8 @@ def ray_homographies(v_corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     ok = np.isfinite(det) & (np.abs(det) > 1e-9)
     A = np.where(ok[:, None, None], A, np.eye(3))
     lam = np.linalg.solve(A, np.where(ok[:, None], v[:, 2], 1.0)[..., None])[..., 0]  # (T, 3)
-    # The unit square's basis: [u0 u1 u3] mu = u2 gives mu = (-1, 1, 1); its map is B = [u0 u1 u3] diag(mu).
-    # H = A diag(lam) B^-1; corner i goes to lam_i / mu_i times its ray (corner 2: to p2 itself).
-    B = np.array([[0.0, 1, 0], [0, 0, 1], [1, 1, 1]]) * np.array([-1.0, 1, 1])
-    H = (A * lam[:, None, :]) @ np.linalg.inv(B)
+    # H = A diag(lam) B^-1 (_UNIT_SQUARE_BASIS); corner i goes to lam_i / mu_i times its ray (corner 2: to p2 itself).
+    H = (A * lam[:, None, :]) @ _UNIT_SQUARE_BASIS_INV
     # Corner 2 goes to its ray itself; the others' multiples must be positive too.
     ok &= ((lam * np.array([-1.0, 1, 1])) > 0).all(1) & np.isfinite(H).all((1, 2))
     return H, ok

@@ -1105,6 +1105,7 @@ def tag_maps(
     side_of: np.ndarray | None = None,
     side_ok: np.ndarray | None = None,
     lens: EquidistantLens | None = None,
+    homographies: np.ndarray | None = None,
 ) -> TagMap:
     """The maps from T tags' unit squares to the image: the homography of each tag's four corners
     (``corners`` (T, 4, 2); with ``lens``, of their rays, so that the lens bends the square as it
@@ -1115,11 +1116,14 @@ def tag_maps(
     :func:`sides_seen`; such a point fixes only the coordinate across its side). Each coordinate's
     quadratic is fitted where it has at least 6 constraints besides the corners, by weighted least
     squares (the corners stay where they are, weight 10) with a little ridge: on two opposite
-    sides alone, u and u^2 (or v and v^2) are one column."""
+    sides alone, u and u^2 (or v and v^2) are one column. ``homographies`` (T, 3, 3): the corners'
+    homographies where a map of these corners has them already (:attr:`TagMap.H`)."""
     corners = np.asarray(corners, np.float64)
     T = len(corners)
     unit = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float32)
-    if lens is None:
+    if homographies is not None:
+        H, good = np.array(homographies, np.float64), np.ones(T, bool)  # NaN where the corners gave none
+    elif lens is None:
         H = np.stack([cv2.getPerspectiveTransform(unit, c.astype(np.float32)) for c in corners]) if T else np.zeros((0, 3, 3))
         good = np.ones(T, bool)
     else:
@@ -1282,6 +1286,7 @@ def look_at_tags(
                 np.broadcast_to(side_of, side_ok.shape),
                 side_ok,
                 lens,
+                sub.H,
             )
             use = bent.misfit <= max_side_misfit  # else the corners and the sides disagree: a corner slid
             if use.any():
