@@ -133,7 +133,9 @@ class TagConfig:
     lens_fov: float = 210.0  # deg: where an image circle shows, tags are read through an equidistant lens of this FoV filling it (0: never)
     # --- placement ---
     min_margin: float = 12.0  # the board's placement must beat the runner-up by this (correlation; a clean tag gives 36)
-    min_mean_corr: float = 0.4  # ... and its tags must correlate with their codes by this much on average (-1 .. 1)
+    min_mean_corr: float = (
+        0.3  # ... and its tags must correlate with their codes by this much on average (-1 .. 1; blurred 9 px tags: 0.37)
+    )
     min_tag_corr: float = 0.5  # a tag that was read keeps its corners when it correlates with its code by this much
     small_tag_px: float = 20.0  # tags narrower than this (px; cells of 2 px) blur: for them ...
     min_tag_corr_local: float = 0.25  # ... this much is enough where it beats the codes a slip by one tag would put there ...
