@@ -104,12 +104,11 @@ def remap_values(img, pts):
     out = np.empty(pts.shape[0], np.float32)
     for i in range(pts.shape[0]):
         x, y = np.float32(pts[i, 0]), np.float32(pts[i, 1])
-        fx0, fy0 = math.floor(x), math.floor(y)
-        if not (0 <= fx0 and fx0 + 1 < W and 0 <= fy0 and fy0 + 1 < H):  # also NaN coordinates
+        if not (0 <= x < W - 1 and 0 <= y < H - 1):  # floor(x) + 1 < W; false for NaN too
             out[i] = np.nan
             continue
-        ix, iy = int(fx0), int(fy0)
-        ax, ay = np.float32(x - np.float32(fx0)), np.float32(y - np.float32(fy0))
+        ix, iy = int(math.floor(x)), int(math.floor(y))
+        ax, ay = np.float32(x - np.float32(ix)), np.float32(y - np.float32(iy))
         top = _lerp32(ax, img[iy, ix], img[iy, ix + 1])
         bottom = _lerp32(ax, img[iy + 1, ix], img[iy + 1, ix + 1])
         out[i] = _lerp32(ay, top, bottom)
