@@ -314,7 +314,7 @@ def ray_homographies(v_corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     ok = np.isfinite(det) & (np.abs(det) > 1e-9)
     A = np.where(ok[:, None, None], A, np.eye(3))
     lam = np.linalg.solve(A, np.where(ok[:, None], v[:, 2], 1.0)[..., None])[..., 0]  # (T, 3)
-    # H = A diag(lam) B^-1 (_UNIT_SQUARE_BASIS); corner i goes to lam_i / mu_i times its ray (corner 2: to p2 itself).
+    # H = A diag(lam) B^-1 (B^-1: _UNIT_SQUARE_BASIS_INV); corner i goes to lam_i / mu_i times its ray (corner 2: to p2 itself).
     H = (A * lam[:, None, :]) @ _UNIT_SQUARE_BASIS_INV
     # Corner 2 goes to its ray itself; the others' multiples must be positive too.
     ok &= ((lam * np.array([-1.0, 1, 1])) > 0).all(1) & np.isfinite(H).all((1, 2))

@@ -78,9 +78,9 @@ from cotrain.detect.lattice import (
     Lattice,
     beside_points,
     corner_rays,
+    edge_contrast_kernel,
     edge_sample_points,
     final_fits,
-    remap_values,
     shortest_steps,
     values_at,
 )
@@ -98,7 +98,7 @@ class TagConfig:
     max_candidates: int = 1500  # strongest response maxima kept (all true corners of the evaluation set rank within 1500)
     # --- growth ---
     seed_axis_angle: float = 12.0  # deg: a seed's neighbours lie within this of its edge rays ...
-    retry_seed_angle: float = 16.0  # ... or, in a frame where nothing is found, within this in a second look (0: none)
+    retry_seed_angle: float = 16.0  # ... or, in a frame where nothing is found, within this in a second and third look (0: neither)
     ray_search: int = 96  # nearest candidates searched for ray neighbours
     ray_tries: int = 5  # candidates tried along each edge ray, nearest first, for ones reached along an edge
     ray_edge_depth: float = 0.6  # that edge test samples at most this multiple of the nearest-candidate distance aside
@@ -129,7 +129,7 @@ class TagConfig:
     max_side_misfit: float = 0.04  # tags are read through a map bent to their sides, where the sides fit it within this (tag widths)
     sharpen: float = 1.5  # weight of the 4-neighbour Laplacian that undoes blur over a tag's cells (rendered tags of 10-30 px)
     min_cell_px: float = 1.0  # tags whose data cells are smaller than this (px) neither seed a lattice nor are read ...
-    retry_min_cell_px: float = 0.7  # ... or than this, in a third look at a frame where the first two find nothing
+    retry_min_cell_px: float = 0.7  # ... or than this, in a third look (the second's wider cone too) where the first two find nothing
     lens_fov: float = 210.0  # deg: where an image circle shows, tags are read through an equidistant lens of this FoV filling it (0: never)
     # --- placement ---
     min_margin: float = 12.0  # the board's placement must beat the runner-up by this (correlation; a clean tag gives 36)
@@ -331,37 +331,11 @@ def _seed_frames(nbr: np.ndarray, index: np.ndarray, spacing: float, cfg: TagCon
     return [(np.array(f, np.float64), j0, j1) for *_, f, j0, j1 in frames]
 
 
-@numba.njit(cache=True, nogil=True)
-def _edge_contrast(img, rim_dist, px, py, qx, qy, nx, ny, depth):
-    """:func:`edge_contrast` of segment (px, py) -> (qx, qy) with normal (nx, ny), compiled, in
-    its arithmetic (float32 samples and their mean); ``img`` and ``rim_dist`` float32."""
-    dx, dy = qx - px, qy - py
-    sx, sy = depth * nx, depth * ny
-    pts = np.empty((6, 2))
-    for k in range(3):
-        t = 0.25 * (k + 1)
-        pts[k, 0], pts[k, 1] = px + t * dx + sx, py + t * dy + sy
-        pts[k + 3, 0], pts[k + 3, 1] = px + t * dx - sx, py + t * dy - sy
-    vals = remap_values(img, pts)
-    rd = remap_values(rim_dist, pts)
-    total, n, pos, neg = np.float32(0.0), 0, True, True
-    for k in range(3):
-        if rd[k] > 1 and rd[k + 3] > 1 and np.isfinite(vals[k]) and np.isfinite(vals[k + 3]):
-            d = vals[k] - vals[k + 3]
-            total = d if n == 0 else np.float32(total + d)
-            n += 1
-            pos = pos and d > 0
-            neg = neg and d < 0
-    if n == 0:
-        return np.nan
-    return float(np.float32(total / np.float32(n))) if pos or neg else 0.0
-
-
 def edge_contrast(img: np.ndarray, p: np.ndarray, q: np.ndarray, normal: np.ndarray, depth: float, rim_dist: np.ndarray) -> float:
     """Mean brightness on the ``+normal`` side of segment p -> q minus the ``-normal`` side, sampled
     at a quarter, half and three quarters of the way, ``depth`` px to each side; NaN where no
     sample pair lies inside the image circle (``rim_dist`` (H, W) > 1). The readable form of
-    :func:`_edge_contrast`, which the growth runs (compiled) and which a test holds to it."""
+    :func:`cotrain.detect.lattice.edge_contrast_kernel`, which the growth runs (compiled) and which a test holds to it."""
     pts = edge_sample_points(p, q, normal, depth)
     vals = values_at(img, pts)
     rd = values_at(rim_dist, pts)
@@ -443,11 +417,13 @@ def _ray_target(step, index, vx, vy, cos_min, lo, hi):
 @numba.njit(cache=True, nogil=True)
 def _seed_quads(seed, steps, index, xy, rays, use_lens, cx, cy, focal, spacing, min_long_short, cos_min, lo, hi, fourth_radius):
     """:func:`_seed_frames` and each frame's :func:`fourth_corner` for candidate ``seed`` at once,
-    compiled (the seeds try about 60 candidates a frame, most of which are no tag corner): the
-    same frames in the same order (F, axis, kind, 2), their candidates ja, jb (F,) along a and
-    b, and the fourth corner (F,): a candidate index, or :data:`_NO_FOURTH`, :data:`_ASK_TREE`
-    (then the parallelogram's corner ``pred`` (F, 2) and radius ``r`` (F,) to look in) or
-    :data:`_ASK_PYTHON`. ``steps`` (K, axis, way, option, 2) and ``index`` (K, axis, way,
+    compiled (the seeds try about 60 candidates a frame, most of which are no tag corner), in
+    their arithmetic but for ``math.hypot``, which numba takes from the C library (a unit in the
+    last place off CPython's for about 0.6 % of lengths): the same frames in the same order (F,
+    axis, kind, 2), their candidates ja, jb (F,) along a and b, and the fourth corner (F,): a
+    candidate index, or :data:`_NO_FOURTH`, :data:`_ASK_TREE` (then the parallelogram's corner
+    ``pred`` (F, 2) and radius ``r`` (F,) to look in) or :data:`_ASK_PYTHON`.
+    ``steps`` (K, axis, way, option, 2) and ``index`` (K, axis, way,
     option): :class:`RayNeighbours`; ``rays`` (K, 3) the candidates' unit rays under the lens
     (centre cx, cy, ``focal``) where ``use_lens``."""
     n_opt = steps.shape[3]
@@ -559,7 +535,11 @@ def _shortest_side_of(p0: np.ndarray, frame: np.ndarray, p2: np.ndarray) -> floa
         (float(p2[0]), float(p2[1])),
         (x0 + float(frame[1, 0, 0]), y0 + float(frame[1, 0, 1])),
     )
-    return min(math.sqrt((pts[i][0] - pts[i - 1][0]) ** 2 + (pts[i][1] - pts[i - 1][1]) ** 2) for i in range(4))
+    sides = []
+    for i in range(4):
+        dx, dy = pts[i][0] - pts[i - 1][0], pts[i][1] - pts[i - 1][1]
+        sides.append(math.sqrt(dx * dx + dy * dy))  # products, not powers: numpy's norm sums x * x
+    return min(sides)
 
 
 def seed_tag(
@@ -755,7 +735,9 @@ def step_taken(
         return False
     if np.linalg.norm(placed - q, axis=1).min() < cfg.crowd_radius * s.gap:
         return False
-    c = _edge_contrast(sm, rim_dist, *map(float, (s.p[0], s.p[1], q[0], q[1], s.normal[0], s.normal[1])), float(cfg.edge_depth * s.gap))
+    c = edge_contrast_kernel(
+        sm, rim_dist, *map(float, (s.p[0], s.p[1], q[0], q[1], s.normal[0], s.normal[1])), float(cfg.edge_depth * s.gap)
+    )
     if not (np.isfinite(c) and s.sign * c >= cfg.min_edge_contrast):
         return False
     return not _junction_on_step(s.p, q, xy, tree, cfg.max_step_junction, s.across)
@@ -1785,8 +1767,8 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
     wider = replace(cfg, seed_axis_angle=cfg.retry_seed_angle)
     looks = [wider]
     if cfg.retry_min_cell_px < cfg.min_cell_px:
-        # Then with seeds whose tags' data cells are smaller than a pixel (a board of 8-10 px tags
-        # seen whole offers no other seed). Only here: where larger tags show, a quad of a large
+        # Then with seeds, and tags read, whose data cells are smaller than a pixel (a board of
+        # 8-10 px tags seen whole offers no other seed), in the wider cone still. Only here: where larger tags show, a quad of a large
         # tag's data junctions that small can seed first and cover the board's corners.
         looks.append(replace(wider, min_cell_px=cfg.retry_min_cell_px))
     for look in looks:

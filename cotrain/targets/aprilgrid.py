@@ -19,7 +19,6 @@ are OpenCV's marker bits turned by a half turn.
 from __future__ import annotations
 
 import functools
-import math
 from typing import TYPE_CHECKING
 
 import cv2
@@ -78,12 +77,12 @@ def _point_intensity(x, y, bits, P, S, tc, tr, x0, y0, x1, y1):
     value, cover = np.empty(n), np.empty(n)
     cell = S / CELLS
     for i in range(n):
-        kx, ky = math.floor(x[i] / P), math.floor(y[i] / P)
+        kx, ky = np.floor(x[i] / P), np.floor(y[i] / P)  # floats: never an integer conversion out of range
         fx, fy = x[i] - kx * P, y[i] - ky * P
         in_x, in_y = fx < S, fy < S
         if in_x and in_y and 0 <= kx < tc and 0 <= ky < tr:
-            bx = int(min(max(math.floor(fx / cell), 0.0), CELLS - 1.0))
-            by = int(min(max(math.floor(fy / cell), 0.0), CELLS - 1.0))
+            bx = int(min(max(np.floor(fx / cell), 0.0), CELLS - 1.0))
+            by = int(min(max(np.floor(fy / cell), 0.0), CELLS - 1.0))
             if BORDER_BITS <= bx < CELLS - BORDER_BITS and BORDER_BITS <= by < CELLS - BORDER_BITS:
                 v = float(bits[int(ky) * tc + int(kx), by - BORDER_BITS, bx - BORDER_BITS])
             else:

@@ -233,19 +233,26 @@ def test_local_maps_through_the_lens_predict_a_plane_exactly_where_pixel_homogra
 
 def test_each_local_map_is_local_map_set_by_set():
     """Completion's maps of many point sets at once are, bit for bit, the maps of one set at a
-    time (:func:`local_map`), through the lens and in pixels; a set on one line (no map) is
-    marked and does not disturb the others."""
+    time (:func:`local_map`), through the lens and in pixels; a set on one line (no map), and one
+    that spans more of the lens's sphere than one view holds, are marked and do not disturb the
+    others."""
     lens = EquidistantLens((640.0, 360.0), 380.0 / np.radians(100))
     P, q = _rim_plane_through_lens(lens, 12, 1)
     P[5] = np.c_[np.arange(8) * 0.03, np.zeros(8)]  # every point on one board line: no homography
+    # Six of a set's points 100 deg off-axis to one side, two to the other: no one view holds them.
+    off = np.radians(100.0)
+    az = np.radians([-8.0, -4.0, 0.0, 4.0, 8.0, 12.0, 176.0, 184.0])
+    el = np.array([0.0, 0.05, -0.05, 0.0, 0.05, -0.05, 0.0, 0.05])
+    q[8] = lens.project(np.stack([np.sin(off) * np.cos(az), np.sin(off) * np.sin(az) + el, np.full(8, np.cos(off))], 1))
     pts = P[:, :3] + 0.01
     for with_lens in (lens, None):
         maps, posed = each_local_map(P, q, with_lens)
-        assert posed.tolist() == [n != 5 for n in range(12)]
+        none = {5, 8} if with_lens is not None else {5}
+        assert posed.tolist() == [n not in none for n in range(12)]
         got = maps(pts)
         for n in range(12):
             one = local_map(P[n], q[n], with_lens)
-            if n == 5:
+            if n in none:
                 assert one is None
                 continue
             np.testing.assert_array_equal(maps.take(n).H, one.H)

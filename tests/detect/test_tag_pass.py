@@ -12,7 +12,7 @@ from scipy.spatial import cKDTree
 
 from cotrain.detect.detector import AprilGridDetector
 from cotrain.detect.image_circle import EquidistantLens
-from cotrain.detect.lattice import Lattice
+from cotrain.detect.lattice import Lattice, edge_contrast_kernel
 from cotrain.detect.tag_completion import CompletionConfig
 from cotrain.detect.tag_pass import (
     _ASK_TREE,
@@ -22,7 +22,6 @@ from cotrain.detect.tag_pass import (
     TagCell,
     TagConfig,
     _Board,
-    _edge_contrast,
     _seed_frames,
     _seed_quads,
     _turn_index,
@@ -460,6 +459,12 @@ def test_compiled_seed_quads_are_the_readable_search(with_lens):
             assert (got[1][f], got[2][f]) == (ja, jb)
             want = fourth_corner(xy, nbr, tree, (seed, ja, jb), cfg, lens, rays.tolist() if with_lens else None)
             j = int(got[3][f])
+            # Its parallelogram corner and radius, to the last units (numba's hypot is the C library's).
+            p0, pa, pb = xy[seed], xy[ja], xy[jb]
+            r = cfg.fourth_radius * min(np.hypot(*(pa - p0)), np.hypot(*(pb - p0)))
+            assert got[5][f] == pytest.approx(r, rel=1e-12)
+            if not with_lens:
+                np.testing.assert_allclose(got[4][f], pa + pb - p0, rtol=1e-12)
             if j == _ASK_TREE:
                 asked += 1
                 near = tree.query_ball_point(got[4][f], got[5][f])
@@ -470,7 +475,7 @@ def test_compiled_seed_quads_are_the_readable_search(with_lens):
 
 
 def test_compiled_edge_contrast_is_the_readable_one():
-    """The growth's edge test, compiled (:func:`_edge_contrast`), gives :func:`edge_contrast`'s
+    """The growth's edge test, compiled (``lattice.edge_contrast_kernel``), gives :func:`edge_contrast`'s
     value exactly: on random segments over a noisy image with an image circle, cut by the rim, off
     the image, and with one, two or three sample pairs inside."""
     rng = np.random.default_rng(8)
@@ -488,7 +493,7 @@ def test_compiled_edge_contrast_is_the_readable_one():
         n /= np.linalg.norm(n)
         depth = rng.uniform(0.5, 4.0)
         want = edge_contrast(img, p, q, n, depth, rim)
-        got = _edge_contrast(img, rim, p[0], p[1], q[0], q[1], n[0], n[1], depth)
+        got = edge_contrast_kernel(img, rim, p[0], p[1], q[0], q[1], n[0], n[1], depth)
         if np.isnan(want):
             assert np.isnan(got)
             kinds["nan"] += 1
