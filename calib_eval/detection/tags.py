@@ -140,6 +140,22 @@ def run_peers(paths: list[Path], peers: dict[str, Callable] | None = None, progr
 # --------------------------------------------------------------------------------------------
 # Set
 # --------------------------------------------------------------------------------------------
+def render_frame(cfg: TagEvalConfig, ecfg, fov: int | None, condition: str | None, i: int) -> tuple[dict, object, str]:
+    """Frame ``i`` of the set: of FoV ``fov`` (0: without a target) or of ``condition`` (then
+    ``fov`` None), rendered for the evaluation config ``ecfg`` (its size and target). Half the
+    frames per FoV through f-theta kb4, half through the other families. Returns the renderer's
+    batch of one, its render config and the frame's file name."""
+    if condition:
+        rc = _render_cfg((180.0, 240.0), ecfg, list(cameras.MODELS), condition=condition)
+        b = render_batch(rc, [i], seed=cfg.seed * 1000 + 50 + list(CONDITIONS).index(condition))
+        return b, rc, f"{condition.replace(' ', '_').replace('-', '_')}_{i:03d}.png"
+    others = [m for m in cameras.MODELS if m != "kb4"]
+    models = list(cameras.MODELS) if fov == 0 else (["kb4"] if i < cfg.per_fov // 2 else others)
+    rc = _render_cfg(fov or 200, ecfg, models, no_target=fov == 0)
+    b = render_batch(rc, [i], seed=cfg.seed * 1000 + (fov // 10))
+    return b, rc, f"{'empty' if fov == 0 else f'fov{fov}'}_{i:03d}.png"
+
+
 def render_set(cfg: TagEvalConfig, board: AprilGrid, out: Path) -> list[dict]:
     """Render the set into ``out/images`` (cached with its labels in ``out/labels.json``)."""
     from tqdm import tqdm
@@ -162,16 +178,7 @@ def render_set(cfg: TagEvalConfig, board: AprilGrid, out: Path) -> list[dict]:
     jobs += [(None, c, i) for c in cfg.conditions for i in range(cfg.per_condition)]
     labels = []
     for fov, condition, i in tqdm(jobs, desc="render aprilgrid set"):
-        if condition:
-            rc = _render_cfg((180.0, 240.0), ecfg, list(cameras.MODELS), condition=condition)
-            b = render_batch(rc, [i], seed=cfg.seed * 1000 + 50 + list(CONDITIONS).index(condition))
-            name = f"{condition.replace(' ', '_').replace('-', '_')}_{i:03d}.png"
-        else:
-            others = [m for m in cameras.MODELS if m != "kb4"]
-            models = list(cameras.MODELS) if fov == 0 else (["kb4"] if i < cfg.per_fov // 2 else others)
-            rc = _render_cfg(fov or 200, ecfg, models, no_target=fov == 0)
-            b = render_batch(rc, [i], seed=cfg.seed * 1000 + (fov // 10))
-            name = f"{'empty' if fov == 0 else f'fov{fov}'}_{i:03d}.png"
+        b, rc, name = render_frame(cfg, ecfg, fov, condition, i)
         cv2.imwrite(str(out / "images" / name), (b["image"][0, 0].numpy() * 255).round().astype(np.uint8))
         model = rc.models[int(b["model_index"][0])]
         p_cam = b["T_cam_board"][0, :3, :3] @ board.points(b["T_cam_board"].dtype).T + b["T_cam_board"][0, :3, 3:]

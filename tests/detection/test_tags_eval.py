@@ -8,7 +8,7 @@ import os
 import cv2
 import numpy as np
 
-from calib_eval.detection.tags import PEERS, run_peers, score_frame, summarise, tags_to_corners
+from calib_eval.detection.tags import PEERS, TagEvalConfig, render_frame, run_peers, score_frame, summarise, tags_to_corners
 from cotrain.targets import TargetConfig, make_target
 
 
@@ -78,23 +78,27 @@ def test_a_peer_that_crashes_its_process_is_left_out_and_the_others_run(tmp_path
     assert "crashes: its process died" in capsys.readouterr().err
 
 
+def _set_frame(cfg, fov: int, i: int):
+    """Frame ``i`` of FoV ``fov`` (0: without a target) of the AprilGrid set ``cfg`` rendered again
+    (``render_frame``, as ``render_set`` renders it): the board, the grey image as the set's PNG
+    reads it, labels (N, 2) and visible (N,)."""
+    from calib_eval.detection.evaluation import EvalConfig
+
+    g = make_target(TargetConfig(kind="aprilgrid"))
+    b, _, _ = render_frame(cfg, EvalConfig(width=cfg.width, height=cfg.height, target=g.cfg), fov, None, i)
+    grey = (np.round(b["image"][0, 0].numpy() * 255) / 255).astype(np.float32)
+    return g, grey, b["corners_raw"][0].numpy(), b["visible"][0].numpy().astype(bool)
+
+
 def test_a_board_of_blurred_nine_pixel_tags_is_placed_by_all_its_codes_together():
     """Seed 2041's fov200_024, rendered again from its seed: a whole board of 9 px tags through a
     200-degree lens, blurred. Its lattices place with margins of 24-29 over the runner-up, but
     their tags correlate with their codes by 0.37 on average: under a bar of 0.4
     (``min_mean_corr`` before the seventeenth session) nothing; at 0.3, 80 corners or more, each
     visible and within 1.5 px of its label with its own id."""
-    from calib_eval.detection.evaluation import EvalConfig, _render_cfg
     from cotrain.detect.tag_pass import TagConfig, tag_pass
-    from cotrain.geometry import cameras
-    from cotrain.render.renderer import render_batch
 
-    g = make_target(TargetConfig(kind="aprilgrid"))
-    ecfg = EvalConfig(width=1280, height=720, target=g.cfg)
-    others = [m for m in cameras.MODELS if m != "kb4"]  # the set's second half per FoV
-    b = render_batch(_render_cfg(200, ecfg, others, no_target=False), [24], seed=2041 * 1000 + 20)
-    grey = (np.round(b["image"][0, 0].numpy() * 255) / 255).astype(np.float32)  # as the set's PNG
-    q, vis = b["corners_raw"][0].numpy(), b["visible"][0].numpy().astype(bool)
+    g, grey, q, vis = _set_frame(TagEvalConfig(seed=2041, per_fov=30), 200, 24)
     assert len(tag_pass(grey, g, TagConfig(min_mean_corr=0.4)).ids) == 0
     r = tag_pass(grey, g, TagConfig())
     assert len(r.ids) >= 80 and vis[r.ids].all()
@@ -109,19 +113,13 @@ def test_a_frame_where_nothing_is_found_is_read_again_with_a_wider_seed_cone():
     second, with the cone at ``retry_seed_angle`` (16 deg), places the board: 50 corners or more,
     each visible and within 1.5 px of its label with its own id (0.4 on median). Without the
     second look: nothing. A frame without a target gives nothing with it too."""
-    from calib_eval.detection.evaluation import EvalConfig, _render_cfg
     from cotrain.detect.tag_pass import TagConfig, tag_pass
-    from cotrain.render.renderer import render_batch
 
-    g = make_target(TargetConfig(kind="aprilgrid"))
-    ecfg = EvalConfig(width=1280, height=720, target=g.cfg)
-    b = render_batch(_render_cfg(180, ecfg, ["kb4"], no_target=False), [13], seed=2027 * 1000 + 18)
-    grey = (np.round(b["image"][0, 0].numpy() * 255) / 255).astype(np.float32)  # as the set's PNG
-    q, vis = b["corners_raw"][0].numpy(), b["visible"][0].numpy().astype(bool)
+    g, grey, q, vis = _set_frame(TagEvalConfig(), 180, 13)
     assert len(tag_pass(grey, g, TagConfig(retry_seed_angle=0.0)).ids) == 0
     r = tag_pass(grey, g, TagConfig())
     assert len(r.ids) >= 50 and vis[r.ids].all()
     err = np.linalg.norm(r.xy - q[r.ids], axis=1)
     assert err.max() < 1.5 and np.median(err) < 0.4, (err.max(), np.median(err))
-    empty = render_batch(_render_cfg(200, ecfg, ["kb4", "ucm"], no_target=True), [0], seed=2027 * 1000)
-    assert len(tag_pass(empty["image"][0, 0].numpy().astype(np.float32), g, TagConfig()).ids) == 0
+    _, empty, _, _ = _set_frame(TagEvalConfig(), 0, 0)
+    assert len(tag_pass(empty, g, TagConfig()).ids) == 0
