@@ -5,10 +5,10 @@ global identity (which corner of a partial view this is), and the checkerboard n
 stayed near 0.06 recall after CPU-hours (docs/training.md). On an AprilGrid every tag names itself,
 so a slot only has to read the tag under it. This script puts the two side by side:
 
-1. ``--curve LABEL=CSV`` (repeatable): training curves (``curve.csv`` of ``cotrain train``: step,
-   wall time, validation per-slot recall and identity accuracy) plotted against wall time and
-   against samples seen (steps x ``--batch``), to ``--out`` (png) with a Markdown table of the
-   figures at matching budgets;
+1. ``--curve LABEL=CSV[@BATCH]`` (repeatable): training curves (``curve.csv`` of ``cotrain train``:
+   step, wall time, validation per-slot recall and identity accuracy) plotted against wall time
+   and against samples seen (steps x the run's batch: ``@BATCH``, else ``--batch``), to ``--out``
+   (png) with a Markdown table of the figures at matching budgets;
 2. ``--model M.onnx --set DIR``: the per-slot read-out of an exported model on a rendered AprilGrid
    evaluation set (``calib_eval.detection.tags``: ``labels.json`` and ``images/``) at full
    resolution: a slot's corner counts where its visibility is at least ``--threshold``; recall per
@@ -64,11 +64,15 @@ def plot_curves(curves: dict[str, dict[str, np.ndarray]], out: Path) -> None:
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     for label, c in curves.items():
-        for ax, key, scale, unit in ((axes[0], "wall_s", 60.0, "training wall time (min)"), (axes[1], "samples", 1.0, "samples seen")):
+        for ax, key, scale, unit in (
+            (axes[0], "wall_s", 60.0, "training wall time (min, log scale)"),
+            (axes[1], "samples", 1.0, "samples seen"),
+        ):
             (line,) = ax.plot(c[key] / scale, c["recall"], label=f"{label}: recall")
             ax.plot(c[key] / scale, c["id_acc"], "--", color=line.get_color(), label=f"{label}: slot on its corner")
             ax.set_xlabel(unit)
     axes[0].set_ylabel("validation, per-slot read-out")
+    axes[0].set_xscale("log")  # minutes of a GPU beside hours of a CPU
     for ax in axes:
         ax.grid(alpha=0.3)
         ax.set_ylim(bottom=0)
@@ -80,15 +84,16 @@ def plot_curves(curves: dict[str, dict[str, np.ndarray]], out: Path) -> None:
 
 
 def curve_table(curves: dict[str, dict[str, np.ndarray]]) -> str:
-    """Markdown: per curve, the best validation recall and identity accuracy by 15, 30, 60, 90 min
-    and at the end, with the samples seen."""
-    marks = [15, 30, 60, 90]
-    head = "| run | " + " | ".join(f"by {m} min" for m in marks) + " | end (min, samples) |"
+    """Markdown: per curve, the best validation recall and identity accuracy by 5, 15, 30, 60, 90
+    min, by 15,000 and 30,000 samples and at the end, with the samples seen."""
+    marks = [("wall_s", 60 * m, f"by {m} min") for m in (5, 15, 30, 60, 90)]
+    marks += [("samples", n, f"by {n:,} samples") for n in (15_000, 30_000)]
+    head = "| run | " + " | ".join(name for _, _, name in marks) + " | end (min, samples) |"
     lines = [head, "|" + " --- |" * (len(marks) + 2)]
     for label, c in curves.items():
         cells = []
-        for m in marks:
-            r, a = at_budget(c, "wall_s", 60 * m, "recall"), at_budget(c, "wall_s", 60 * m, "id_acc")
+        for key, budget, _ in marks:
+            r, a = at_budget(c, key, budget, "recall"), at_budget(c, key, budget, "id_acc")
             cells.append("-" if np.isnan(r) else f"{r:.3f} / {a:.3f}")
         end = f"{np.nanmax(c['recall']):.3f} / {np.nanmax(c['id_acc']):.3f} ({c['wall_s'][-1] / 60:.0f}, {int(c['samples'][-1])})"
         lines.append(f"| {label} | " + " | ".join(cells) + f" | {end} |")
@@ -141,8 +146,10 @@ def evaluate_slots(model_path: str | Path, set_dir: Path, threshold: float = 0.5
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--curve", action="append", default=[], metavar="LABEL=CSV", help="a training curve (repeatable)")
-    ap.add_argument("--batch", type=int, default=8, help="batch size of the curves' runs (samples = steps x batch)")
+    ap.add_argument(
+        "--curve", action="append", default=[], metavar="LABEL=CSV[@BATCH]", help="a training curve and its run's batch size (repeatable)"
+    )
+    ap.add_argument("--batch", type=int, default=8, help="batch size of the runs whose --curve names none (samples = steps x batch)")
     ap.add_argument("--out", default="docs/results/slot_identity.png", help="plot of the curves (a .md table beside it)")
     ap.add_argument("--model", help="an exported AprilGrid model (ONNX) to read out on --set")
     ap.add_argument("--set", default="runs/tags_eval50", help="rendered AprilGrid set (calib_eval.detection.tags --out)")
@@ -156,9 +163,12 @@ def main(argv: list[str] | None = None) -> int:
             for spec in a.curve:
                 label, sep, path = spec.partition("=")
                 if not sep:
-                    raise ValueError(f"--curve {spec!r}: expected LABEL=CSV")
+                    raise ValueError(f"--curve {spec!r}: expected LABEL=CSV[@BATCH]")
+                path, at, batch = path.rpartition("@") if "@" in path else (path, "", "")
+                if at and not (batch.isdigit() and int(batch) > 0):
+                    raise ValueError(f"--curve {spec!r}: the batch after @ must be a positive integer")
                 c = read_curve(path)
-                c["samples"] = c["step"] * a.batch
+                c["samples"] = c["step"] * (int(batch) if at else a.batch)
                 curves[label] = c
             out = Path(a.out)
             out.parent.mkdir(parents=True, exist_ok=True)

@@ -22,13 +22,29 @@ def test_best_figure_reached_by_a_budget(tmp_path):
     assert at_budget(c, "samples", 6000, "id_acc") == pytest.approx(0.06)
     assert at_budget(c, "wall_s", 100, "recall") != at_budget(c, "wall_s", 100, "recall")  # NaN before the first row
     table = curve_table({"run": c})
-    assert "| run | 0.010 / 0.020 | 0.050 / 0.040 | 0.050 / 0.060 | 0.050 / 0.060 | 0.050 / 0.060 (40, 6000) |" in table
+    # by 5 / 15 / 30 / 60 / 90 min, by 15,000 / 30,000 samples, end
+    cells = ["-", "0.010 / 0.020", "0.050 / 0.040", "0.050 / 0.060", "0.050 / 0.060", "0.050 / 0.060", "0.050 / 0.060"]
+    assert "| run | " + " | ".join(cells) + " | 0.050 / 0.060 (40, 6000) |" in table
+
+
+def test_each_curve_counts_samples_with_its_own_batch(tmp_path):
+    rows = [(100, 60, 0.01, 2.0, 0.02, 0.9), (200, 120, 0.03, 1.5, 0.04, 0.8), (300, 180, 0.05, 1.5, 0.06, 0.8)]
+    p = _curve(tmp_path, rows)
+    out = tmp_path / "plot.png"
+    assert main(["--curve", f"gpu={p}@64", "--curve", f"cpu={p}", "--batch", "8", "--out", str(out)]) == 0
+    table = out.with_suffix(".md").read_text()
+    # 300 steps of 64 = 19,200 samples: by 15,000 samples only the first two rows count
+    best, early = "0.050 / 0.060", "0.030 / 0.040"
+    assert "| gpu | " + " | ".join([best] * 5 + [early, best]) + " | 0.050 / 0.060 (3, 19200) |" in table
+    # 300 steps of --batch 8 = 2,400 samples
+    assert "| cpu | " + " | ".join([best] * 7) + " | 0.050 / 0.060 (3, 2400) |" in table
 
 
 def test_bad_input_is_one_line_and_nonzero(tmp_path, capsys):
     assert main(["--curve", "no-equals-sign"]) == 1
     assert main(["--curve", f"x={tmp_path / 'missing.csv'}"]) == 1
+    assert main(["--curve", f"x={tmp_path / 'curve.csv'}@zero"]) == 1
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 2 and all(e.startswith("error: ") for e in err)
+    assert len(err) == 3 and all(e.startswith("error: ") for e in err)
     with pytest.raises(ValueError, match="not an aprilgrid"):
         evaluate_slots(ROOT / "export" / "default.onnx", tmp_path)  # the checkerboard model
