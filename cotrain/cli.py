@@ -71,10 +71,11 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 def cmd_detect(args: argparse.Namespace) -> int:
     from cotrain.detect.detector import make_detector
+    from cotrain.detect.grid_config import GridConfig
     from cotrain.detect.images import expand_inputs, image_folders_below
     from cotrain.detect.onnx_model import OnnxModel
     from cotrain.io.detections import detect_files, write_json_atomic
-    from cotrain.targets import target_from_flags
+    from cotrain.targets import AprilGrid, target_from_flags
 
     if not (0.0 <= args.threshold <= 1.0):
         raise ValueError("--threshold must be in [0, 1]")
@@ -91,6 +92,7 @@ def cmd_detect(args: argparse.Namespace) -> int:
         raise FileNotFoundError("no images found in the given paths" + hint)
     base = OnnxModel(args.model).target if args.square_size is not None and args.squares_x is None else None
     target = target_from_flags(args.target, args.squares_x, args.squares_y, args.square_size, base)
+    options = {"grid": GridConfig(retry_gain=3.0)} if args.grey_print else {}
     det = make_detector(
         target,
         args.model,
@@ -98,6 +100,7 @@ def cmd_detect(args: argparse.Namespace) -> int:
         consistency=not args.no_consistency,
         polish=args.polish,
         mode="slots" if args.slots else "grid",
+        **options,
     )
     if args.bag:
         from cotrain.io.bags import sequence_from_bag
@@ -119,6 +122,9 @@ def cmd_detect(args: argparse.Namespace) -> int:
     for e in data["images"]:
         if e["error"]:
             print(f"  {e['path']}: {e['error']}", file=sys.stderr)
+    n_none = sum(1 for e in data["images"] if not e["error"] and not e["corners"])
+    if n_none > (len(paths) - n_err) / 2 and not args.grey_print and not isinstance(target, AprilGrid):
+        print(f"hint: {n_none} of {len(paths) - n_err} images gave no corners; for a grey print, shade or dim light try --grey-print")
     return 0
 
 
@@ -196,6 +202,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--squares-x", type=int, help="another checkerboard than the model's: squares along x (ids from geometry alone)")
     s.add_argument("--squares-y", type=int, help="... and along its y axis")
     s.add_argument("--square-size", type=float, help="side of a square, metres (written to the JSON's target)")
+    s.add_argument(
+        "--grey-print",
+        action="store_true",
+        help="checkerboard: read a frame where no board is found again with its contrast raised (a grey print, shade, dim light; "
+        "~40 ms more for each such frame; the AprilGrid's tag pass always does this)",
+    )
     s.set_defaults(func=cmd_detect)
 
     s = sub.add_parser("pipeline", help="the main job: train, export, evaluate, calibrate; writes a report folder")

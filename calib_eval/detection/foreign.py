@@ -28,6 +28,13 @@ is reused.
   lens blur of 0.3-1.0 px, vignetting down to 0.5-0.9 at the rim (quadratic in theta), an
   exposure of 0.6-1.3, shot and read noise, sRGB encoding to 8 bits, and in half the frames JPEG
   at quality 70-95.
+- ``--photo`` (:attr:`ForeignConfig.photo`): what a camera sees of a print in a room. Print: black
+  0.12-0.3, white 0.35-0.65 (grey paper, dim light); light across the board falling by 20-60 %
+  along a random direction, and in half the frames a shadow's soft edge (3-15 px) darkening one
+  side to 0.35-0.7; in half the frames a glare blob on the print (amplitude 0.4-1.5 of white
+  light, 3-10 % of the frame's height wide; corners within a quarter of their size, 3 px at
+  least, of a saturated pixel are not detectable); read noise 3-10x higher; JPEG at quality
+  50-85 in every frame. Other draws as in the clean set, so ``--photo`` sets are their own seeds'.
 
 Labels: every corner's projection through the same closed-form law (an independent check of our
 geometry is in the tests: the equidistant law against ``cv2.fisheye.projectPoints``). A corner is
@@ -78,6 +85,7 @@ class ForeignConfig:
     min_square_px: float = 10.0  # detectable: a checkerboard corner's square at least this many pixels ...
     min_tag_px: float = 8.0  # ... an AprilGrid corner's tag at least this many (as python -m calib_eval.detection.tags)
     min_visible: int = 6  # frames are drawn again until this many corners are detectable
+    photo: bool = False  # photographed prints: grey paper, uneven light and shadow, glare, more noise, JPEG in every frame
 
 
 @dataclass
@@ -260,8 +268,10 @@ def render_frame(fov: float, cfg: ForeignConfig, rng: np.random.Generator, board
     off_s = (np.arange(s) + 0.5) / s - 0.5
     acc = np.zeros((h, w), np.float64)
     bg = background(h, w, rng).astype(np.float64)
-    black, white = rng.uniform(0.03, 0.15), rng.uniform(0.7, 0.95)
+    black, white = (rng.uniform(0.12, 0.3), rng.uniform(0.35, 0.65)) if cfg.photo else (rng.uniform(0.03, 0.15), rng.uniform(0.7, 0.95))
     ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
+    light = room_light(xs, ys, q[visible].mean(0), rng) if cfg.photo else 1.0  # on the print only
+    on_print = np.zeros((h, w))
     for oy in off_s:
         for ox in off_s:
             v, theta = rays(np.stack([xs + ox, ys + oy], -1), lens, f, centre)
@@ -271,10 +281,16 @@ def render_frame(fov: float, cfg: ForeignConfig, rng: np.random.Generator, board
             hit = (lam > 0) & (-board.front * denom > 0)  # the printed side, in front
             pb = (lam[..., None] * v - t) @ R[:, :2]  # board-frame (u, v) of the hit
             refl, cover = texture(pb[..., 0], pb[..., 1])
-            sample = np.where(hit & cover, black + (white - black) * refl, bg)
+            sample = np.where(hit & cover, light * (black + (white - black) * refl), bg)
             sample = np.where(theta <= theta_max, sample, 0.0)
             acc += sample
+            on_print += hit & cover & (theta <= theta_max)
     img = acc / (s * s)
+    if cfg.photo and rng.random() < 0.5:  # glare: a specular blob on the print (adds light where the print is)
+        k = int(rng.choice(np.nonzero(visible)[0]))
+        c = q[k] + rng.normal(0, 2 * np.median(size[np.isfinite(size)]), 2)
+        sigma = rng.uniform(0.03, 0.1) * h
+        img = img + rng.uniform(0.4, 1.5) * np.exp(-((xs - c[0]) ** 2 + (ys - c[1]) ** 2) / (2 * sigma**2)) * on_print / (s * s)
     # An occluder in a third of the frames, in front of everything: corners under it are hidden,
     # corners within 3 px of it (or a quarter of their square) are not detectable.
     if rng.random() < 1 / 3:
@@ -293,14 +309,39 @@ def render_frame(fov: float, cfg: ForeignConfig, rng: np.random.Generator, board
     img = cv2.GaussianBlur(img, (0, 0), rng.uniform(0.3, 1.0))
     _, theta_px = rays(np.stack([xs, ys], -1), lens, f, centre)
     img = img * (1 - rng.uniform(0.1, 0.5) * (np.minimum(theta_px, theta_max) / theta_max) ** 2) * rng.uniform(0.6, 1.3)
-    img = img + rng.normal(0, 1, img.shape) * np.sqrt(np.maximum(img, 0) * rng.uniform(1e-4, 6e-4) + rng.uniform(1e-6, 4e-5))
+    if cfg.photo:  # a corner next to a saturated pixel cannot be found where it is: not detectable
+        d_sat = cv2.distanceTransform((img < 0.98).astype(np.uint8), cv2.DIST_L2, 5)
+        qi = np.clip(np.round(q).astype(int), 0, [w - 1, h - 1])
+        clear &= d_sat[qi[:, 1], qi[:, 0]] > np.maximum(3.0, 0.25 * np.nan_to_num(size))
+    z, shot = rng.normal(0, 1, img.shape), rng.uniform(1e-4, 6e-4)  # noise, shot and read
+    read = rng.uniform(3e-5, 4e-4) if cfg.photo else rng.uniform(1e-6, 4e-5)
+    img = img + z * np.sqrt(np.maximum(img, 0) * shot + read)
     img = np.clip(img, 0, 1)
     srgb = np.where(img <= 0.0031308, 12.92 * img, 1.055 * img ** (1 / 2.4) - 0.055)
     u8 = np.round(srgb * 255).astype(np.uint8)
-    jpeg = int(rng.integers(70, 96)) if rng.random() < 0.5 else 0
+    jpeg = int(rng.integers(50, 86)) if cfg.photo else int(rng.integers(70, 96)) if rng.random() < 0.5 else 0
     if jpeg:
         u8 = cv2.imdecode(cv2.imencode(".jpg", u8, [cv2.IMWRITE_JPEG_QUALITY, jpeg])[1], cv2.IMREAD_GRAYSCALE)
     return Frame(u8, q, visible, visible & clear & (size >= min_size), lens, jpeg, centre, float(radius), size)
+
+
+def room_light(xs: np.ndarray, ys: np.ndarray, at: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """(h, w) light falling on a print in a room (``xs``, ``ys``: pixel grids; ``at`` (2,): where the
+    board is seen): down by 20-60 % along a random direction across the frame, and in half the
+    frames a shadow's soft edge (3-15 px) through a point near ``at`` darkening one side to
+    0.35-0.7."""
+    h, w = xs.shape
+    a = rng.uniform(0, 2 * np.pi)
+    along = ((xs - w / 2) * np.cos(a) + (ys - h / 2) * np.sin(a)) / np.hypot(w, h) + 0.5  # 0..1 across the frame
+    light = 1 - rng.uniform(0.2, 0.6) * np.clip(along, 0, 1)
+    if rng.random() < 0.5:
+        b = rng.uniform(0, 2 * np.pi)
+        c = at + rng.normal(0, 0.05 * h, 2)
+        signed = (xs - c[0]) * np.cos(b) + (ys - c[1]) * np.sin(b)  # px from the shadow's edge
+        shade = rng.uniform(0.35, 0.7)
+        with np.errstate(over="ignore"):  # far on the lit side exp overflows to inf: the logistic is 0 there, as it should be
+            light = light * (shade + (1 - shade) / (1 + np.exp(-signed / (rng.uniform(3, 15) / 4))))
+    return light
 
 
 def _frame_with_z(z: np.ndarray) -> np.ndarray:
@@ -363,8 +404,9 @@ def render_set(out: Path, cfg: ForeignConfig, progress: bool = True) -> list[dic
 
 def detect_set(out: Path, labels: list[dict], board: Checkerboard | AprilGrid, progress: bool = True) -> dict[str, dict]:
     """Our detector and the peers a user would otherwise pick on the set's frames: predictions
-    (``calib_eval.detection.evaluation.score``'s input) by detector name. Checkerboard:
-    ``findChessboardCornersSB`` (corners without trusted ids, matched by position). AprilGrid: the
+    (``calib_eval.detection.evaluation.score``'s input) by detector name. Checkerboard: ours as
+    ``cotrain detect`` runs by default and with ``--grey-print``, and ``findChessboardCornersSB``
+    (corners without trusted ids, matched by position). AprilGrid: the
     tag detectors of ``python -m calib_eval.detection.tags`` that are installed (cv2.aruco always),
     each in a process of its own, each tag's corners taking its Kalibr ids. Times are per frame, decoding left out."""
     from tqdm import tqdm
@@ -372,10 +414,12 @@ def detect_set(out: Path, labels: list[dict], board: Checkerboard | AprilGrid, p
     from calib_eval.detection.tags import run_peers, tags_to_corners
     from cotrain.detect.buffers import keep_image_buffers
     from cotrain.detect.detector import make_detector
+    from cotrain.detect.grid_config import GridConfig
 
     keep_image_buffers()  # as cotrain detect runs (cotrain.detect.buffers); the peers are timed under it too
     runs: dict = {"ours": make_detector(board).detect}
     if isinstance(board, Checkerboard):
+        runs["ours --grey-print"] = make_detector(board, grid=GridConfig(retry_gain=3.0)).detect  # frames giving nothing read again
         runs["opencv_sb"] = None
     preds: dict[str, dict] = {}
     for name, run in runs.items():  # one detector over every frame, then the next (as calib_eval.detection.tags)
@@ -383,13 +427,13 @@ def detect_set(out: Path, labels: list[dict], board: Checkerboard | AprilGrid, p
         for lab in tqdm(labels, desc=name, disable=not progress):
             grey = cv2.imread(str(out / "images" / lab["image"]), cv2.IMREAD_GRAYSCALE)
             t0 = time.perf_counter()
-            if name == "ours":
+            if name.startswith("ours"):
                 d = run(grey)
                 corners = [[int(i), float(x), float(y)] for i, (x, y) in zip(d.ids, d.xy)]
             else:
                 c = find_chessboard(grey, (board.nx, board.ny), "sb")
                 corners = [[-1, float(x), float(y)] for x, y in c] if c is not None else []
-            preds[name][lab["image"]] = {"corners": corners, "ms": 1000 * (time.perf_counter() - t0), "has_id": name == "ours"}
+            preds[name][lab["image"]] = {"corners": corners, "ms": 1000 * (time.perf_counter() - t0), "has_id": name.startswith("ours")}
     if isinstance(board, AprilGrid):
         # Each peer in a process of its own (tags.run_peers: a crash in its library ends its row only).
         for name, found in run_peers([out / "images" / lab["image"] for lab in labels], progress=progress).items():
@@ -427,6 +471,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--board", type=Path, default=None, help="a target file (Kalibr's target yaml or ours): its board is drawn")
     ap.add_argument("--per-fov", type=int, default=ForeignConfig.per_fov, help="frames per FoV")
     ap.add_argument("--seed", type=int, default=ForeignConfig.seed)
+    ap.add_argument("--photo", action="store_true", help="photographed prints: grey paper, uneven light, shadow, glare, noise, JPEG")
     ap.add_argument("--out", type=Path, default=None, help="output folder (default report/foreign_<target or board file>)")
     ap.add_argument("--no-progress", action="store_true")
     a = ap.parse_args(argv)
@@ -435,9 +480,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         kind = load_target(a.board).kind if a.board else a.target or "checkerboard"
-        cfg = ForeignConfig(per_fov=a.per_fov, seed=a.seed, target=a.target or kind, board=str(a.board or ""))
+        cfg = ForeignConfig(per_fov=a.per_fov, seed=a.seed, target=a.target or kind, board=str(a.board or ""), photo=a.photo)
         make_board(cfg)  # a file of another kind than --target: said before anything is drawn
-        out = a.out or Path(f"report/foreign_{a.board.stem if a.board else cfg.target}")
+        out = a.out or Path(f"report/foreign_{a.board.stem if a.board else cfg.target}{'_photo' if a.photo else ''}")
         print(evaluate(cfg, out, progress=not a.no_progress))
     except (OSError, ValueError) as e:  # an output folder that cannot be written, a broken labels.json
         print(f"error: {e}", file=sys.stderr)
@@ -461,8 +506,9 @@ def evaluate(cfg: ForeignConfig, out: Path, progress: bool = True) -> str:
     results = {name: score(p, labels, board.symmetries()) for name, p in preds.items()}
     size = f"tag {cfg.min_tag_px:g}" if cfg.target == "aprilgrid" else f"square {cfg.min_square_px:g}"
     which = f"--board {cfg.board}" if cfg.board else f"--target {cfg.target}"
+    photo = " --photo" if cfg.photo else ""
     md = (
-        f"Independent renderer, {board} (`python -m calib_eval.detection.foreign {which}`, seed {cfg.seed}, "
+        f"Independent renderer, {board} (`python -m calib_eval.detection.foreign {which}{photo}`, seed {cfg.seed}, "
         f"{cfg.per_fov} frames per FoV at {cfg.width}x{cfg.height}): recall of detectable corners ({size} px across at least) "
         "within 3 px, with the right id"
         + (" (findChessboardCornersSB: matched by position)" if cfg.target == "checkerboard" else " (peers: a tag's corners take its ids)")

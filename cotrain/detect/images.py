@@ -61,6 +61,15 @@ def brighten(grey: np.ndarray, below: float = 0.25, target: float = 0.9, max_gai
     return np.minimum(grey * min(target / p99, max_gain), 1.0).astype(np.float32)
 
 
+def local_gain(grey: np.ndarray, gain: float, sigma: float) -> np.ndarray:
+    """(H, W) float32 ``grey`` with its contrast about the local mean (a Gaussian of ``sigma`` px)
+    raised ``gain`` times, clipped to [0, 1]: a linear stretch that keeps where the X-junctions are
+    (the mean varies slowly across a corner's window) except where it clips."""
+    g = np.asarray(grey, np.float32)
+    mean = cv2.GaussianBlur(g, (0, 0), sigma)
+    return np.clip(mean + np.float32(gain) * (g - mean), 0, 1)
+
+
 def load_image(path: str | Path) -> np.ndarray:
     """Read an image file as grey float32 in [0, 1]; raises :class:`ImageError` with the reason."""
     p = Path(path)

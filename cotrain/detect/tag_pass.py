@@ -73,6 +73,7 @@ from scipy.spatial import cKDTree
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.half_resolution import corners_at_half_resolution, halve
 from cotrain.detect.image_circle import EquidistantLens, guess_lens, parallelogram_corner, ray_homographies
+from cotrain.detect.images import local_gain
 from cotrain.detect.lattice import (
     STEPS,
     Lattice,
@@ -130,6 +131,9 @@ class TagConfig:
     sharpen: float = 1.5  # weight of the 4-neighbour Laplacian that undoes blur over a tag's cells (rendered tags of 10-30 px)
     min_cell_px: float = 1.0  # tags whose data cells are smaller than this (px) neither seed a lattice nor are read ...
     retry_min_cell_px: float = 0.7  # ... or than this, in a third look (the second's wider cone too) where the first two find nothing
+    retry_gain: float = 3.0  # a fourth look where the third finds nothing: the frame's contrast raised this much about ...
+    # ... its local mean (0: never); ...
+    retry_gain_sigma: float = 0.028  # ... that mean's Gaussian sigma, as a share of the frame's shorter side (20 px at 720)
     lens_fov: float = 210.0  # deg: where an image circle shows, tags are read through an equidistant lens of this FoV filling it (0: never)
     # --- placement ---
     min_margin: float = 12.0  # the board's placement must beat the runner-up by this (correlation; a clean tag gives 36)
@@ -1751,7 +1755,10 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
     A frame where nothing is found is read once more at full resolution with seeds whose
     neighbours lie within ``cfg.retry_seed_angle`` of their edge rays, and where that finds
     nothing, once more with seeds of tags whose data cells are ``cfg.retry_min_cell_px`` wide
-    (instead of ``cfg.min_cell_px``); the corners of the first look that finds any are reported."""
+    (instead of ``cfg.min_cell_px``); where that finds nothing too, the frame with its contrast
+    raised about its local mean (:func:`cotrain.detect.images.local_gain`; a grey print, a board in the shade) is read
+    as the first look reads a frame, at half resolution too. The corners of the first look that
+    finds any are reported."""
     cfg = cfg or TagConfig()
     view = _view_of(grey, cfg)
     r = _tag_pass_both(grey, board, cfg, view)
@@ -1773,6 +1780,16 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
         looks.append(replace(wider, min_cell_px=cfg.retry_min_cell_px))
     for look in looks:
         again = _tag_pass_circle(grey, board, look, view)
+        if len(again.ids):
+            return again
+    if cfg.retry_gain > 1:
+        # A print whose white is grey, in the shade or dim light: its saddles' responses and
+        # contrasts fall under the pass's thresholds (set in intensity), and no seed holds. Its
+        # contrast raised about the local mean, the frame is read anew. Only here: raised in every
+        # frame, the clean independent renderer's frames lost corners (0.994 -> 0.991), and a
+        # gain of 2 placed one wrongly.
+        gained = local_gain(grey, cfg.retry_gain, cfg.retry_gain_sigma * min(grey.shape))
+        again = _tag_pass_both(gained, board, cfg)  # at half resolution too: there most of these boards are found
         if len(again.ids):
             return again
     return r

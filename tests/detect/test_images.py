@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from cotrain.detect.images import brighten
+from cotrain.detect.images import brighten, local_gain
 from tests.detect.boards import board_image
 
 
@@ -35,8 +35,9 @@ def test_a_black_frame_is_left_alone():
 
 def test_the_detector_finds_an_under_exposed_board(monkeypatch):
     """A board rendered at a fifth of the normal exposure: found, with right ids, because the
-    frame is brightened first (without the gain, and without the grid pass's contrast thresholds
-    scaled to the board's contrast, those thresholds refuse it)."""
+    frame is brightened first (without the gain, without the grid pass's contrast thresholds
+    scaled to the board's contrast, and without the second read of a frame where nothing is found
+    with its contrast raised, those thresholds refuse it)."""
     import cotrain.detect.detector as detector_mod
     from cotrain.detect.detector import Detector
     from cotrain.render.renderer import RenderConfig, render_batch
@@ -55,5 +56,24 @@ def test_the_detector_finds_an_under_exposed_board(monkeypatch):
     from cotrain.detect.grid_config import GridConfig
 
     monkeypatch.setattr(detector_mod, "brighten", lambda g: g)
-    fixed = Detector(threads=1, grid=GridConfig(board_contrast=0.0))
+    fixed = Detector(threads=1, grid=GridConfig(board_contrast=0.0, retry_gain=0.0))
     assert sum(len(fixed.detect(b["image"][k, 0].numpy()).ids) for k in range(3)) < 0.5 * sum(found)
+    # The frame read again with its contrast raised about the local mean finds them too (151 of 162).
+    raised = Detector(threads=1, grid=GridConfig(board_contrast=0.0, retry_gain=3.0))  # cotrain detect --grey-print
+    assert sum(len(raised.detect(b["image"][k, 0].numpy()).ids) for k in range(3)) >= 0.8 * sum(found)
+
+
+def test_local_gain_stretches_about_the_local_mean():
+    """A flat image stays as it is; a faint step far from the frame's edges becomes ``gain`` times
+    steeper about its mean, with the step where it was; what would leave [0, 1] is clipped."""
+    flat = np.full((60, 80), 0.4, np.float32)
+    np.testing.assert_allclose(local_gain(flat, 3.0, 5.0), flat, atol=1e-6)
+    step = np.full((60, 200), 0.5, np.float32)
+    step[:, 100:] = 0.6
+    out = local_gain(step, 3.0, 40.0)
+    assert out.dtype == np.float32 and out.shape == step.shape
+    across = out[30, 98:102] - out[30, 97:101]
+    assert across.argmax() == 2  # the edge between columns 99 and 100, as in the input
+    np.testing.assert_allclose(out[30, 100] - out[30, 99], 3 * 0.1, rtol=0.02)  # the mean is smooth across one pixel
+    bright = local_gain(np.where(np.arange(80) < 40, 0.1, 0.95).astype(np.float32)[None].repeat(20, 0), 3.0, 10.0)
+    assert bright.min() >= 0 and bright.max() <= 1 and bright[10, 45] == 1.0 and bright[10, 35] == 0.0

@@ -5,7 +5,7 @@ import cv2
 import numpy as np
 import pytest
 
-from calib_eval.detection.foreign import LENSES, ForeignConfig, main, project, rays, render_frame
+from calib_eval.detection.foreign import LENSES, ForeignConfig, main, project, rays, render_frame, room_light
 
 
 @pytest.mark.parametrize("lens", sorted(LENSES))
@@ -40,6 +40,48 @@ def test_equidistant_law_is_opencvs_fisheye_without_distortion():
     ref = cv2.fisheye.projectPoints(p.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, np.zeros(4))[0].reshape(-1, 2)
     q, _ = project(p, "equidistant", 310.0, np.array([655.5, 351.25]))
     np.testing.assert_allclose(q, ref, atol=1e-6)
+
+
+def test_room_light_falls_across_the_frame_and_casts_a_soft_shadow():
+    """The light on a photographed print: 1 at its brightest, down by 20-60 % along one direction,
+    and, with a shadow, a step to 0.35-0.7 of it over a few pixels."""
+    ys, xs = np.mgrid[0:360, 0:480].astype(np.float64)
+    drops, shadows = [], 0
+    for i in range(40):
+        light = room_light(xs, ys, np.array([240.0, 180.0]), np.random.default_rng(i))
+        assert light.shape == (360, 480) and light.max() <= 1.0 and light.min() >= 0.35 * 0.4 - 1e-9
+        drops.append(light.min() / light.max())
+        dy, dx = np.gradient(light)
+        shadows += np.hypot(dx, dy).max() > 0.01  # a shadow's edge: a few % per pixel; the fall alone: ~0.1 % per pixel
+    assert 0.14 < min(drops) and max(drops) < 0.85
+    assert 10 < shadows < 30  # about half the frames
+
+
+def _print_spread(fr) -> float:
+    """The 10th to 90th percentile of the grey levels inside the hull of a frame's visible corners."""
+    inside = np.zeros(fr.image.shape, np.uint8)
+    cv2.fillConvexPoly(inside, cv2.convexHull(fr.corners[fr.visible].astype(np.int32)), 1)
+    v = fr.image[inside > 0]
+    return float(np.percentile(v, 90) - np.percentile(v, 10))
+
+
+def test_photographed_prints_are_grey_and_their_labels_skip_saturated_corners():
+    """``photo``: the print's white is grey (the spread of the board's grey levels well under the
+    clean set's in the same scene), JPEG in every frame, and no detectable corner within 2 px of a
+    saturated pixel."""
+    clean, photo = ForeignConfig(width=480, height=360, min_visible=10), ForeignConfig(width=480, height=360, min_visible=10, photo=True)
+    glared = 0
+    for i in range(6):
+        fc = render_frame(180, clean, np.random.default_rng([12, i]))
+        fp = render_frame(180, photo, np.random.default_rng([12, i]))
+        assert fp.jpeg >= 50 and (fc.corners == fp.corners).all()  # the same scene, another print and light
+        sat = cv2.dilate((fp.image >= 254).astype(np.uint8), np.ones((5, 5), np.uint8))  # 2 px around saturated pixels
+        q = np.clip(np.round(fp.corners).astype(int), 0, [479, 359])
+        near = sat[q[:, 1], q[:, 0]] > 0
+        assert not (near & fp.detectable).any()
+        glared += (near & fp.visible).any()
+        assert _print_spread(fp) < 0.8 * _print_spread(fc)
+    assert glared >= 1  # some frame has corners washed out by glare
 
 
 def test_labels_sit_on_the_rendered_corners():
@@ -139,3 +181,36 @@ def test_a_board_file_of_another_kind_than_the_target_is_one_line_and_exit_1(cap
     err = capsys.readouterr().err
     assert err.startswith("error:") and "checkerboard" in err and err.count("\n") == 1
     assert not (tmp_path / "out").exists()  # said before anything is drawn
+
+
+def test_the_checkerboard_detector_reads_a_grey_print_again_with_its_contrast_raised():
+    """A photographed grey print (seed 5, FoV 200, frame 3 of ``--photo``: a 10 x 7 board in the
+    shade): read as it is, the frame gives nothing; read again with its contrast raised about the
+    local mean (``GridConfig.retry_gain``, the network run again on it), every detectable corner
+    with its own id within a pixel of its label (``cotrain detect --grey-print``)."""
+    from cotrain.detect.detector import Detector
+    from cotrain.detect.grid_config import GridConfig
+
+    fr = render_frame(200, ForeignConfig(target="checkerboard", photo=True), np.random.default_rng([5, 200, 3]))
+    assert len(Detector().detect(fr.image).ids) == 0  # the default: read once
+    found = Detector(grid=GridConfig(retry_gain=3.0)).detect(fr.image)
+    assert fr.visible[found.ids].all() and len(found.ids) >= 0.95 * fr.detectable.sum()
+    assert np.linalg.norm(found.xy - fr.corners[found.ids], axis=1).max() < 1.0
+
+
+def test_cotrain_detect_hints_at_grey_print_and_reads_it(tmp_path, capsys):
+    """On images of a photographed grey print that give nothing, ``cotrain detect`` says how many
+    gave no corners and names ``--grey-print``; with it the board is found (one process)."""
+    import json
+
+    from cotrain.cli import run as cotrain_cli
+
+    fr = render_frame(200, ForeignConfig(target="checkerboard", photo=True), np.random.default_rng([5, 200, 3]))
+    cv2.imwrite(str(tmp_path / "grey.png"), fr.image)
+    out = tmp_path / "d.json"
+    assert cotrain_cli(["detect", str(tmp_path / "grey.png"), "--out", str(out), "--workers", "1"]) == 0
+    said = capsys.readouterr().out
+    assert "1 of 1 images gave no corners" in said and "--grey-print" in said
+    assert cotrain_cli(["detect", str(tmp_path / "grey.png"), "--out", str(out), "--workers", "1", "--grey-print"]) == 0
+    assert "--grey-print" not in capsys.readouterr().out
+    assert len(json.loads(out.read_text())["images"][0]["corners"]) >= 50
