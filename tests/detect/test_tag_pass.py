@@ -112,15 +112,16 @@ def test_a_whole_board_of_tags_under_ten_pixels_is_found_by_the_third_look(dista
 
 
 def test_a_grey_print_in_falling_light_is_found_by_the_fourth_look():
-    """A board of 18 px tags through a 200-degree lens, printed grey on grey (contrast 0.12 of the
+    """A board of 22 px tags through a 200-degree lens, printed grey on grey (contrast 0.12 of the
     clean print's) in light falling by a third across the frame, with noise of 0.01: its saddles
     and edges are under the pass's thresholds (set in intensity), so the first three looks find
     nothing. The fourth reads the frame with its contrast raised about the local mean
-    (``retry_gain`` 3) and finds every corner within 0.5 px of its own label."""
+    (``retry_gain`` 3; at half resolution, the frame being 720 px high) and finds every corner
+    within 0.5 px of its own label."""
     g = make_target(TargetConfig(kind="aprilgrid", margin=0.3))
     c = np.array(centre(g))
-    img, q, vis, _ = render(g, "kb4", 200, (c + [0.05, -0.03, 0.6]).tolist(), (c + [0.3, 0.1, 0.0]).tolist())
-    assert vis.all() and 16 < np.linalg.norm(q[1] - q[0]) < 20  # a tag side, px
+    img, q, vis, _ = render(g, "kb4", 200, (c + [0.05, -0.03, 0.45]).tolist(), (c + [0.3, 0.1, 0.0]).tolist())
+    assert vis.all() and 20 < np.linalg.norm(q[1] - q[0]) < 24  # a tag side, px
     light = np.linspace(0.5, 0.8, img.shape[1], dtype=np.float32)[None] / 0.65
     grey = (0.55 + 0.12 * (img.astype(np.float32) / 255 - 0.5)) * light + np.random.default_rng(0).normal(0, 0.01, img.shape)
     grey = np.clip(grey, 0, 1).astype(np.float32)
