@@ -214,3 +214,34 @@ def test_cotrain_detect_hints_at_grey_print_and_reads_it(tmp_path, capsys):
     assert cotrain_cli(["detect", str(tmp_path / "grey.png"), "--out", str(out), "--workers", "1", "--grey-print"]) == 0
     assert "--grey-print" not in capsys.readouterr().out
     assert len(json.loads(out.read_text())["images"][0]["corners"]) >= 50
+
+
+def test_the_second_read_reports_only_boards_the_geometry_places(monkeypatch):
+    """The checkerboard's second read runs on the raised frame with the network run again, and
+    with placements by the network's votes refused (``retry_min_margin``) and the geometry held
+    to ``retry_min_geometry_margin``; a frame where the first read finds a board is read once."""
+    from cotrain.detect.detector import Detector
+    from cotrain.detect.grid_config import GridConfig
+    from cotrain.detect.grid_pass import GridResult
+
+    det = Detector(grid=GridConfig(retry_gain=3.0))
+    seen = []
+
+    def grid(grey, box, out, cfg):
+        seen.append((float(grey.std()), cfg.min_margin, cfg.min_geometry_margin))
+        return GridResult(np.zeros(0, int), np.zeros((0, 2)), np.zeros(0), 0.0)
+
+    monkeypatch.setattr(det, "_grid", grid)
+    rng = np.random.default_rng(0)
+    flat = (0.5 + 0.02 * rng.standard_normal((360, 480))).astype(np.float32)
+    det.detect(flat)
+    assert len(seen) == 2
+    (std0, m0, g0), (std1, m1, g1) = seen
+    assert (m0, g0) == (det.grid.min_margin, det.grid.min_geometry_margin)
+    assert m1 == float("inf") and g1 == 20.0
+    assert std1 > 2 * std0  # the second read sees the raised frame
+
+    seen.clear()
+    monkeypatch.setattr(det, "_grid", lambda *a: seen.append(1) or GridResult(np.arange(6), np.zeros((6, 2)), np.ones(6), 30.0))
+    det.detect(flat)
+    assert seen == [1]
