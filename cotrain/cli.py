@@ -123,7 +123,7 @@ def cmd_detect(args: argparse.Namespace) -> int:
         if e["error"]:
             print(f"  {e['path']}: {e['error']}", file=sys.stderr)
     n_none = sum(1 for e in data["images"] if not e["error"] and not e["corners"])
-    if n_none > (len(paths) - n_err) / 2 and not args.grey_print and not isinstance(target, AprilGrid):
+    if n_none > (len(paths) - n_err) / 2 and not (args.grey_print or args.slots or isinstance(target, AprilGrid)):
         print(f"hint: {n_none} of {len(paths) - n_err} images gave no corners; for a grey print, shade or dim light try --grey-print")
     return 0
 

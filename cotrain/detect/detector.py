@@ -215,7 +215,8 @@ class Detector:
             return g
         gained = local_gain(grey, cfg.retry_gain, cfg.retry_gain_sigma * min(grey.shape))
         # Placed surely by the geometry only: on the eight rendered sets, a board cut by two occluders
-        # was placed half a turn wrong there with the geometry 15 nats ahead (the right ones: 15-90).
+        # was placed half a turn wrong there with the geometry 15 nats ahead (the 19 right ones:
+        # 15-90; at 20, 14 of them stay).
         strict = replace(cfg, min_margin=cfg.retry_min_margin, min_geometry_margin=cfg.retry_min_geometry_margin)
         return self._grid(gained, box, self.net.run(box.apply(gained)[None, None], self.dense), strict)
 

@@ -1756,9 +1756,9 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
     neighbours lie within ``cfg.retry_seed_angle`` of their edge rays, and where that finds
     nothing, once more with seeds of tags whose data cells are ``cfg.retry_min_cell_px`` wide
     (instead of ``cfg.min_cell_px``); where that finds nothing too, the frame with its contrast
-    raised about its local mean (:func:`cotrain.detect.images.local_gain`; a grey print, a board in the shade) is read
-    as the first look reads a frame, at half resolution too. The corners of the first look that
-    finds any are reported."""
+    raised ``cfg.retry_gain`` times about its local mean (:func:`cotrain.detect.images.local_gain`;
+    a grey print, a board in the shade) is read as the first look reads a frame, at half
+    resolution too. The corners of the first look that finds any are reported."""
     cfg = cfg or TagConfig()
     view = _view_of(grey, cfg)
     r = _tag_pass_both(grey, board, cfg, view)
