@@ -71,7 +71,7 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 def cmd_detect(args: argparse.Namespace) -> int:
     from cotrain.detect.detector import make_detector
-    from cotrain.detect.grid_config import GridConfig
+    from cotrain.detect.grid_config import GREY_PRINT_GAIN, GridConfig
     from cotrain.detect.images import expand_inputs, image_folders_below
     from cotrain.detect.onnx_model import OnnxModel
     from cotrain.io.detections import detect_files, write_json_atomic
@@ -92,7 +92,9 @@ def cmd_detect(args: argparse.Namespace) -> int:
         raise FileNotFoundError("no images found in the given paths" + hint)
     base = OnnxModel(args.model).target if args.square_size is not None and args.squares_x is None else None
     target = target_from_flags(args.target, args.squares_x, args.squares_y, args.square_size, base)
-    options = {"grid": GridConfig(retry_gain=3.0)} if args.grey_print else {}
+    if args.grey_print and args.slots:
+        raise ValueError("--grey-print reads frames again with the grid pass; --slots does not run it")
+    options = {"grid": GridConfig(retry_gain=GREY_PRINT_GAIN)} if args.grey_print else {}
     det = make_detector(
         target,
         args.model,

@@ -1,4 +1,4 @@
-"""Frames from a second, independent renderer: ``python -m calib_eval.detection.foreign [--target KIND | --board YAML] [--per-fov N]``.
+"""Frames from a second, independent renderer: ``python -m calib_eval.detection.foreign [--target KIND | --board YAML] [--photo]``.
 
 Our detectors are judged on frames other renderers draw, and everything they were tuned on came
 from one renderer (:mod:`cotrain.render`, kornia). This module draws frames another way, sharing
@@ -33,8 +33,10 @@ is reused.
   along a random direction, and in half the frames a shadow's soft edge (3-15 px) darkening one
   side to 0.35-0.7; in half the frames a glare blob on the print (amplitude 0.4-1.5 of white
   light, 3-10 % of the frame's height wide; corners within a quarter of their size, 3 px at
-  least, of a saturated pixel are not detectable); read noise 3-10x higher; JPEG at quality
-  50-85 in every frame. Other draws as in the clean set, so ``--photo`` sets are their own seeds'.
+  least, of a saturated pixel are not detectable); read noise 3-5x higher (its sigma); JPEG at
+  quality 50-85 in every frame. A frame's lens, pose and background are its clean twin's (the
+  same seed draws them first); its occluder, blur, vignetting, exposure, noise and JPEG are drawn
+  anew.
 
 Labels: every corner's projection through the same closed-form law (an independent check of our
 geometry is in the tests: the equidistant law against ``cv2.fisheye.projectPoints``). A corner is
@@ -339,7 +341,7 @@ def room_light(xs: np.ndarray, ys: np.ndarray, at: np.ndarray, rng: np.random.Ge
         c = at + rng.normal(0, 0.05 * h, 2)
         signed = (xs - c[0]) * np.cos(b) + (ys - c[1]) * np.sin(b)  # px from the shadow's edge
         shade = rng.uniform(0.35, 0.7)
-        with np.errstate(over="ignore"):  # far on the lit side exp overflows to inf: the logistic is 0 there, as it should be
+        with np.errstate(over="ignore"):  # far on the shaded side exp overflows to inf: the logistic is 0 there (light x shade)
             light = light * (shade + (1 - shade) / (1 + np.exp(-signed / (rng.uniform(3, 15) / 4))))
     return light
 
@@ -414,12 +416,13 @@ def detect_set(out: Path, labels: list[dict], board: Checkerboard | AprilGrid, p
     from calib_eval.detection.tags import run_peers, tags_to_corners
     from cotrain.detect.buffers import keep_image_buffers
     from cotrain.detect.detector import make_detector
-    from cotrain.detect.grid_config import GridConfig
+    from cotrain.detect.grid_config import GREY_PRINT_GAIN, GridConfig
 
     keep_image_buffers()  # as cotrain detect runs (cotrain.detect.buffers); the peers are timed under it too
     runs: dict = {"ours": make_detector(board).detect}
     if isinstance(board, Checkerboard):
-        runs["ours --grey-print"] = make_detector(board, grid=GridConfig(retry_gain=3.0)).detect  # frames giving nothing read again
+        # Frames giving nothing read again with their contrast raised, as cotrain detect --grey-print does.
+        runs["ours --grey-print"] = make_detector(board, grid=GridConfig(retry_gain=GREY_PRINT_GAIN)).detect
         runs["opencv_sb"] = None
     preds: dict[str, dict] = {}
     for name, run in runs.items():  # one detector over every frame, then the next (as calib_eval.detection.tags)
@@ -472,7 +475,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--per-fov", type=int, default=ForeignConfig.per_fov, help="frames per FoV")
     ap.add_argument("--seed", type=int, default=ForeignConfig.seed)
     ap.add_argument("--photo", action="store_true", help="photographed prints: grey paper, uneven light, shadow, glare, noise, JPEG")
-    ap.add_argument("--out", type=Path, default=None, help="output folder (default report/foreign_<target or board file>)")
+    ap.add_argument("--out", type=Path, default=None, help="output folder (default report/foreign_<target or board file>[_photo])")
     ap.add_argument("--no-progress", action="store_true")
     a = ap.parse_args(argv)
     if a.per_fov < 1:

@@ -164,11 +164,14 @@ def main(argv: list[str] | None = None) -> int:
                 label, sep, path = spec.partition("=")
                 if not sep:
                     raise ValueError(f"--curve {spec!r}: expected LABEL=CSV[@BATCH]")
-                path, at, batch = path.rpartition("@") if "@" in path else (path, "", "")
-                if at and not (batch.isdigit() and int(batch) > 0):
-                    raise ValueError(f"--curve {spec!r}: the batch after @ must be a positive integer")
+                head, _, tail = path.rpartition("@")
+                batch = a.batch
+                if head and tail.isdigit():  # CSV@BATCH (a path may hold an @ of its own)
+                    path, batch = head, int(tail)
+                    if batch < 1:
+                        raise ValueError(f"--curve {spec!r}: the batch after @ must be a positive integer")
                 c = read_curve(path)
-                c["samples"] = c["step"] * (int(batch) if at else a.batch)
+                c["samples"] = c["step"] * batch
                 curves[label] = c
             out = Path(a.out)
             out.parent.mkdir(parents=True, exist_ok=True)

@@ -214,9 +214,9 @@ class Detector:
         if len(g.ids) or cfg.retry_gain <= 1:
             return g
         gained = local_gain(grey, cfg.retry_gain, cfg.retry_gain_sigma * min(grey.shape))
-        # Placed surely by the geometry only: on the eight rendered sets, a board cut by two occluders
-        # was placed half a turn wrong there with the geometry 15 nats ahead (the 19 right ones:
-        # 15-90; at 20, 14 of them stay).
+        # Placed surely by the geometry only: on the evaluation set (one of the eight rendered sets),
+        # a board cut by two occluders was placed half a turn wrong there with the geometry 15 nats
+        # ahead (the 19 right ones over the eight sets: 15-90; at 20, 14 of them stay).
         strict = replace(cfg, min_margin=cfg.retry_min_margin, min_geometry_margin=cfg.retry_min_geometry_margin)
         return self._grid(gained, box, self.net.run(box.apply(gained)[None, None], self.dense), strict)
 
@@ -241,7 +241,9 @@ class Detector:
         return Pending(grey, box, self.net.run(box.apply(grey)[None, None]))
 
     def finish(self, pending: Pending) -> Detection:
-        """The second half of :meth:`detect`: the grid pass (or the per-slot read-out)."""
+        """The second half of :meth:`detect`: the grid pass (or the per-slot read-out); with
+        ``grid.retry_gain`` set, a frame giving nothing runs the network again here, on the frame
+        with its contrast raised (:meth:`_grid_or_gained`)."""
         grey, box, out = pending.grey, pending.box, pending.out
         if self.mode == "grid":
             g = self._grid_or_gained(grey, box, out, self.grid)

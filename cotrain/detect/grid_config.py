@@ -10,6 +10,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+GREY_PRINT_GAIN = 3.0  # GridConfig.retry_gain of cotrain detect --grey-print (and of the evaluations' '--grey-print' rows)
+
 
 @dataclass
 class GridConfig:
@@ -106,12 +108,11 @@ class GridConfig:
     half_min_margin_alone: float = 25.0  # ... or where only the half-resolution pass finds a board, with this identity margin (min_margin)
     half_min_corr: float = 0.5  # a corner only the half-resolution pass finds must correlate with its print this much ...
     half_rim_px: float = 12.0  # ... and lie this far from the image circle's rim (px)
-    # --- grey prints (detector) ---
-    retry_gain: float = 0.0  # where no board is found, the frame is read again (network too), its contrast raised this much about ...
-    # ... its local mean (0: never; cotrain detect --grey-print: 3; off by default: ~40 ms more for every frame giving nothing) ...
-    retry_gain_sigma: float = 0.028  # ... that mean's Gaussian sigma, as a share of the frame's shorter side (20 px at 720)
-    retry_min_margin: float = float("inf")  # ... there placements by the network's votes are not reported (min_margin there) ...
-    retry_min_geometry_margin: float = 20.0  # ... only those the geometry puts this far ahead (min_geometry_margin there)
+    # --- grey prints (detector): a frame giving nothing read again (network too) with its contrast raised about its local mean ---
+    retry_gain: float = 0.0  # by this factor (<= 1: never; cotrain detect --grey-print: GREY_PRINT_GAIN; ~40 ms a frame giving nothing)
+    retry_gain_sigma: float = 0.028  # the local mean's Gaussian sigma, as a share of the frame's shorter side (20 px at 720)
+    retry_min_margin: float = float("inf")  # min_margin on the raised frame (inf: placements by the network's votes not reported)
+    retry_min_geometry_margin: float = 20.0  # min_geometry_margin on the raised frame: the geometry must put a board this far ahead
     # --- completion of a placed board ---
     max_neighbour_misfit: float = 0.2  # a placed corner this far (of its square) from where its nearest identified ones put it goes ...
     misfit_neighbours: int = 7  # ... those corners (tag_completion.neighbour_check; 0: no check); completion may find it again ...

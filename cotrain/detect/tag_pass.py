@@ -131,9 +131,8 @@ class TagConfig:
     sharpen: float = 1.5  # weight of the 4-neighbour Laplacian that undoes blur over a tag's cells (rendered tags of 10-30 px)
     min_cell_px: float = 1.0  # tags whose data cells are smaller than this (px) neither seed a lattice nor are read ...
     retry_min_cell_px: float = 0.7  # ... or than this, in a third look (the second's wider cone too) where the first two find nothing
-    retry_gain: float = 3.0  # a fourth look where the third finds nothing: the frame's contrast raised this much about ...
-    # ... its local mean (0: never); ...
-    retry_gain_sigma: float = 0.028  # ... that mean's Gaussian sigma, as a share of the frame's shorter side (20 px at 720)
+    retry_gain: float = 3.0  # a fourth look where the third finds nothing: contrast raised this much about the local mean (<= 1: never)
+    retry_gain_sigma: float = 0.028  # the local mean's Gaussian sigma, as a share of the frame's shorter side (20 px at 720)
     lens_fov: float = 210.0  # deg: where an image circle shows, tags are read through an equidistant lens of this FoV filling it (0: never)
     # --- placement ---
     min_margin: float = 12.0  # the board's placement must beat the runner-up by this (correlation; a clean tag gives 36)

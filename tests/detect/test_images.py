@@ -1,6 +1,8 @@
 """Images as the detector takes them: the exposure gain of under-exposed frames."""
 
+import cv2
 import numpy as np
+import pytest
 
 from cotrain.detect.images import brighten, local_gain
 from tests.detect.boards import board_image
@@ -77,3 +79,20 @@ def test_local_gain_stretches_about_the_local_mean():
     np.testing.assert_allclose(out[30, 100] - out[30, 99], 3 * 0.1, rtol=0.02)  # the mean is smooth across one pixel
     bright = local_gain(np.where(np.arange(80) < 40, 0.1, 0.95).astype(np.float32)[None].repeat(20, 0), 3.0, 10.0)
     assert bright.min() >= 0 and bright.max() <= 1 and bright[10, 45] == 1.0 and bright[10, 35] == 0.0
+    with pytest.raises(ValueError, match="sigma"):
+        local_gain(flat, 3.0, 0.0)
+
+
+def test_local_gain_takes_the_mean_at_a_quarter_of_the_resolution_closely():
+    """A frame's size and sigma 20 (the fourth look's at 720 px): the mean is taken at a quarter of
+    the resolution, and the stretch is within 3 x 0.005 of the one about the full-resolution
+    Gaussian mean away from the frame's edges (odd sizes: the quarter is not exact)."""
+    rng = np.random.default_rng(1)
+    ys, xs = np.mgrid[0:721, 0:1283].astype(np.float32)
+    g = (0.5 + 0.2 * np.sin(xs / 37) * np.cos(ys / 53) + 0.05 * rng.standard_normal(xs.shape)).astype(np.float32)
+    g = np.clip(g, 0, 1)
+    mean = cv2.GaussianBlur(g, (0, 0), 20.0)
+    exact = np.clip(mean + 3.0 * (g - mean), 0, 1)
+    got = local_gain(g, 3.0, 20.0)
+    inner = (slice(60, -60), slice(60, -60))
+    assert np.abs(got - exact)[inner].max() < 3 * 0.005

@@ -38,12 +38,17 @@ def test_each_curve_counts_samples_with_its_own_batch(tmp_path):
     assert "| gpu | " + " | ".join([best] * 5 + [early, best]) + " | 0.050 / 0.060 (3, 19200) |" in table
     # 300 steps of --batch 8 = 2,400 samples
     assert "| cpu | " + " | ".join([best] * 7) + " | 0.050 / 0.060 (3, 2400) |" in table
+    # a path with an @ of its own (no batch after it) is a path
+    (tmp_path / "u@host").mkdir()
+    at = _curve(tmp_path / "u@host", rows)
+    assert main(["--curve", f"home={at}", "--batch", "8", "--out", str(out)]) == 0
+    assert "| home | " in out.with_suffix(".md").read_text()
 
 
 def test_bad_input_is_one_line_and_nonzero(tmp_path, capsys):
     assert main(["--curve", "no-equals-sign"]) == 1
     assert main(["--curve", f"x={tmp_path / 'missing.csv'}"]) == 1
-    assert main(["--curve", f"x={tmp_path / 'curve.csv'}@zero"]) == 1
+    assert main(["--curve", f"x={_curve(tmp_path, [(1, 1, 0.0, 1.0, 0.0, 1.0)])}@0"]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 3 and all(e.startswith("error: ") for e in err)
     with pytest.raises(ValueError, match="not an aprilgrid"):
