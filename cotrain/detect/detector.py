@@ -218,15 +218,18 @@ class Detector:
         # a board cut by two occluders was placed half a turn wrong there with the geometry 15 nats
         # ahead (the 19 right ones over the eight sets: 15-90; at 20, 14 of them stay).
         strict = replace(cfg, min_margin=cfg.retry_min_margin, min_geometry_margin=cfg.retry_min_geometry_margin)
-        return self._grid(gained, box, self.net.run(box.apply(gained)[None, None], self.dense), strict)
+        return self._grid(gained, box, self._dense_maps(gained, box), strict)
+
+    def _dense_maps(self, grey: np.ndarray, box: Letterbox) -> dict[str, np.ndarray]:
+        """The network's outputs the grid pass reads, on ``grey`` letterboxed by ``box``."""
+        return self.net.run(box.apply(grey)[None, None], self.dense)
 
     def grid_result(self, image: np.ndarray, grid: GridConfig | None = None) -> GridResult:
         """The grid pass's whole result on one image (with its identity margin), under ``grid``
         (default the detector's own settings)."""
         grey = self._grey(image)
         box = self.letterbox(grey)
-        out = self.net.run(box.apply(grey)[None, None], self.dense)
-        return self._grid_or_gained(grey, box, out, grid or self.grid)
+        return self._grid_or_gained(grey, box, self._dense_maps(grey, box), grid or self.grid)
 
     def detect(self, image: np.ndarray) -> Detection:
         """Detect corners in one image (any size, 8/16-bit or float, grey or colour)."""

@@ -1802,14 +1802,9 @@ def _tag_pass_both(grey: np.ndarray, board: AprilGrid, cfg: TagConfig, view: _Vi
         return r
     if r.unfound == 0:
         return r  # every corner the board predicts inside the image circle is found: nothing to look for
-    return _with_half_resolution(grey, board, cfg, r)
-
-
-def _with_half_resolution(grey: np.ndarray, board: AprilGrid, cfg: TagConfig, r: TagResult) -> TagResult:
-    """``r`` (the full-resolution pass's result on ``grey``) with the corners only a pass at half
-    resolution finds: blurred and large tags (cotrain.detect.half_resolution), fitted again at full
-    resolution and checked against the print; their tags are added to the decoded ones where a
-    corner of theirs is kept."""
+    # Blurred and large tags (cotrain.detect.half_resolution): corners found only at half
+    # resolution, fitted again and checked against the print; their tags are added to the
+    # decoded ones where a corner of theirs is kept.
     r2 = _tag_pass_circle(halve(grey), board, replace(cfg, min_side_px=0))
     found = corners_at_half_resolution(grey, r.ids, r.xy, r2.ids, r2.xy, board, cfg.grid, cfg.complete)
     if found is None or not len(found[0]):
