@@ -55,6 +55,9 @@ class TrainSettings:
     stop_after: int = 0  # stop (with a checkpoint) after this step, as if interrupted (0 = run to the end)
     stop_after_minutes: float = 0.0  # stop with a checkpoint after this many minutes of this process (0 = no limit)
     device: str = "cpu"  # where the model trains and the batches are rendered: "cpu", "cuda", "cuda:1", ...
+    render_workers: int = (
+        0  # processes rendering the next batches on the CPU while the model trains (0: the training process renders them, on train.device)
+    )
     curriculum_steps: int = 0  # before this step, train on closer, less cropped boards (identity is learned there first)
     curriculum_distance: tuple[float, float] = (0.1, 0.45)  # render.distance_range during the curriculum
     curriculum_offaxis_margin_deg: float = -10.0  # render.offaxis_margin_deg during the curriculum (negative: inside the FoV)
@@ -78,6 +81,8 @@ def finalize_config(cfg: TrainConfig) -> TrainConfig:
         raise ConfigError(f"model.input_size {tuple(cfg.model.input_size)} must equal (render.height, render.width)")
     if cfg.train.batch_size < 1 or cfg.train.steps < 1:
         raise ConfigError("train.batch_size and train.steps must be positive")
+    if cfg.train.render_workers < 0:
+        raise ConfigError(f"train.render_workers must be 0 or more, not {cfg.train.render_workers}")
     if cfg.train.select_by not in ("recall", "board_id_acc"):
         raise ConfigError(f"train.select_by must be 'recall' or 'board_id_acc', not {cfg.train.select_by!r}")
     train_device(cfg.train)
@@ -276,6 +281,47 @@ def freeze(model: CornerNet, names: list[str]) -> list[torch.nn.Module]:
     return frozen
 
 
+class TrainingBatches(torch.utils.data.Dataset):
+    """The training stream by step: item ``step`` is that step's batch for this rank, rendered on
+    ``device`` (the curriculum's scenes before ``train.curriculum_steps``). A pure function of the
+    step, so worker processes render exactly what the training process would."""
+
+    def __init__(self, full: RenderConfig, easy: RenderConfig, s: TrainSettings, board, world: int, rank: int, device: torch.device):
+        self.full, self.easy, self.s, self.board = full, easy, s, board
+        self.world, self.rank, self.device = world, rank, device
+
+    def __len__(self) -> int:
+        return self.s.steps
+
+    def __getitem__(self, step: int) -> dict[str, torch.Tensor]:
+        first = (step * self.world + self.rank) * self.s.batch_size
+        rcfg = self.easy if step < self.s.curriculum_steps else self.full  # validation always uses the full one
+        batch = render_batch(rcfg, list(range(first, first + self.s.batch_size)), seed=self.s.seed, board=self.board, device=self.device)
+        batch.pop("params")  # per-sample camera parameters (a list): not trained on
+        return batch
+
+
+def _one_thread(_: int) -> None:
+    torch.set_num_threads(1)  # a render worker: one core each, the training process keeps its own
+
+
+def batches_ahead(jobs: TrainingBatches, steps: range, workers: int, dev: torch.device):
+    """The batches of ``steps`` in order, rendered ahead by ``workers`` processes on the CPU (one
+    thread each) and moved to ``dev``; two batches per worker are kept waiting."""
+    loader = torch.utils.data.DataLoader(
+        jobs,
+        batch_size=None,
+        sampler=steps,
+        num_workers=workers,
+        prefetch_factor=2,
+        worker_init_fn=_one_thread,
+        multiprocessing_context="spawn",  # no worker inherits the parent's CUDA context or threads
+        pin_memory=dev.type == "cuda",
+    )
+    for batch in loader:
+        yield {k: v.to(dev, non_blocking=True) for k, v in batch.items()}
+
+
 def train(cfg: TrainConfig, resume: bool = False) -> dict:
     """The training loop. Returns {"step", "last_loss", "best_score"}."""
     t_process = time.time()  # train.stop_after_minutes counts from here: setup included
@@ -373,6 +419,8 @@ def train(cfg: TrainConfig, resume: bool = False) -> dict:
         _atomic_save(ck, path)
 
     end = min(s.steps, s.stop_after) if s.stop_after > 0 else s.steps
+    jobs = TrainingBatches(cfg.render, easy, s, board, world, rank, dev if s.render_workers == 0 else torch.device("cpu"))
+    ahead = None if s.render_workers == 0 else batches_ahead(jobs, range(step, end), s.render_workers, dev)
     last_loss = float("nan")
     first_step, saved_at = step, -1
     while step < end:
@@ -384,9 +432,7 @@ def train(cfg: TrainConfig, resume: bool = False) -> dict:
                 if rank == 0 and saved_at != step:
                     save(last)
                 break
-        first = (step * world + rank) * s.batch_size
-        rcfg = easy if step < s.curriculum_steps else cfg.render  # validation always uses cfg.render
-        batch = render_batch(rcfg, list(range(first, first + s.batch_size)), seed=s.seed, board=board, device=dev)
+        batch = next(ahead) if ahead is not None else jobs[step]
         if teacher is not None:
             with torch.no_grad():
                 batch["teacher"] = teacher(batch["image"])
@@ -452,6 +498,8 @@ def train(cfg: TrainConfig, resume: bool = False) -> dict:
             save(last)
             t_ckpt, saved_at = time.time(), step
     bar.close()
+    if ahead is not None:
+        ahead.close()  # the render workers stop
     if world > 1:  # BatchNorm statistics of the last step are per rank: take rank 0's, as DDP does
         for buf in model.buffers():
             dist.broadcast(buf, 0)

@@ -78,6 +78,30 @@ def test_time_chunks_resume_like_an_uninterrupted_run(tmp_path):
     assert abs(a["last_loss"] - b["last_loss"]) < 1e-5 * max(1.0, abs(a["last_loss"]))
 
 
+def test_render_workers_train_like_the_training_process(tmp_path):
+    """Batches rendered ahead by worker processes are the batches the training process renders:
+    the same run, step for step (a resume included: the workers start at the resumed step)."""
+    torch.set_num_threads(1)
+    a = train(tiny(tmp_path / "a", "train.steps=3", "train.ckpt_minutes=0", "train.curriculum_steps=1"))
+    train(
+        tiny(
+            tmp_path / "b",
+            "train.steps=3",
+            "train.stop_after=2",
+            "train.ckpt_minutes=0",
+            "train.curriculum_steps=1",
+            "train.render_workers=2",
+        )
+    )
+    b = train(
+        tiny(tmp_path / "b", "train.steps=3", "train.ckpt_minutes=0", "train.curriculum_steps=1", "train.render_workers=1"), resume=True
+    )
+    assert b["step"] == 3
+    assert abs(a["last_loss"] - b["last_loss"]) < 1e-5 * max(1.0, abs(a["last_loss"]))
+    with pytest.raises(ConfigError, match="render_workers"):
+        tiny(tmp_path / "c", "train.render_workers=-1")
+
+
 def test_device_names_are_checked_before_training(tmp_path):
     with pytest.raises(ConfigError, match="not a torch device"):
         tiny(tmp_path, "train.device=gpu0")
