@@ -1,4 +1,4 @@
-"""Frames from a second, independent renderer: ``python -m calib_eval.detection.foreign [--target KIND | --board YAML] [--photo]``.
+"""Frames from a second, independent renderer: ``python -m calib_eval.detection.foreign [--target KIND | --board YAML] [--photo] [--isp]``.
 
 Our detectors are judged on frames other renderers draw, and everything they were tuned on came
 from one renderer (:mod:`cotrain.render`, kornia). This module draws frames another way, sharing
@@ -37,6 +37,13 @@ is reused.
   quality 50-85 in every frame. A frame's lens, pose and background are its clean twin's (the
   same seed draws them first); its occluder, blur, vignetting, exposure, noise and JPEG are drawn
   anew.
+- ``--isp`` (:attr:`ForeignConfig.isp`): a colour camera's image processing before the JPEG. The
+  8-bit frame is taken as the sensor's Bayer mosaic (one of the four layouts) under white-balance
+  gains (red 1.5-2.2, blue 1.3-1.9, green 1). It is demosaiced by OpenCV (bilinear or
+  edge-aware), the gains are applied and the result turned grey. It is then sharpened by an
+  unsharp mask (amount 0.6-1.5, sigma 0.8-1.6 px), with the dark and bright halos along edges
+  that phone, action and many USB cameras leave. The labels are the clean frame's. Combines with
+  ``--photo``.
 
 Labels: every corner's projection through the same closed-form law (an independent check of our
 geometry is in the tests: the equidistant law against ``cv2.fisheye.projectPoints``). A corner is
@@ -88,6 +95,7 @@ class ForeignConfig:
     min_tag_px: float = 8.0  # ... an AprilGrid corner's tag at least this many (as python -m calib_eval.detection.tags)
     min_visible: int = 6  # frames are drawn again until this many corners are detectable
     photo: bool = False  # photographed prints: grey paper, uneven light and shadow, glare, more noise, JPEG in every frame
+    isp: bool = False  # a colour camera's processing before the JPEG: Bayer mosaic, white balance, demosaicing, sharpening
 
 
 @dataclass
@@ -322,9 +330,39 @@ def render_frame(fov: float, cfg: ForeignConfig, rng: np.random.Generator, board
     srgb = np.where(img <= 0.0031308, 12.92 * img, 1.055 * img ** (1 / 2.4) - 0.055)
     u8 = np.round(srgb * 255).astype(np.uint8)
     jpeg = int(rng.integers(50, 86)) if cfg.photo else int(rng.integers(70, 96)) if rng.random() < 0.5 else 0
+    if cfg.isp:  # drawn after everything else: the frame is its clean twin processed
+        u8 = camera_isp(u8, rng)
     if jpeg:
         u8 = cv2.imdecode(cv2.imencode(".jpg", u8, [cv2.IMWRITE_JPEG_QUALITY, jpeg])[1], cv2.IMREAD_GRAYSCALE)
     return Frame(u8, q, visible, visible & clear & (size >= min_size), lens, jpeg, centre, float(radius), size)
+
+
+# OpenCV's demosaicing codes per Bayer layout (bilinear, edge-aware) and where its red and blue sites are.
+BAYER = {
+    "BG": (cv2.COLOR_BayerBG2BGR, cv2.COLOR_BayerBG2BGR_EA, (0, 0), (1, 1)),
+    "GB": (cv2.COLOR_BayerGB2BGR, cv2.COLOR_BayerGB2BGR_EA, (0, 1), (1, 0)),
+    "RG": (cv2.COLOR_BayerRG2BGR, cv2.COLOR_BayerRG2BGR_EA, (1, 1), (0, 0)),
+    "GR": (cv2.COLOR_BayerGR2BGR, cv2.COLOR_BayerGR2BGR_EA, (1, 0), (0, 1)),
+}
+
+
+def camera_isp(u8: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """A colour camera's processing of the (H, W) uint8 grey frame ``u8``: its Bayer mosaic under
+    white-balance gains, demosaiced by OpenCV, the gains applied, turned grey, then sharpened by an
+    unsharp mask. Returns (H, W) uint8. The mosaic of a grey scene is grey / gain at each site, so
+    the colour interpolation meets at edges and leaves a zipper there, as a real sensor's does."""
+    layout = list(BAYER)[int(rng.integers(len(BAYER)))]
+    bilinear, edge_aware, (ry, rx), (by, bx) = BAYER[layout]
+    gain_r, gain_b = rng.uniform(1.5, 2.2), rng.uniform(1.3, 1.9)
+    code = edge_aware if rng.random() < 0.5 else bilinear
+    amount, sigma = rng.uniform(0.6, 1.5), rng.uniform(0.8, 1.6)
+    raw = u8.astype(np.float32)
+    raw[ry::2, rx::2] /= gain_r
+    raw[by::2, bx::2] /= gain_b
+    bgr = cv2.cvtColor(np.round(raw).astype(np.uint8), code).astype(np.float32) * np.float32([gain_b, 1.0, gain_r])
+    grey = cv2.cvtColor(np.clip(bgr, 0, 255), cv2.COLOR_BGR2GRAY)
+    sharp = grey + amount * (grey - cv2.GaussianBlur(grey, (0, 0), sigma))
+    return np.clip(np.round(sharp), 0, 255).astype(np.uint8)
 
 
 def room_light(xs: np.ndarray, ys: np.ndarray, at: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -475,7 +513,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--per-fov", type=int, default=ForeignConfig.per_fov, help="frames per FoV")
     ap.add_argument("--seed", type=int, default=ForeignConfig.seed)
     ap.add_argument("--photo", action="store_true", help="photographed prints: grey paper, uneven light, shadow, glare, noise, JPEG")
-    ap.add_argument("--out", type=Path, default=None, help="output folder (default report/foreign_<target or board file>[_photo])")
+    ap.add_argument("--isp", action="store_true", help="a colour camera's processing: Bayer mosaic, white balance, demosaicing, sharpening")
+    ap.add_argument("--out", type=Path, default=None, help="output folder (default report/foreign_<target or board file>[_photo][_isp])")
     ap.add_argument("--no-progress", action="store_true")
     a = ap.parse_args(argv)
     if a.per_fov < 1:
@@ -483,9 +522,11 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         kind = load_target(a.board).kind if a.board else a.target or "checkerboard"
-        cfg = ForeignConfig(per_fov=a.per_fov, seed=a.seed, target=a.target or kind, board=str(a.board or ""), photo=a.photo)
+        cfg = ForeignConfig(per_fov=a.per_fov, seed=a.seed, target=a.target or kind, board=str(a.board or ""), photo=a.photo, isp=a.isp)
         make_board(cfg)  # a file of another kind than --target: said before anything is drawn
-        out = a.out or Path(f"report/foreign_{a.board.stem if a.board else cfg.target}{'_photo' if a.photo else ''}")
+        out = a.out or Path(
+            f"report/foreign_{a.board.stem if a.board else cfg.target}{'_photo' if a.photo else ''}{'_isp' if a.isp else ''}"
+        )
         print(evaluate(cfg, out, progress=not a.no_progress))
     except (OSError, ValueError) as e:  # an output folder that cannot be written, a broken labels.json
         print(f"error: {e}", file=sys.stderr)
@@ -509,7 +550,7 @@ def evaluate(cfg: ForeignConfig, out: Path, progress: bool = True) -> str:
     results = {name: score(p, labels, board.symmetries()) for name, p in preds.items()}
     size = f"tag {cfg.min_tag_px:g}" if cfg.target == "aprilgrid" else f"square {cfg.min_square_px:g}"
     which = f"--board {cfg.board}" if cfg.board else f"--target {cfg.target}"
-    photo = " --photo" if cfg.photo else ""
+    photo = (" --photo" if cfg.photo else "") + (" --isp" if cfg.isp else "")
     md = (
         f"Independent renderer, {board} (`python -m calib_eval.detection.foreign {which}{photo}`, seed {cfg.seed}, "
         f"{cfg.per_fov} frames per FoV at {cfg.width}x{cfg.height}): recall of detectable corners ({size} px across at least) "

@@ -85,7 +85,8 @@ class CompletionConfig:
     check: bool = True  # first, the growth's corners are checked against the print (:func:`print_check`) ...
     check_margin: float = 0.0  # ... and one is dropped where a grid neighbour's print matches it better by more than this ...
     check_large_px: float = 20.0  # ... or, in tags at least this wide (px) ...
-    check_margin_large: float = 0.35  # ... by more than this (a local homography fits a large tag's bend less well)
+    check_margin_large: float = 0.35  # ... by more than this (a local homography fits a large tag's bend less well) ...
+    check_min_corr_large: float = 0.1  # ... or at all, where its own print correlates under this (nothing of it is there)
     lens: bool = True  # homographies of the corners' rays under the tag pass's lens guess, where it has one (tag_pass.TagConfig.lens_fov)
     print_fit_gap_px: float = 10.0  # where the saddle fits fail in a gap under this (px), the print is moved onto the image (print_fit) ...
     print_fit_radius: float = 1.5  # ... over the pixels within this many local gaps of it ...
@@ -390,9 +391,11 @@ def print_check(
     correlated with the print around it and around each of its eight grid neighbours (the patch
     of :func:`print_patches`). A corner is contradicted where a
     neighbour's print matches by more than ``cfg.check_margin`` over its own (``cfg.check_margin_large``
-    in tags ``cfg.check_large_px`` wide or more): a corner the lattice put one crossing square over
-    (the square's other corner, where a gap of 2-3 px collapses or glare washes it out), or a tag
-    corner read at the wrong end of its gap. A wrong corner bends the homographies of the corners
+    in tags ``cfg.check_large_px`` wide or more, where it is also contradicted by any better
+    match once its own correlation is under ``cfg.check_min_corr_large``): a corner the lattice put
+    one crossing square over (the square's other corner, where a gap of 2-3 px collapses or glare
+    washes it out), a tag corner read at the wrong end of its gap, or one grown onto no junction of
+    the print at all (squeezed tags at a sharpened frame's rim). A wrong corner bends the homographies of the corners
     around it, so the corners are checked twice, the second time with homographies of the corners
     the first check kept (a corner the first pass dropped may pass the second). Grid neighbours
     printed exactly as the corner is (a checkerboard's diagonal ones) are left out of the
@@ -436,8 +439,10 @@ def _uncontradicted(
     # The tag's width there (px): the shorter image of a tag side along the board's axes (NaN: large).
     ends = to_image(kP[:, None] + np.array([[board.spacing, 0.0], [0.0, board.spacing]]))
     side = np.linalg.norm(ends - q0, axis=2).min(1)
-    margin = np.where(~(side < cfg.check_large_px) & ~strict, cfg.check_margin_large, cfg.check_margin)
-    return (~enough & ~strict) | (enough & ~(other > corr[:, 0] + margin) & ((corr[:, 0] >= min_corr) | ~strict))
+    large = ~(side < cfg.check_large_px) & ~strict
+    margin = np.where(large, cfg.check_margin_large, cfg.check_margin)
+    beaten = (other > corr[:, 0] + margin) | (large & (corr[:, 0] < cfg.check_min_corr_large) & (other > corr[:, 0]))
+    return (~enough & ~strict) | (enough & ~beaten & ((corr[:, 0] >= min_corr) | ~strict))
 
 
 MIN_BORDER_RAY_PX = 3.0  # rays_along: the smallest circle read next to the image's border (px; the blurred core of an X is 1-2 px)

@@ -5,7 +5,7 @@ import cv2
 import numpy as np
 import pytest
 
-from calib_eval.detection.foreign import LENSES, ForeignConfig, main, project, rays, render_frame, room_light
+from calib_eval.detection.foreign import BAYER, LENSES, ForeignConfig, camera_isp, main, project, rays, render_frame, room_light
 
 
 @pytest.mark.parametrize("lens", sorted(LENSES))
@@ -82,6 +82,40 @@ def test_photographed_prints_are_grey_and_their_labels_skip_saturated_corners():
         saturated += (near & fp.visible).any()
         assert _print_spread(fp) < 0.8 * _print_spread(fc)
     assert saturated >= 1  # some frame has visible corners next to saturated pixels (glare, or a bright background)
+
+
+@pytest.mark.parametrize("layout", sorted(BAYER))
+def test_bayer_layouts_are_opencvs(layout):
+    """A mosaic with red, green and blue at the sites :data:`BAYER` names for a layout is
+    demosaiced by that layout's OpenCV codes (bilinear and edge-aware) to that colour."""
+    bilinear, edge_aware, (ry, rx), (by, bx) = BAYER[layout]
+    raw = np.full((8, 8), 100, np.uint8)
+    raw[ry::2, rx::2], raw[by::2, bx::2] = 200, 50
+    for code in (bilinear, edge_aware):
+        np.testing.assert_array_equal(cv2.cvtColor(raw, code)[2:6, 2:6], np.broadcast_to([50, 100, 200], (4, 4, 3)))
+
+
+def test_camera_isp_keeps_flat_grey_and_leaves_halos_at_edges():
+    """``isp``: on a step from grey 50 to 200 the processed image undershoots on the dark side and
+    overshoots on the bright one (the unsharp mask's halos, at every draw of its settings), while
+    away from the edge white balance gives the grey back exactly. A frame is its clean twin
+    processed: the same labels and JPEG quality, flat areas within 2 grey levels on median."""
+    step = np.full((40, 40), 50, np.uint8)
+    step[:, 20:] = 200
+    for seed in range(20):
+        out = camera_isp(step, np.random.default_rng(seed)).astype(int)
+        assert out.shape == (40, 40)
+        assert out[:, 12:28].min() < 45 and out[:, 12:28].max() > 205
+        assert (out[:, :8] == 50).all() and (out[:, 32:] == 200).all()
+    clean, isp = ForeignConfig(width=480, height=360, min_visible=10), ForeignConfig(width=480, height=360, min_visible=10, isp=True)
+    for i in range(3):
+        fc = render_frame(180, clean, np.random.default_rng([13, i]))
+        fi = render_frame(180, isp, np.random.default_rng([13, i]))
+        assert fi.jpeg == fc.jpeg and (fi.corners == fc.corners).all() and (fi.detectable == fc.detectable).all()
+        a, b = fc.image.astype(np.float32), fi.image.astype(np.float32)
+        grad = np.hypot(cv2.Sobel(a, cv2.CV_32F, 1, 0), cv2.Sobel(a, cv2.CV_32F, 0, 1))
+        flat = (cv2.dilate(grad, np.ones((7, 7), np.uint8)) < 30) & (a > 20) & (a < 235)
+        assert flat.sum() > 10000 and np.median(np.abs(a - b)[flat]) <= 2
 
 
 def test_labels_sit_on_the_rendered_corners():
