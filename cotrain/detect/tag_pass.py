@@ -597,7 +597,7 @@ def seed_tag(
         if _shortest_side_of(p0, frame, xy[j]) / CELLS < cfg.min_cell_px:
             continue
         c = np.array([p0, p0 + frame[0, 0], xy[j], p0 + frame[1, 0]])
-        if not ring_in_gaps(img, c, spacing):
+        if not looks_like_a_tag(img, c, spacing):
             continue  # a quick look first: most quads of candidates are no tag
         look = look_at_tag(img, c, spacing, sharpen=cfg.sharpen, max_side_misfit=cfg.max_side_misfit, lens=lens)
         if look is None or look.contrast < cfg.min_bit_contrast or look.clean < cfg.min_clean:
@@ -617,26 +617,41 @@ def shortest_side(corners: np.ndarray) -> float:
     return float(np.linalg.norm(corners - np.roll(corners, 1, 0), axis=1).min())
 
 
-def ring_in_gaps(img: np.ndarray, corners: np.ndarray, spacing: float) -> bool:
+QUICK_DATA_SPAN = 0.08  # looks_like_a_tag: a tag's data cells span at least this share of its border-to-gap contrast
+
+
+def looks_like_a_tag(img: np.ndarray, corners: np.ndarray, spacing: float) -> bool:
     """A quick test that the quad ``corners`` (4, 2) (lattice (0, 0), (1, 0), (1, 1), (0, 1)) could
-    be a tag: at a third and two thirds of each side, the black border (its inner ring, a cell and a
-    half in) is darker than (at 7 of the 8 points)
-    the white gap beyond the side (half a gap out). Bilinear in the quad: 16 samples."""
-    vals = values_at(img, _ring_weights(float(spacing)) @ corners)
-    return bool((vals[:8] < vals[8:]).sum() >= 7)
+    be a tag, before it is read: at a third and two thirds of each side, the black border (its
+    inner ring, a cell and a half in) is darker than (at 7 of the 8 points) the white gap beyond
+    the side (half a gap out); and the centres of its 6 x 6 data cells are not all alike (they
+    span :data:`QUICK_DATA_SPAN` of the gap's median minus the ring's at least: a checker square
+    or a dark patch framed by light is uniform inside; of the quads read as tags on rendered,
+    photographed and processed frames none spans under 0.17; a quad with samples beyond the
+    frame's edge is left to the full read). Bilinear in the quad: 52 samples."""
+    vals = values_at(img, _quick_weights(float(spacing)) @ corners)
+    ring, gaps, data = vals[:8], vals[8:16], vals[16:]
+    if (ring < gaps).sum() < 7:
+        return False
+    if not np.isfinite(vals).all():  # samples beyond the frame's edge say nothing: the full read decides
+        return True
+    return bool(data.max() - data.min() >= QUICK_DATA_SPAN * (np.median(gaps) - np.median(ring)))
 
 
 @functools.lru_cache(maxsize=4)
-def _ring_weights(spacing: float) -> np.ndarray:
-    """(16, 4) bilinear weights of :func:`ring_in_gaps`' samples on a quad's four corners: two points
-    on each side, a cell and a half in (8), then half a gap out (8)."""
+def _quick_weights(spacing: float) -> np.ndarray:
+    """(52, 4) bilinear weights of :func:`looks_like_a_tag`'s samples on a quad's four corners: two
+    points on each side, a cell and a half in (8), then half a gap out (8), then the centres of the
+    6 x 6 data cells (36)."""
     t = np.array([1 / 3, 2 / 3])
 
     def on_sides(d: float) -> np.ndarray:  # (8, 2): two points on each side, ``d`` in from it (unit square)
         lo, hi = np.full(2, d), np.full(2, 1 - d)
         return np.concatenate([np.stack(p, 1) for p in ((t, lo), (t, hi), (lo, t), (hi, t))])
 
-    uv = np.concatenate([on_sides(1.5 / CELLS), on_sides(-spacing / 2)])
+    centres = (BORDER_BITS + 0.5 + np.arange(DATA_BITS)) / CELLS
+    data = np.stack(np.meshgrid(centres, centres), -1).reshape(-1, 2)
+    uv = np.concatenate([on_sides(1.5 / CELLS), on_sides(-spacing / 2), data])
     u, v = uv[:, 0], uv[:, 1]
     w = np.stack([(1 - u) * (1 - v), u * (1 - v), u * v, (1 - u) * v], 1)
     w.setflags(write=False)  # cached: shared by every call

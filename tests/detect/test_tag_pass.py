@@ -36,6 +36,7 @@ from cotrain.detect.tag_pass import (
     lattice_link,
     look_at_tag,
     look_at_tags,
+    looks_like_a_tag,
     otsu_split,
     page_order,
     ray_step,
@@ -141,6 +142,33 @@ def test_flat_view_finds_every_corner_at_its_label():
     assert len(det.ids) == g.n_corners
     err = check_ids(det, q, vis)
     assert np.median(err) < 0.08
+
+
+def test_the_quick_look_passes_every_tag_and_refuses_a_checker_square():
+    """Before a quad of candidates is read as a tag, a quick look: its border ring darker than
+    the gaps around it, and its data cells not all alike. Every tag of a flat view passes it, at
+    full contrast and at a tenth of it (a grey print); a black square framed by white (a
+    checkerboard's, or a dark patch) passes the ring test but not the data cells, and is not read,
+    unless part of it lies beyond the frame's edge."""
+    g = make_target(TargetConfig(kind="aprilgrid", margin=0.3))
+    c = centre(g)
+    img, q, vis, _ = render(g, "kb4", 120, [c[0] + 0.02, c[1] - 0.03, 0.45], c)
+    grey = img.astype(np.float32) / 255
+    quads = q[g.tag_corners(np.arange(g.n_tags))]  # (T, 4, 2): Kalibr's tag corners, lattice order
+    for image in (grey, 0.5 + 0.1 * (grey - 0.5)):
+        assert all(looks_like_a_tag(image, quad, g.cfg.tag_spacing) for quad in quads)
+    square = np.ones((200, 200), np.float32)
+    square[60:140, 60:140] = 0.05
+    quad = np.array([[60.0, 60.0], [140.0, 60.0], [140.0, 140.0], [60.0, 140.0]]) - 0.5
+    assert not looks_like_a_tag(square, quad, 0.3)
+    # A skewed black quad: refused inside the frame; with one gap sample beyond its edge, left to the full read.
+    for dx, passes in ((0, False), (3, True)):
+        framed = np.ones((200, 200), np.float32)
+        skewed = np.array([[20.0, 60.0], [100.0, 60.0], [100.0, 140.0], [10.0, 140.0]]) - [dx, 0]
+        cv2.fillConvexPoly(framed, np.round(skewed).astype(np.int32), 0.05)
+        assert looks_like_a_tag(framed, skewed, 0.3) == passes
+    square[95:105, 95:105] = 1.0  # one white data cell: not all alike
+    assert looks_like_a_tag(square, quad, 0.3)
 
 
 @pytest.mark.parametrize("model", ["kb4", "ucm", "eucm", "ds"])
