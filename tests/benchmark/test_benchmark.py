@@ -151,3 +151,30 @@ def test_tag_pass_timing_names_real_stages_and_times_both_detectors(tmp_path, ca
     # No stage calls another: their shares add up to at most the whole (the rest is the table's last row).
     assert all(0 <= v <= 1 for v in shares.values()) and shares["candidates"] > 0 and sum(shares.values()) <= 1
     assert "tag pass" in capsys.readouterr().out
+
+
+def test_rig_corner_errors_measure_the_injected_noise():
+    """The AprilGrid rig's corner check: synthetic observations of a rig at its ground truth give
+    errors of zero without noise, and with Gaussian noise of sigma 0.5 px per axis a median of
+    sigma * sqrt(2 ln 2) (the Rayleigh median), and none over 3 px; an id moved to its neighbour's
+    corner reads that step's length."""
+    from calib_eval.benchmark.aprilgrid_rig import corner_errors
+    from calib_eval.benchmark.rigs import SynthSpec, make_sequence, paper_config
+    from cotrain.targets import TargetConfig, make_target
+
+    rig, target = paper_config("FoV220_90"), TargetConfig(kind="aprilgrid")
+    board = make_target(target)
+    clean, gt = make_sequence(rig, SynthSpec(n_frames=12, noise_px=0.0, target=target), seed=3)
+    assert np.abs(corner_errors(clean, gt, board)).max() < 1e-9
+    noisy, gt_n = make_sequence(rig, SynthSpec(n_frames=12, noise_px=0.5, target=target), seed=3)
+    err = corner_errors(noisy, gt_n, board)
+    assert len(err) > 1000
+    assert abs(np.median(err) - 0.5 * np.sqrt(2 * np.log(2))) < 0.03
+    assert (err > 3).sum() == 0
+    o = clean.observations[0]
+    k = int(np.nonzero(np.isin(o.ids + 1, o.ids))[0][0])  # a corner whose next id is seen too
+    j = int(np.nonzero(o.ids == o.ids[k] + 1)[0][0])
+    step = float(np.linalg.norm(o.q[j] - o.q[k]))
+    o.q[k] = o.q[j]  # reported at its neighbour's place
+    e = corner_errors(clean, gt, board)
+    assert step > 1.0 and abs(e[k] - step) < 1e-6 and np.delete(e, k).max() < 1e-9
