@@ -395,9 +395,9 @@ def print_check(
     match once its own correlation is under ``cfg.check_min_corr_large``): a corner the lattice put
     one crossing square over (the square's other corner, where a gap of 2-3 px collapses or glare
     washes it out), a tag corner read at the wrong end of its gap, or one grown onto no junction of
-    the print at all (squeezed tags at a sharpened frame's rim). A wrong corner bends the homographies of the corners
-    around it, so the corners are checked twice, the second time with homographies of the corners
-    the first check kept (a corner the first pass dropped may pass the second). Grid neighbours
+    the print at all (squeezed tags at a sharpened frame's rim). A wrong corner bends the
+    homographies of the corners around it, so the corners are checked twice, the second time with
+    homographies of the corners the first check kept (a corner the first pass dropped may pass the second). Grid neighbours
     printed exactly as the corner is (a checkerboard's diagonal ones) are left out of the
     comparison. ``strict`` (K,) bool: corners held to ``cfg.check_margin`` whatever their tag's
     width and to a correlation of ``min_corr`` with their own print, and dropped where they

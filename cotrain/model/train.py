@@ -25,7 +25,7 @@ from cotrain.geometry.letterbox import CELLS
 from cotrain.model.losses import LossConfig, compute_losses
 from cotrain.model.network import CornerNet, ModelConfig
 from cotrain.render.renderer import RenderConfig, render_batch
-from cotrain.targets import make_target
+from cotrain.targets import Target, make_target
 
 
 @dataclass
@@ -55,9 +55,7 @@ class TrainSettings:
     stop_after: int = 0  # stop (with a checkpoint) after this step, as if interrupted (0 = run to the end)
     stop_after_minutes: float = 0.0  # stop with a checkpoint after this many minutes of this process (0 = no limit)
     device: str = "cpu"  # where the model trains and the batches are rendered: "cpu", "cuda", "cuda:1", ...
-    render_workers: int = (
-        0  # processes rendering the next batches on the CPU while the model trains (0: the training process renders them, on train.device)
-    )
+    render_workers: int = 0  # processes rendering batches ahead on the CPU (0: the training process renders them, on train.device)
     curriculum_steps: int = 0  # before this step, train on closer, less cropped boards (identity is learned there first)
     curriculum_distance: tuple[float, float] = (0.1, 0.45)  # render.distance_range during the curriculum
     curriculum_offaxis_margin_deg: float = -10.0  # render.offaxis_margin_deg during the curriculum (negative: inside the FoV)
@@ -286,7 +284,9 @@ class TrainingBatches(torch.utils.data.Dataset):
     ``device`` (the curriculum's scenes before ``train.curriculum_steps``). A pure function of the
     step, so worker processes render exactly what the training process would."""
 
-    def __init__(self, full: RenderConfig, easy: RenderConfig, s: TrainSettings, board, world: int, rank: int, device: torch.device):
+    def __init__(
+        self, full: RenderConfig, easy: RenderConfig, s: TrainSettings, board: Target, world: int, rank: int, device: torch.device
+    ):
         self.full, self.easy, self.s, self.board = full, easy, s, board
         self.world, self.rank, self.device = world, rank, device
 
