@@ -37,13 +37,15 @@ from cotrain.targets import Target, TargetConfig, make_target
 def corner_errors(seq: Sequence, gt: GroundTruth, board: Target) -> np.ndarray:
     """(M,) pixel distance of every detected corner of ``seq`` from where the ground truth
     projects its id (camera ``o.cam``, board pose of view ``o.view``: the frames as
-    :func:`calib_eval.benchmark.rendered.render_rig_sequence` writes them)."""
+    :func:`calib_eval.benchmark.rendered.render_rig_sequence` writes them); inf where the ground
+    truth does not project it (counted as wrong)."""
     P = board.points(torch.float64)
     out = [np.zeros(0)]
     for o in seq.observations:
         T = torch.from_numpy(gt.T_cam_rig[o.cam] @ gt.T_rig_board[o.view])
         q, _ = cameras.project(gt.model[o.cam], poses.transform_points(T, P), torch.from_numpy(gt.params[o.cam]))
-        out.append(np.linalg.norm(np.asarray(o.q) - q.numpy()[o.ids], axis=1))
+        e = np.linalg.norm(np.asarray(o.q) - q.numpy()[o.ids], axis=1)
+        out.append(np.where(np.isfinite(e), e, np.inf))
     return np.concatenate(out)
 
 

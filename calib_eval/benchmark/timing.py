@@ -87,6 +87,8 @@ def bench_train_parts(
     ``torch.profiler``, its 25 costliest operators printed and returned as ``profile``."""
     cfg = finalize_config(load_config(TrainConfig, config, list(overrides)))
     s = cfg.train
+    if s.render_workers:
+        raise ConfigError("train.render_workers: this times a step's parts in one process; cotrain train reports samples/s with workers")
     dev = train_device(s)
     if dev.type == "cuda" and dev.index is None:
         dev = torch.device("cuda", 0)

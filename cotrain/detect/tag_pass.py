@@ -627,15 +627,16 @@ def looks_like_a_tag(img: np.ndarray, corners: np.ndarray, spacing: float) -> bo
     the side (half a gap out); and the centres of its 6 x 6 data cells are not all alike (they
     span :data:`QUICK_DATA_SPAN` of the gap's median minus the ring's at least: a checker square
     or a dark patch framed by light is uniform inside; of the quads read as tags on rendered,
-    photographed and processed frames none spans under 0.17; a quad with samples beyond the
-    frame's edge is left to the full read). Bilinear in the quad: 52 samples."""
+    photographed and processed frames none spans under 0.17). A ring or gap point beyond the
+    frame's edge counts as failed (one may); where a data cell lies beyond it, the data test is
+    left to the full read. Bilinear in the quad: 52 samples."""
     vals = values_at(img, _quick_weights(float(spacing)) @ corners)
     ring, gaps, data = vals[:8], vals[8:16], vals[16:]
-    if (ring < gaps).sum() < 7:
+    if (ring < gaps).sum() < 7:  # a point beyond the frame's edge (NaN) counts as failed
         return False
-    if not np.isfinite(vals).all():  # samples beyond the frame's edge say nothing: the full read decides
+    if not np.isfinite(data).all():  # data cells beyond the frame's edge say nothing: the full read decides
         return True
-    return bool(data.max() - data.min() >= QUICK_DATA_SPAN * (np.median(gaps) - np.median(ring)))
+    return bool(data.max() - data.min() >= QUICK_DATA_SPAN * (np.nanmedian(gaps) - np.nanmedian(ring)))
 
 
 @functools.lru_cache(maxsize=4)

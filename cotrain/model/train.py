@@ -282,7 +282,8 @@ def freeze(model: CornerNet, names: list[str]) -> list[torch.nn.Module]:
 class TrainingBatches(torch.utils.data.Dataset):
     """The training stream by step: item ``step`` is that step's batch for this rank, rendered on
     ``device`` (the curriculum's scenes before ``train.curriculum_steps``). A pure function of the
-    step, so worker processes render exactly what the training process would."""
+    step, so worker processes rendering on the CPU give the batches the training process renders
+    on the CPU exactly; a GPU renders the same scenes to within float rounding."""
 
     def __init__(
         self, full: RenderConfig, easy: RenderConfig, s: TrainSettings, board: Target, world: int, rank: int, device: torch.device

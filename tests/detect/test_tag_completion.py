@@ -163,7 +163,7 @@ def test_print_check_drops_a_corner_moved_across_its_gap_and_keeps_the_rest():
 
 
 def test_print_check_drops_a_large_tags_corner_whose_own_print_is_not_there():
-    """In tags of 50 px the check allows a neighbour's print to match better by 0.35 (a local
+    """In tags over 40 px the check allows a neighbour's print to match better by 0.35 (a local
     homography fits a large tag's bend less well). A corner moved 30 % along its tag's side, onto
     the tag's black border, matches no print (its own correlation under 0.1), a neighbour's a
     little better: dropped, where the margin alone kept it."""

@@ -149,7 +149,7 @@ def test_the_quick_look_passes_every_tag_and_refuses_a_checker_square():
     the gaps around it, and its data cells not all alike. Every tag of a flat view passes it, at
     full contrast and at a tenth of it (a grey print); a black square framed by white (a
     checkerboard's, or a dark patch) passes the ring test but not the data cells, and is not read,
-    unless part of it lies beyond the frame's edge."""
+    also where a gap point lies beyond the frame's edge."""
     g = make_target(TargetConfig(kind="aprilgrid", margin=0.3))
     c = centre(g)
     img, q, vis, _ = render(g, "kb4", 120, [c[0] + 0.02, c[1] - 0.03, 0.45], c)
@@ -161,12 +161,15 @@ def test_the_quick_look_passes_every_tag_and_refuses_a_checker_square():
     square[60:140, 60:140] = 0.05
     quad = np.array([[60.0, 60.0], [140.0, 60.0], [140.0, 140.0], [60.0, 140.0]]) - 0.5
     assert not looks_like_a_tag(square, quad, 0.3)
-    # A skewed black quad: refused inside the frame; with one gap sample beyond its edge, left to the full read.
-    for dx, passes in ((0, False), (3, True)):
+    # A skewed black quad: refused inside the frame, and with one gap point beyond its edge (which
+    # counts as failed, one may): its data cells, all inside, are still alike.
+    for dx in (0, 3):
         framed = np.ones((200, 200), np.float32)
         skewed = np.array([[20.0, 60.0], [100.0, 60.0], [100.0, 140.0], [10.0, 140.0]]) - [dx, 0]
         cv2.fillConvexPoly(framed, np.round(skewed).astype(np.int32), 0.05)
-        assert looks_like_a_tag(framed, skewed, 0.3) == passes
+        assert not looks_like_a_tag(framed, skewed, 0.3)
+        framed[95:105, 50:60] = 1.0  # a white data cell
+        assert looks_like_a_tag(framed, skewed, 0.3)
     square[95:105, 95:105] = 1.0  # one white data cell: not all alike
     assert looks_like_a_tag(square, quad, 0.3)
 

@@ -121,7 +121,7 @@ def test_device_names_are_checked_before_training(tmp_path):
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
 def test_cuda_renders_and_trains_like_the_cpu(tmp_path):
     """On a GPU the batches are rendered there, the same samples as on the CPU, and a few steps
-    train (the checkpoint holds CPU tensors)."""
+    train (the checkpoint holds CPU tensors); with a render worker, the CPU's batches train there."""
     cfg = tiny(tmp_path)
     cpu = render_batch(cfg.render, [0, 1, 2, 3], seed=5)
     gpu = render_batch(cfg.render, [0, 1, 2, 3], seed=5, device="cuda")
@@ -135,6 +135,9 @@ def test_cuda_renders_and_trains_like_the_cpu(tmp_path):
     tensors = list(ck["model"].values()) + [t for st in ck["optimizer"]["state"].values() for t in st.values() if torch.is_tensor(t)]
     assert tensors and all(not t.is_cuda for t in tensors)
     assert train(tiny(tmp_path, "train.steps=4", "train.device=cuda", "train.ckpt_minutes=0"), resume=True)["step"] == 4
+    # Batches rendered ahead on the CPU by a worker, pinned and copied to the GPU, train there too.
+    w = train(tiny(tmp_path / "workers", "train.steps=2", "train.device=cuda", "train.ckpt_minutes=0", "train.render_workers=1"))
+    assert w["step"] == 2 and w["last_loss"] == w["last_loss"]
 
 
 def test_two_process_gloo(tmp_path):
