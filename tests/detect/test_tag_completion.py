@@ -135,19 +135,25 @@ def test_a_candidate_where_the_board_meets_the_dark_beyond_the_rim_is_not_taken_
     np.testing.assert_allclose(chosen[1], x_junction)
 
 
-def test_print_check_drops_a_corner_moved_across_its_gap_and_keeps_the_rest():
-    """A flat view with every inner corner at its true place but two: one moved onto the other
-    corner of its crossing square (as a lattice does where a gap of 2-3 px collapses), and one
-    moved a whole tag side along its row. The check drops exactly those two."""
+def _tilted_view():
+    """Kalibr's 6 x 6 AprilGrid through a homography (tags about 50 px): the target, the blurred
+    view, a rim distance that never binds, every corner's pixel (N, 2) and the inner corners' ids."""
     g = make_target(TargetConfig(kind="aprilgrid"))
     H = np.array([[1000.0, 60.0, 120.0], [-40.0, -1000.0, 640.0], [0.15, 0.1, 1.0]])
     sm = flat_view(g, H)
     rim = np.full(sm.shape, 100.0, np.float32)
     P = g.points().numpy()[:, :2]
     h = np.c_[P, np.ones(len(P))] @ H.T
-    q = h[:, :2] / h[:, 2:]
     c, r = np.arange(g.n_corners) % g.nx, np.arange(g.n_corners) // g.nx
     ids = np.nonzero((c > 0) & (c < g.nx - 1) & (r > 0) & (r < g.ny - 1))[0]
+    return g, sm, rim, h[:, :2] / h[:, 2:], ids
+
+
+def test_print_check_drops_a_corner_moved_across_its_gap_and_keeps_the_rest():
+    """A flat view with every inner corner at its true place but two: one moved onto the other
+    corner of its crossing square (as a lattice does where a gap of 2-3 px collapses), and one
+    moved a whole tag side along its row. The check drops exactly those two."""
+    g, sm, rim, q, ids = _tilted_view()
     xy = q[ids].copy()
     # Corner 27 (column 3) onto 28 (column 4: the crossing square's other side); corner 64
     # (column 4) onto 65 (column 5: the far end of its tag's side).
@@ -167,16 +173,8 @@ def test_print_check_drops_a_large_tags_corner_whose_own_print_is_not_there():
     homography fits a large tag's bend less well). A corner moved 30 % along its tag's side, onto
     the tag's black border, matches no print (its own correlation under 0.1), a neighbour's a
     little better: dropped, where the margin alone kept it."""
-    g = make_target(TargetConfig(kind="aprilgrid"))
-    H = np.array([[1000.0, 60.0, 120.0], [-40.0, -1000.0, 640.0], [0.15, 0.1, 1.0]])
-    sm = flat_view(g, H)
-    rim = np.full(sm.shape, 100.0, np.float32)
-    P = g.points().numpy()[:, :2]
-    h = np.c_[P, np.ones(len(P))] @ H.T
-    q = h[:, :2] / h[:, 2:]
+    g, sm, rim, q, ids = _tilted_view()
     assert np.linalg.norm(q[27] - q[26]) > 40  # a tag side: large tags
-    c, r = np.arange(g.n_corners) % g.nx, np.arange(g.n_corners) // g.nx
-    ids = np.nonzero((c > 0) & (c < g.nx - 1) & (r > 0) & (r < g.ny - 1))[0]
     xy = q[ids].copy()
     xy[ids == 27] = q[27] + 0.3 * (q[26] - q[27])
     assert set(ids[~print_check(sm, rim, g, ids, xy, CompletionConfig())].tolist()) == {27}
