@@ -650,8 +650,7 @@ def _quick_weights(spacing: float) -> np.ndarray:
         lo, hi = np.full(2, d), np.full(2, 1 - d)
         return np.concatenate([np.stack(p, 1) for p in ((t, lo), (t, hi), (lo, t), (hi, t))])
 
-    centres = (BORDER_BITS + 0.5 + np.arange(DATA_BITS)) / CELLS
-    data = np.stack(np.meshgrid(centres, centres), -1).reshape(-1, 2)
+    data = _unit_points(spacing)[0].reshape(DATA_BITS * DATA_BITS, 9, 2)[:, 4]  # each data cell's centre: the middle of its 3 x 3 points
     uv = np.concatenate([on_sides(1.5 / CELLS), on_sides(-spacing / 2), data])
     u, v = uv[:, 0], uv[:, 1]
     w = np.stack([(1 - u) * (1 - v), u * (1 - v), u * v, (1 - u) * v], 1)
