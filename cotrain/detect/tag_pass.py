@@ -251,23 +251,19 @@ def axis_neighbours(xy: np.ndarray, rays: np.ndarray, tree: cKDTree, img: np.nda
     K = len(xy)
     d, nb = tree.query(xy, k=min(cfg.ray_search, K))
     d, nb = d.reshape(K, -1), nb.reshape(K, -1)
-    ok = np.isfinite(d) & (d >= 1.0)
     v = xy[np.minimum(nb, K - 1)] - xy[:, None]  # (K, n, 2), nearest first
-    cos = np.einsum("knd,krd->knr", v, np.nan_to_num(rays)) / np.where(ok, d, 1.0)[..., None]
-    cos_max = np.cos(np.radians(cfg.seed_axis_angle))
+    # Per candidate and ray, the nearest ray_tries neighbours in its cone (columns of nb, -1 where fewer).
+    cones = _in_cone(v, d, np.nan_to_num(rays), float(np.cos(np.radians(cfg.seed_axis_angle))), cfg.ray_tries)
     out = np.full((K, 2, 2, cfg.ray_options, 2), np.nan)
     idx = np.full((K, 2, 2, cfg.ray_options), -1)
     rows = np.arange(K)
     for r in range(4):
-        hit = ok & (cos[..., r] > cos_max)
-        rank = np.cumsum(hit, 1)
         found = np.zeros(K, int)
-        for j in range(1, cfg.ray_tries + 1):  # the nearest few in the cone, nearest first
-            at = hit & (rank == j)
-            has = at.any(1) & (found < cfg.ray_options)
+        for j in range(cfg.ray_tries):  # the nearest few in the cone, nearest first
+            has = (cones[:, r, j] >= 0) & (found < cfg.ray_options)
             if not has.any():
                 break
-            col = at.argmax(1)[has]
+            col = cones[has, r, j]
             step = v[rows[has], col]
             edge = edges_along(img, xy[has], step, cfg.min_edge_contrast, cfg.ray_edge_depth * d[has, 1])
             k = np.nonzero(has)[0][edge]
@@ -275,6 +271,31 @@ def axis_neighbours(xy: np.ndarray, rays: np.ndarray, tree: cKDTree, img: np.nda
             idx[k, r % 2, r // 2, found[k]] = nb[k, col[edge]]
             found[k] += 1
     return RayNeighbours(out, idx)
+
+
+@numba.njit(cache=True, nogil=True)
+def _in_cone(v, d, rays, cos_max, tries):
+    """:func:`axis_neighbours`' cones: for each of K candidates' n nearest neighbours (steps v (K, n,
+    2) at distances d (K, n), nearest first; a neighbour under 1 px away or missing (inf) is
+    none) and each of its four edge rays (rays (K, 4, 2), unit, zero where unknown), the columns
+    of the first ``tries`` neighbours whose cosine to the ray exceeds ``cos_max``, nearest first:
+    (K, 4, tries), -1 where there are fewer."""
+    K, n = d.shape
+    out = np.full((K, 4, tries), -1, np.int64)
+    for k in range(K):
+        for r in range(4):
+            rx, ry = rays[k, r, 0], rays[k, r, 1]
+            c = 0
+            for m in range(n):
+                if c == tries:
+                    break
+                dm = d[k, m]
+                if not (np.isfinite(dm) and dm >= 1.0):
+                    continue
+                if (v[k, m, 0] * rx + v[k, m, 1] * ry) / dm > cos_max:
+                    out[k, r, c] = m
+                    c += 1
+    return out
 
 
 def edges_along(

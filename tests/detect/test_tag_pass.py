@@ -22,6 +22,7 @@ from cotrain.detect.tag_pass import (
     TagCell,
     TagConfig,
     _Board,
+    _in_cone,
     _seed_frames,
     _seed_quads,
     _turn_index,
@@ -553,6 +554,35 @@ def test_compiled_edge_contrast_is_the_readable_one():
             assert got == want
             kinds["zero" if want == 0 else "value"] += 1
     assert min(kinds.values()) > 50
+
+
+def test_in_cone_lists_the_nearest_neighbours_within_each_rays_cone():
+    """axis_neighbours' cones, compiled (``_in_cone``), are the columns numpy's masks give: per
+    candidate and ray, the j-th neighbour (nearest first) whose cosine to the ray exceeds the
+    limit, among neighbours at least 1 px away and found (a k-d tree pads missing ones with inf),
+    with rays of unknown direction (zero) matching nothing."""
+    rng = np.random.default_rng(3)
+    K, n, tries = 60, 40, 5
+    xy = rng.uniform(0, 100, (K, 2))
+    xy[1] = xy[0] + 0.5  # a pair under 1 px apart
+    d, nb = cKDTree(xy).query(xy, k=n + 5)
+    d[:, -5:], nb[:, -5:] = np.inf, K  # as the tree pads a query beyond its points
+    v = xy[np.minimum(nb, K - 1)] - xy[:, None]
+    a = rng.uniform(0, 2 * np.pi, (K, 4))
+    rays = np.stack([np.cos(a), np.sin(a)], -1)
+    rays[::7, 2] = 0.0
+    cos_max = np.cos(np.radians(30.0))
+    got = _in_cone(v, d, rays, cos_max, tries)
+    ok = np.isfinite(d) & (d >= 1.0)
+    cos = np.einsum("knd,krd->knr", v, rays) / np.where(ok, d, 1.0)[..., None]
+    for r in range(4):
+        hit = ok & (cos[..., r] > cos_max)
+        rank = np.cumsum(hit, 1)
+        for j in range(tries):
+            at = hit & (rank == j + 1)
+            np.testing.assert_array_equal(got[:, r, j], np.where(at.any(1), at.argmax(1), -1))
+    assert (got[:, :, 0] >= 0).mean() > 0.5 and (got[:, :, -1] < 0).any()
+    assert (got[::7, 2] < 0).all()
 
 
 def test_edges_along_a_narrow_border_needs_a_shallow_look():
