@@ -134,8 +134,8 @@ def test_timing_train_refuses_a_missing_config_or_device_in_one_line(tmp_path, c
 
 def test_tag_pass_timing_names_real_stages_and_times_both_detectors(tmp_path, capsys):
     """``timing tags``: every stage it splits the tag pass into is a function of the detector (a
-    renamed one would read 0 %), and on four rendered frames both detectors are timed and the
-    stages' shares of the tag pass's time are shares."""
+    renamed one would read 0 %), and on four rendered frames both detectors are timed (one image
+    after another, and over the files) and the stages' shares of the tag pass's time are shares."""
     import importlib
 
     from calib_eval.benchmark.timing import TAG_STAGES, bench_tags
@@ -145,6 +145,7 @@ def test_tag_pass_timing_names_real_stages_and_times_both_detectors(tmp_path, ca
     row = bench_tags(runs=1, per_fov=1, every=1, root=tmp_path)
     assert row["images"] == 4
     assert row["tag_pass_ms"] > 0 and row["aruco_ms"] > 0
+    assert row["files_ms"] > 0 and row["aruco_files_ms"] > 0  # over the files, decoding included
     assert 0 <= row["half_resolution_frames"] <= row["images"]
     shares = row["stage_share"]
     assert set(shares) == {label for label, _, _ in TAG_STAGES}
