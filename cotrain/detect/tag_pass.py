@@ -1294,7 +1294,7 @@ def look_at_tags(
     vals = values_at(img, to_image(u))  # (T, 400)
     seen = np.isfinite(vals).all(1)
     if max_side_misfit is not None:
-        bl, wh = np.median(vals[:, n : n + 64], 1), np.median(vals[:, n + 64 :], 1)
+        bl, wh = _row_medians(vals[:, n : n + 64]), _row_medians(vals[:, n + 64 :])
         try_ = seen & (wh - bl > 0)
         if try_.any():
             # The sides as the image shows them bend the map further (a fisheye bends a tag's sides).
@@ -1322,7 +1322,7 @@ def look_at_tags(
         return out
     v = vals[ok]  # the samples' own type (float32): means, medians and the level compared in it
     d, bv, gv = v[:, :n].reshape(len(ok), 36, -1).mean(-1), v[:, n : n + 64], v[:, n + 64 :]
-    bl, wh = np.median(bv, 1).astype(np.float64), np.median(gv, 1).astype(np.float64)
+    bl, wh = _row_medians(bv).astype(np.float64), _row_medians(gv).astype(np.float64)
     mid = ((bl + wh) / 2).astype(v.dtype)[:, None]
     # Clean: the inner ring of the border (a cell and a half in from the sides) and the gaps; the
     # outer ring lies within half a cell of the sides, which the fisheye bends at the rim.
@@ -1349,6 +1349,15 @@ def look_at_tags(
         c = float(wh[r] - bl[r])
         out[t] = TagLook(soft[r], float(thr[r]), c, float(spread[r]) / max(c, 1e-6), float(clean[r]))
     return out
+
+
+def _row_medians(x: np.ndarray) -> np.ndarray:
+    """The median of each row of x (T, n), in x's type, as ``np.median(x, 1)`` gives it for rows
+    without NaN (the mean of the two middle values where n is even) at a fraction of its cost: it
+    runs for every tag looked at, often one at a time. A row with NaN gets a number, not NaN."""
+    s = np.sort(x, 1)
+    n = s.shape[1]
+    return s[:, n // 2] if n % 2 else (s[:, n // 2 - 1] + s[:, n // 2]) / x.dtype.type(2)
 
 
 def look_at_tag(

@@ -23,6 +23,7 @@ from cotrain.detect.tag_pass import (
     TagConfig,
     _Board,
     _in_cone,
+    _row_medians,
     _seed_frames,
     _seed_quads,
     _turn_index,
@@ -583,6 +584,20 @@ def test_in_cone_lists_the_nearest_neighbours_within_each_rays_cone():
             np.testing.assert_array_equal(got[:, r, j], np.where(at.any(1), at.argmax(1), -1))
     assert (got[:, :, 0] >= 0).mean() > 0.5 and (got[:, :, -1] < 0).any()
     assert (got[::7, 2] < 0).all()
+
+
+def test_row_medians_are_numpys():
+    """The tag reads' medians (``_row_medians``) are ``np.median(x, 1)`` to the bit and in its
+    type, for odd and even rows, float32 and float64, with ties."""
+    rng = np.random.default_rng(5)
+    for n in (12, 24, 36, 64, 65):
+        for dtype in (np.float32, np.float64):
+            x = rng.random((40, n)).astype(dtype)
+            x[::4, :3] = x[::4, 3:6]
+            want = np.median(x, 1)
+            got = _row_medians(x)
+            assert got.dtype == want.dtype
+            np.testing.assert_array_equal(got, want)
 
 
 def test_edges_along_a_narrow_border_needs_a_shallow_look():
