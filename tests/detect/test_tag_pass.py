@@ -943,6 +943,36 @@ def test_candidates_of_small_tags_pass_the_looser_symmetry_test():
     assert found(TagConfig(candidate_min_symmetry=TagConfig().grid.min_symmetry)) < 0.75
 
 
+def test_a_views_side_thread_reads_what_one_thread_reads():
+    """A view's whole-image work (the distance to the rim, the saddle response, the fit windows'
+    blurs) runs partly on a second thread where OpenCV may use two: the candidates, their rays,
+    the distance to the rim and every blur are those of the one-thread reading, to the bit."""
+    from cotrain.detect.saddle import outside_circle
+    from cotrain.detect.tag_pass import _candidates_of
+
+    g = make_target(TargetConfig(kind="aprilgrid"))
+    c = centre(g)
+    img, _, vis, _ = render(g, "ds", 220, [c[0] + 0.1, c[1] - 0.05, 0.4], c)
+    assert vis.sum() > 50
+    grey = img.astype(np.float32) / 255
+    allowed = ~outside_circle(grey)
+    threads = cv2.getNumThreads()
+    try:
+        cv2.setNumThreads(1)
+        one = _candidates_of(grey, allowed, TagConfig())
+        cv2.setNumThreads(2)
+        two = _candidates_of(grey, allowed, TagConfig())
+    finally:
+        cv2.setNumThreads(threads)
+    assert len(one.xy) > 50
+    np.testing.assert_array_equal(one.xy, two.xy)
+    np.testing.assert_array_equal(one.rays, two.rays)
+    np.testing.assert_array_equal(one.rim_dist, two.rim_dist)
+    assert set(one.smoothed) <= set(two.smoothed)
+    for h, blurred in one.smoothed.items():
+        np.testing.assert_array_equal(blurred, two.smoothed[h])
+
+
 def test_detect_files_runs_the_tag_pass_in_processes_with_the_same_output(tmp_path, worker_pools, monkeypatch):
     """``detect_files`` over AprilGrid renders and one file that is no image: in two worker
     processes the detection JSON is the same as in this process, entry for entry and in the
