@@ -7,7 +7,8 @@ checkerboard's: tags and crossing squares are dark, the gap strips between them 
 
 1. candidates (:func:`tag_candidates`): saddle points of the full-resolution image (inside the
    image circle), fitted as the grid pass fits them (:mod:`cotrain.detect.saddle`); their four
-   edge rays (:func:`corner_rays`) and the candidates along them (:func:`axis_neighbours`);
+   edge rays (:func:`corner_rays`) and the candidates along them (:func:`axis_neighbours`); the
+   whole-image work before the fits runs half on a second thread (:func:`_candidates_of`);
 2. seeds (:func:`seed_tag`): a candidate whose ray neighbours lead to the three other corners of
    a tag that looks like one (black border ring in white gaps, black and white data cells); seeds
    whose tag decodes alone grow first, the others after them (a quad of junctions across two
