@@ -1954,8 +1954,9 @@ def _candidates_of(grey: np.ndarray, allowed: np.ndarray, cfg: TagConfig) -> _Ca
 
     The whole-image work before the fits (the distance to the rim, the saddle response, the
     blurs for the fit windows) is OpenCV's, which releases the GIL: where OpenCV may use more than
-    one thread (not in ``detect_files``' worker processes, which share the cores), a second thread
-    takes half of it. The results are the same either way."""
+    one thread, a second thread takes half of it (not in ``detect_files``, whose reading thread or
+    worker processes already share the cores and run OpenCV at one thread). The results are the
+    same either way."""
     smoothed: dict[int, np.ndarray] = {}
     if cv2.getNumThreads() > 1:
         with ThreadPoolExecutor(max_workers=1) as side:
@@ -1963,7 +1964,7 @@ def _candidates_of(grey: np.ndarray, allowed: np.ndarray, cfg: TagConfig) -> _Ca
             side_jobs = {h: side.submit(smooth_for, grey, h) for h in _VIEW_HALVES[3:]}
             response = saddle_response(grey, cfg.response_sigma)
             for h in _VIEW_HALVES[:3]:
-                smoothed[h] = smooth_for(grey, h)
+                smooth_cached(smoothed, grey, h)
             rim_dist = rim_job.result()
             smoothed.update({h: job.result() for h, job in side_jobs.items()})
     else:
