@@ -520,6 +520,7 @@ def grid_pass(
             min_corr=cfg.complete_min_corr,
             check=False,
             sure_corr=math.inf,
+            min_ray_px=0.0,  # rays at every gap: a checker's print tells only the parities apart
             refit_gap_px=0.0,
         )
         given = dict(zip(ids.tolist(), conf.tolist()))

@@ -26,7 +26,11 @@ identified one (a grid step away) is
    ``min_corr_margin`` than with the pattern around each of its eight grid neighbours: a saddle at
    the crossing square's other corner or at a data junction matches another pattern. Under
    ``sure_corr`` its four edge rays must also follow the board's axes (:func:`rays_along`): a
-   corner half under an occluder has the occluder's edge for one of them. Among several
+   corner half under an occluder has the occluder's edge for one of them. In gaps too small to
+   read rays in (a circle under ``min_ray_px``: tags under about 13 px), the print must instead
+   beat each neighbour's by ``small_corr_margin``, and such corners are taken only once the
+   rounds that read rays add nothing more: their predictions then come from every corner those
+   found. Among several
    candidates of the search, one whose rays follow the axes goes before a sure match over a
    patch under ``sure_inside`` inside the image circle: a patch cut by the rim can match the
    print at the board's edge against the dark beyond it better than the corner a few pixels
@@ -63,7 +67,7 @@ from cotrain.targets import Target
 
 @dataclass
 class CompletionConfig:
-    rounds: int = 8  # rounds of prediction; 0: no completion
+    rounds: int = 64  # rounds of prediction, each a grid step further (they stop at one that adds no corner); 0: no completion
     neighbours: int = 7  # identified corners nearest on the board that a prediction's homography is fitted to
     max_residual: float = 0.5  # ... which must fit them within this fraction of the local gap
     min_gap_px: float = 1.6  # no prediction where the local gap (crossing square's side) is narrower (px)
@@ -81,6 +85,8 @@ class CompletionConfig:
     ray_radius: float = 0.5  # a corner's edge rays are read on a circle of this fraction of the local gap ...
     max_ray_angle: float = 30.0  # ... and the board's axes must leave along them within this (deg) ...
     sure_corr: float = 0.7  # ... unless the print correlation reaches this ...
+    min_ray_px: float = 2.0  # where that circle is smaller (px; tags under 13 px: the X's blurred core) rays are not read (0: always) ...
+    small_corr_margin: float = 0.3  # ... and the print must beat each grid neighbour's by this instead
     sure_inside: float = 0.75  # ... and, among several candidates of the search, over this share of the patch inside the image circle
     check: bool = True  # first, the growth's corners are checked against the print (:func:`print_check`) ...
     check_margin: float = 0.0  # ... and one is dropped where a grid neighbour's print matches it better by more than this ...
@@ -735,7 +741,12 @@ def best_option(
         # it better than the corner a few pixels away does: among several candidates, one whose
         # rays follow the board's axes goes before a sure match over such a patch.
         cut = searched and len(options) > 1 and m.inside < cfg.sure_inside
-        rays = refitted or (rays_along(sm, q, to_image, p, gap, gap_px, cfg) if not sure or cut else True)
+        if refitted or (sure and not cut):
+            rays = True
+        elif cfg.ray_radius * gap_px < cfg.min_ray_px:  # too small to read: the print's margin over its neighbours' stands for them
+            rays = m.corr - m.other >= cfg.small_corr_margin
+        else:
+            rays = rays_along(sm, q, to_image, p, gap, gap_px, cfg)
         if not (sure or rays):
             continue
         if (rays, m.corr) >= best_key:
@@ -794,7 +805,13 @@ def complete_board(
                 out.append((t, beside))
         return out
 
+    # The corners of gaps too small to read edge rays in (cfg.min_ray_px) are taken on their print's
+    # margin alone only once the rounds that read rays add nothing more: their predictions then come
+    # from every corner those found, and a corner they would also find keeps the position it has there.
+    small_rays = False
+    small_failed: set[int] = set()  # corners refused in gaps too small for rays while those wait
     for _ in range(cfg.rounds if len(known) >= 4 else 0):
+        round_cfg = cfg if small_rays else replace(cfg, min_ray_px=0.0)
         kid = np.array(sorted(known))
         kP, kq = P[kid], np.array([known[i] for i in kid])
         todo = []  # (t, prediction, local gap px, homography, identified neighbours)
@@ -828,8 +845,6 @@ def complete_board(
                 unfound.add(t)  # too small to fit, or a poor prediction: it may be in view
                 continue
             todo.append((t, q0, g_px, to_image, beside, at_rim, near))
-        if not todo:
-            break
         added = 0
         halves = np.array([window_half(x[2]) for x in todo])
         for h in np.unique(halves):
@@ -861,10 +876,12 @@ def complete_board(
                 if 0 < cfg.refit_gap_px <= g_px:
                     refit = functools.partial(map_through, kP[near], kq[near], P[t], lens=lens, max_px=cfg.max_residual * g_px)
                 best, best_corr = best_option(
-                    sm, rim_dist, board, to_image, q0, t, P[t], gap, options, searched, g_px, allq, rim_px, cfg, refit
+                    sm, rim_dist, board, to_image, q0, t, P[t], gap, options, searched, g_px, allq, rim_px, round_cfg, refit
                 )
                 if best is None:
                     failed[t] = beside
+                    if not small_rays and options and cfg.ray_radius * g_px < cfg.min_ray_px:
+                        small_failed.add(t)
                     if at_rim:
                         unfound.discard(t)  # as out of view: the view may end there
                     else:
@@ -873,7 +890,11 @@ def complete_board(
                 known[t], score[t], gaps[t] = np.asarray(best, np.float64), best_corr, g_px
                 added += 1
         if not added:
-            break
+            if small_rays or not small_failed:
+                break
+            small_rays = True  # the rounds that read rays are done: the corners of small gaps again
+            for t in small_failed:
+                failed.pop(t, None)
     else:
         if cfg.rounds and len(known) >= 4:
             unfound |= {t for t, _ in to_try()}  # the rounds ran out with these still to try

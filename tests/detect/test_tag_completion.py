@@ -227,6 +227,51 @@ def test_complete_board_recovers_a_rim_view_from_four_tags():
     assert np.isin(np.nonzero(vis & (angle > 80))[0], ids).mean() > 0.6
 
 
+def test_in_gaps_too_small_for_edge_rays_the_prints_margin_decides():
+    """Tags 8 px across seen flat (gaps of 2.4 px): a corner's edge rays would be read on a circle
+    of 1.2 px, inside the blurred core of the X, where they do not follow the board's axes.
+    There, a corner at its place is taken on its print's margin over its grid neighbours' (0.6
+    and more here); with the rays required everywhere (``min_ray_px`` 0) it is refused. The other
+    corner of its crossing square, a gap away, is refused either way: a neighbour's print
+    matches it better."""
+    g = make_target(TargetConfig(kind="aprilgrid"))
+    scale = 8.0 / g.cfg.tag_size
+    H = np.array([[scale, 0.08 * scale, 30.0], [-0.05 * scale, scale, 25.0], [0.0, 0.0, 1.0]])
+    sm = cv2.GaussianBlur(flat_view(g, H, size=(140, 130), blur=0.6), (0, 0), 1.0)
+    rim = np.full(sm.shape, 100.0, np.float32)
+    P = g.board_xy()
+    h = np.c_[P, np.ones(len(P))] @ H.T
+    q = h[:, :2] / h[:, 2:]
+    gap = smallest_step(g)
+    assert CompletionConfig().ray_radius * gap * scale < CompletionConfig().min_ray_px
+    far = np.array([[-100.0, -100.0]])  # no known corner near
+    for t in (27, 38, 77):  # page columns 3, 2, 5: corner t + 1 is the other corner of its crossing square
+        for cfg, taken in ((CompletionConfig(), True), (CompletionConfig(min_ray_px=0.0), False)):
+            args = (sm, rim, g, PlaneMaps(H[None]), q[t], t, P[t], gap)
+            own = best_option(*args, [q[t]], False, gap * scale, far, cfg.min_rim_px, cfg)[0]
+            assert (own is not None) == taken, (t, cfg.min_ray_px)
+            assert best_option(*args, [q[t + 1]], False, gap * scale, far, cfg.min_rim_px, cfg)[0] is None
+
+
+def test_completion_reaches_the_small_tags_of_a_grazing_view():
+    """A board seen at a grazing angle through a 200-degree lens: its tags shrink from 30 px to
+    under 8 px across the view. Completion reaches the far tags, whose gaps are too small for
+    edge rays, on their prints' margin: at least 10 more corners than with the rays required
+    everywhere, each visible and within 0.6 px of its own label."""
+    g = make_target(TargetConfig(kind="aprilgrid"))
+    c = np.array(centre(g))
+    img, q, vis, _ = render(g, "kb4", 200, (c + [-0.7, 0.05, 0.25]).tolist(), (c + [0.2, 0.0, 0.0]).tolist())
+    grey = img.astype(np.float32) / 255
+    found = []
+    for cfg in (TagConfig(), TagConfig(complete=CompletionConfig(min_ray_px=0.0))):
+        r = tag_pass(grey, g, cfg)
+        assert vis[r.ids].all()
+        err = np.linalg.norm(r.xy - q[r.ids], axis=1)
+        assert err.max() < 0.6, f"corner {r.ids[err.argmax()]} is {err.max():.2f} px off"
+        found.append(len(r.ids))
+    assert found[0] >= found[1] + 10, found
+
+
 def _rim_plane_through_lens(lens: EquidistantLens, n_sets: int, seed: int):
     """Board points (n_sets, 8, 2) in 2 x 4 blocks of a 3 cm grid and their exact pixels through
     ``lens``, for random poses that put them 60-110 deg off-axis."""
