@@ -46,7 +46,7 @@ from cotrain.render.renderer import LABEL_VERSION, render_batch
 from cotrain.targets import AprilGrid, TargetConfig, make_target
 
 BINS = list(range(0, 120, 10))  # off-axis bins, deg: [0, 10) ... [110, 120)
-SIZES = [8, 10, 12, 16, 20, 30]  # tag-size bins, px across: [8, 10) ... [30, inf)
+SIZES = [5, 8, 10, 12, 16, 20, 30]  # tag-size bins, px across: [5, 8) ... [30, inf); tags under min_tag_px are visible, not detectable
 
 
 @dataclass
@@ -234,7 +234,7 @@ def score_frame(ids, xy, lab: dict, min_tag_px: float) -> dict:
             hidden += 1  # its own id at a corner the labels call hidden (an occluder within 2 px of it)
         else:
             wrong += 1
-    return {"det": det, "hit": hit & det, "err": err, "wrong": wrong, "hidden": hidden}
+    return {"det": det, "hit": hit & det, "vis": vis, "found": hit, "err": err, "wrong": wrong, "hidden": hidden}
 
 
 def evaluate(cfg: TagEvalConfig, out: Path) -> dict:
@@ -294,10 +294,10 @@ def summarise(rows: list) -> dict:
             per_bin[b][0] += int(m.sum())
             per_bin[b][1] += int((s["hit"] & m).sum())
         px = np.array(lab["tag_px"])
-        for z, z1 in zip(SIZES, SIZES[1:] + [np.inf]):
-            m = s["det"] & (px >= z) & (px < z1)
+        for z, z1 in zip(SIZES, SIZES[1:] + [np.inf]):  # visible corners: tags under the detectable size too
+            m = s["vis"] & (px >= z) & (px < z1)
             per_size[z][0] += int(m.sum())
-            per_size[z][1] += int((s["hit"] & m).sum())
+            per_size[z][1] += int((s["found"] & m).sum())
     return {
         "recall": hit_all / max(det_all, 1),
         "wrong": wrong,
@@ -350,7 +350,12 @@ def table(res: dict, cfg: TagEvalConfig) -> str:
             cells.append("-" if v["recall"] is None else f"{v['recall']:.2f}")
         lines.append(f"| {n} | " + " | ".join(cells) + " |")
     lines.append("| (corners) | " + " | ".join(str(res[names[0]]["bins"][b]["corners"]) for b in BINS) + " |")
-    lines += ["", "Recall per tag size (px across: the smaller singular value of the image of one tag side; corners in the last row):", ""]
+    lines += [
+        "",
+        "Recall per tag size (px across: the smaller singular value of the image of one tag side; corners in the last row; "
+        f"tags under {cfg.min_tag_px:g} px are not detectable, their corners are outside the recall above):",
+        "",
+    ]
     heads = [f"{z}-{z1}" for z, z1 in zip(SIZES, SIZES[1:])] + [f">= {SIZES[-1]}"]
     lines.append("| detector | " + " | ".join(heads) + " |")
     lines.append("|---" * (1 + len(SIZES)) + "|")

@@ -27,24 +27,29 @@ def test_peer_tags_take_kalibr_ids_and_wrong_ones_count():
     s = score_frame(ids, xy, lab, 8.0)
     assert s["det"].sum() == g.n_corners - 2
     assert s["hit"].sum() == 2 and s["wrong"] == 4 and s["hidden"] == 1
+    assert s["found"][15] and s["vis"][15] and not s["hit"][15]  # visible and found: counted by tag size
     np.testing.assert_allclose(s["err"], [np.sqrt(0.5)] * 2)
 
 
 def test_summary_counts_recall_per_fov_angle_and_tag_size():
     """Two frames: recall per FoV, per 10-degree off-axis bin and per tag-size bin from the corners
     each frame makes detectable and hits; a report on an empty frame is counted; a frame of a hard
-    condition counts in its own row only."""
+    condition counts in its own row only. A visible corner of a tag under the detectable size is
+    counted in its size bin and nowhere else."""
     n = 4
-    lab_a = {"fov": 180, "angle": [5.0, 15.0, 15.0, 95.0], "tag_px": [9.0, 11.0, 40.0, 40.0]}
+    lab_a = {"fov": 180, "angle": [5.0, 15.0, 15.0, 95.0, 5.0], "tag_px": [9.0, 11.0, 40.0, 40.0, 6.0]}
     lab_b = {"fov": 220, "angle": [105.0] * n, "tag_px": [13.0] * n}
     s_a = {
-        "det": np.array([True, True, True, False]),
-        "hit": np.array([True, False, True, False]),
+        "det": np.array([True, True, True, False, False]),
+        "hit": np.array([True, False, True, False, False]),
+        "vis": np.array([True, True, True, False, True]),
+        "found": np.array([True, False, True, False, True]),
         "err": [0.1, 0.2],
         "wrong": 1,
         "hidden": 1,
     }
-    s_b = {"det": np.ones(n, bool), "hit": np.array([True, True, True, False]), "err": [0.3] * 3, "wrong": 0, "hidden": 0}
+    hit_b = np.array([True, True, True, False])
+    s_b = {"det": np.ones(n, bool), "hit": hit_b, "vis": np.ones(n, bool), "found": hit_b, "err": [0.3] * 3, "wrong": 0, "hidden": 0}
     empty = {"fov": None}
     # A frame of a hard condition: its own row, in none of the FoV, angle or size figures.
     lab_c = {"fov": None, "condition": "motion blur", "angle": [5.0] * n, "tag_px": [40.0] * n}
@@ -57,6 +62,7 @@ def test_summary_counts_recall_per_fov_angle_and_tag_size():
     assert r["bins"][100]["recall"] == 3 / 4
     assert r["sizes"][8]["recall"] == 1.0 and r["sizes"][10]["recall"] == 0.0 and r["sizes"][12]["recall"] == 3 / 4
     assert r["sizes"][30] == {"recall": 1.0, "corners": 1} and r["sizes"][20]["recall"] is None
+    assert r["sizes"][5] == {"recall": 1.0, "corners": 1}
     np.testing.assert_allclose(r["mean_err"], np.mean([0.1, 0.2, 0.3, 0.3, 0.3]))
 
 
