@@ -67,7 +67,7 @@ from cotrain.targets import Target
 
 @dataclass
 class CompletionConfig:
-    rounds: int = 64  # rounds of prediction, each a grid step further (they stop at one that adds no corner); 0: no completion
+    rounds: int = 64  # rounds of prediction, each a grid step further (they stop where none adds a corner, small gaps' included); 0: none
     neighbours: int = 7  # identified corners nearest on the board that a prediction's homography is fitted to
     max_residual: float = 0.5  # ... which must fit them within this fraction of the local gap
     min_gap_px: float = 1.6  # no prediction where the local gap (crossing square's side) is narrower (px)
@@ -808,10 +808,13 @@ def complete_board(
     # The corners of gaps too small to read edge rays in (cfg.min_ray_px) are taken on their print's
     # margin alone only once the rounds that read rays add nothing more: their predictions then come
     # from every corner those found, and a corner they would also find keeps the position it has there.
+    # Each small-gap corner those rounds refused (for any reason) is tried once more then, with
+    # the maps of every corner found so far.
     small_rays = False
     small_failed: set[int] = set()  # corners refused in gaps too small for rays while those wait
+    rays_cfg = replace(cfg, min_ray_px=0.0)  # the rounds that read rays at every gap
     for _ in range(cfg.rounds if len(known) >= 4 else 0):
-        round_cfg = cfg if small_rays else replace(cfg, min_ray_px=0.0)
+        round_cfg = cfg if small_rays else rays_cfg
         kid = np.array(sorted(known))
         kP, kq = P[kid], np.array([known[i] for i in kid])
         todo = []  # (t, prediction, local gap px, homography, identified neighbours)
@@ -890,6 +893,7 @@ def complete_board(
                 known[t], score[t], gaps[t] = np.asarray(best, np.float64), best_corr, g_px
                 added += 1
         if not added:
+            small_failed -= known.keys()  # found since, with more neighbours
             if small_rays or not small_failed:
                 break
             small_rays = True  # the rounds that read rays are done: the corners of small gaps again

@@ -22,7 +22,7 @@ def test_peer_tags_take_kalibr_ids_and_wrong_ones_count():
     ids, xy = tags_to_corners(tags, g, q)
     assert sorted(ids[:4]) == [10, 11, 14, 15] and ids[4:] == [-1] * 4
     lab = {"corners": q.tolist(), "visible": [True] * g.n_corners, "tag_px": [20.0] * g.n_corners}
-    lab["tag_px"][15] = 5.0  # too small to count: found, but neither recalled nor wrong
+    lab["tag_px"][15] = 5.0  # under the detectable size: found, neither recalled nor wrong, counted by tag size
     lab["visible"][11] = False  # labelled hidden (an occluder within 2 px), found with its id: apart
     s = score_frame(ids, xy, lab, 8.0)
     assert s["det"].sum() == g.n_corners - 2
