@@ -710,7 +710,9 @@ def best_option(
     a known corner (``known_q`` (K, 2)) or nearer than ``rim_px`` to the rim (``rim_dist`` (H, W))
     is refused; the others must match the print around t by ``cfg.min_corr``, by
     ``cfg.min_corr_margin`` more than a grid neighbour's, and have their edge rays along the
-    board's axes unless their match is sure (``cfg.sure_corr``). The best match wins; but among
+    board's axes unless their match is sure (``cfg.sure_corr``); where the rays' circle would be
+    under ``cfg.min_ray_px``, a margin of ``cfg.small_corr_margin`` over every grid neighbour's
+    print stands for the rays. The best match wins; but among
     several ``searched`` candidates (the tag pass's, not a fit at the prediction), those whose
     rays follow the axes go before a sure match over a patch under ``cfg.sure_inside`` inside the
     image circle. With ``refit`` (an option -> the map through it, :func:`map_through`, or None),
