@@ -109,6 +109,11 @@ class CompletionConfig:
     refit_margin: float = 0.3  # ... where it must match better than each grid neighbour's print by this ...
     refit_inside: float = 0.5  # ... over this share of the patch inside the image circle, and have its edge rays along the board's axes
 
+    def reads_rays(self, gap_px: float) -> bool:
+        """Whether a corner's edge rays are read in a local gap of ``gap_px`` (its circle of
+        ``ray_radius`` of the gap at least ``min_ray_px``); else its print's margin stands for them."""
+        return self.ray_radius * gap_px >= self.min_ray_px
+
 
 _PATCHES: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}  # print_patches' results per board and patch
 
@@ -745,7 +750,7 @@ def best_option(
         cut = searched and len(options) > 1 and m.inside < cfg.sure_inside
         if refitted or (sure and not cut):
             rays = True
-        elif cfg.ray_radius * gap_px < cfg.min_ray_px:  # too small to read: the print's margin over its neighbours' stands for them
+        elif not cfg.reads_rays(gap_px):  # too small to read: the print's margin over its neighbours' stands for them
             rays = m.corr - m.other >= cfg.small_corr_margin
         else:
             rays = rays_along(sm, q, to_image, p, gap, gap_px, cfg)
@@ -885,7 +890,7 @@ def complete_board(
                 )
                 if best is None:
                     failed[t] = beside
-                    if not small_rays and options and cfg.ray_radius * g_px < cfg.min_ray_px:
+                    if not small_rays and options and not cfg.reads_rays(g_px):
                         small_failed.add(t)
                     if at_rim:
                         unfound.discard(t)  # as out of view: the view may end there

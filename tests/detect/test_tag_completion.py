@@ -243,7 +243,7 @@ def test_in_gaps_too_small_for_edge_rays_the_prints_margin_decides():
     h = np.c_[P, np.ones(len(P))] @ H.T
     q = h[:, :2] / h[:, 2:]
     gap = smallest_step(g)
-    assert CompletionConfig().ray_radius * gap * scale < CompletionConfig().min_ray_px
+    assert not CompletionConfig().reads_rays(gap * scale)
     far = np.array([[-100.0, -100.0]])  # no known corner near
     cases = ((CompletionConfig(), True), (CompletionConfig(min_ray_px=0.0), False), (CompletionConfig(small_corr_margin=0.9), False))
     for t in (27, 38, 77):  # page columns 3, 2, 5: corner t + 1 is the other corner of its crossing square
