@@ -57,6 +57,7 @@ from cotrain.detect.identity import Placement, assign_ids, canonical_ids, cell_d
 from cotrain.detect.image_circle import beyond_circle, lens_of_circle
 from cotrain.detect.lattice import STEPS, Lattice, grow_lattice, largest_component, refine_positions, skipped_corners, verify_lattice
 from cotrain.detect.saddle import (
+    contrast_scale,
     fit_saddles,
     outside_and_circle,
     pixel_index,
@@ -129,14 +130,12 @@ def find_candidates(
     return xy[keep], axes[keep]
 
 
-MIN_CONTRAST_SCALE = 0.25  # the thresholds fall to a quarter at most (a flat region would take them to zero)
-
-
 def contrast_scaled(cfg: GridConfig, grey: np.ndarray, roi: np.ndarray) -> GridConfig:
     """``cfg`` with its contrast thresholds (saddle contrast, seed contrast, margin contrast)
     scaled by k = the contrast of ``grey`` (H, W) in ``roi`` (H, W bool; 5th to 95th percentile) /
-    ``cfg.board_contrast`` where k < 1 (at least :data:`MIN_CONTRAST_SCALE`); unchanged otherwise
-    and where ``cfg.board_contrast`` is 0. A grey print, a board in the shade or
+    ``cfg.board_contrast`` where k < 1 (:func:`cotrain.detect.saddle.contrast_scale`), and
+    ``board_contrast`` with them (the contrast they hold for); unchanged otherwise and where
+    ``cfg.board_contrast`` is 0. A grey print, a board in the shade or
     behind glare has a fraction of the contrast these were set on, and its saddles and colours
     scale with it. The tests that compare shares of a corner's own contrast need no change, and
     the saddle response stays as it is: lowered, it lets in noise maxima that take the seeds'
@@ -147,11 +146,12 @@ def contrast_scaled(cfg: GridConfig, grey: np.ndarray, roi: np.ndarray) -> GridC
     if not seen.size:
         return cfg
     lo, hi = np.percentile(seen, [5, 95])
-    k = max(float(hi - lo) / cfg.board_contrast, MIN_CONTRAST_SCALE)
+    k = contrast_scale(float(hi - lo), cfg)
     if k >= 1:
         return cfg
     return replace(
         cfg,
+        board_contrast=cfg.board_contrast * k,  # what the scaled thresholds hold for (a spot dimmer still scales them again)
         min_saddle_contrast=cfg.min_saddle_contrast * k,
         min_seed_contrast=cfg.min_seed_contrast * k,
         min_edge_contrast=cfg.min_edge_contrast * k,

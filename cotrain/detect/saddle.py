@@ -9,7 +9,9 @@
   smaller windows;
 - :func:`window_half`, :func:`smooth_for`, :func:`smooth_cached`: the window size for a square
   size, and the image blurred for it (once per image and size);
-- :func:`outside_circle`: the black frame outside a fisheye's image circle (:func:`black_level`: its level).
+- :func:`outside_circle`: the black frame outside a fisheye's image circle (:func:`black_level`: its level);
+- :func:`contrast_scale`, :func:`local_contrast`: how far a region's or a spot's contrast falls
+  short of the one the thresholds were set on (a grey print, shade, glare).
 
 Pure functions over numpy arrays; pixels follow docs/conventions.md (centre of the top-left pixel at (0, 0)).
 """
@@ -347,6 +349,37 @@ def fit_saddles(
             continue
         q[retry], ok[retry], axes[retry] = saddle_fit(smooth_cached(smoothed, grey, h), xy[retry], h, cfg=cfg, rim_dist=rim_dist)
     return q, ok, axes
+
+
+# --------------------------------------------------------------------------------------------
+# Contrast
+# --------------------------------------------------------------------------------------------
+MIN_CONTRAST_SCALE = 0.25  # the thresholds fall to a quarter at most (a flat region would take them to zero)
+
+
+def contrast_scale(contrast: float, cfg: GridConfig) -> float:
+    """The factor k = ``contrast`` / ``cfg.board_contrast`` (at least :data:`MIN_CONTRAST_SCALE`,
+    at most 1) that intensity thresholds set for a board of ``cfg.board_contrast`` are scaled by
+    where a print shows only ``contrast`` (5th to 95th percentile); 1 where ``cfg.board_contrast``
+    is 0. Saddles and colours scale with the print's contrast."""
+    if cfg.board_contrast <= 0:
+        return 1.0
+    return min(max(float(contrast) / cfg.board_contrast, MIN_CONTRAST_SCALE), 1.0)
+
+
+def local_contrast(grey: np.ndarray, xy: np.ndarray, radius: np.ndarray) -> np.ndarray:
+    """The contrast (5th to 95th percentile) of ``grey`` (H, W) in the square of half-size
+    ``radius`` (K,) px around each point xy (K, 2), cut to the image: (K,); 0 where that is empty."""
+    H, W = grey.shape
+    out = np.zeros(len(xy))
+    for k, ((x, y), r) in enumerate(zip(np.asarray(xy, np.float64), np.asarray(radius, np.float64))):
+        r = max(int(math.ceil(r)), 1)
+        xi, yi = int(round(x)), int(round(y))
+        patch = grey[max(yi - r, 0) : min(yi + r + 1, H), max(xi - r, 0) : min(xi + r + 1, W)]
+        if patch.size:
+            lo, hi = np.percentile(patch, [5, 95])
+            out[k] = hi - lo
+    return out
 
 
 # --------------------------------------------------------------------------------------------

@@ -19,7 +19,11 @@ identified one (a grid step away) is
    reach; here every identified corner around predicts). A prediction closer to the image
    circle's rim than ``min_rim_px`` (the board's edge against the black frame makes an X of its
    own there) is out of view, but from ``print_fit_rim_px`` on, in a gap under
-   ``print_fit_rim_gap_px``, the print fit alone looks for it, within ``reach``;
+   ``print_fit_rim_gap_px``, the print fit alone looks for it, within ``reach``. Where the saddle
+   fit fails because its contrast is under the threshold set for a whole print (glare, shade, a
+   grey print: ``GridConfig.board_contrast``), the corner is fitted again, once the rounds above
+   add nothing more, with the threshold scaled to the print's contrast within
+   ``local_contrast`` gaps of the prediction (:func:`dim_fit`);
 3. verified against the print (:func:`print_correlation`): the image around the corner, sampled
    through the homography moved onto it, must correlate with the board's printed pattern around
    that corner (tag border, crossing square, the tags' data cells) by ``min_corr``, and better by
@@ -61,7 +65,7 @@ from scipy.spatial import cKDTree
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.image_circle import EquidistantLens, PlaneMaps, local_views
 from cotrain.detect.lattice import corner_rays, values_at
-from cotrain.detect.saddle import fit_saddles, pixel_index, smooth_cached, window_half
+from cotrain.detect.saddle import contrast_scale, fit_saddles, local_contrast, pixel_index, smooth_cached, window_half
 from cotrain.targets import Target
 
 
@@ -108,6 +112,9 @@ class CompletionConfig:
     refit_gap_px: float = 16.0  # from this gap on (px; 0: never), an option the moved map refuses is judged under the map through it ...
     refit_margin: float = 0.3  # ... where it must match better than each grid neighbour's print by this ...
     refit_inside: float = 0.5  # ... over this share of the patch inside the image circle, and have its edge rays along the board's axes
+    local_contrast: float = (
+        1.0  # last, failed saddle fits again with the contrast threshold scaled to the print's within this many gaps (0: never)
+    )
 
     def reads_rays(self, gap_px: float) -> bool:
         """Whether a corner's edge rays are read in a local gap of ``gap_px`` (its circle of
@@ -761,6 +768,38 @@ def best_option(
     return best, best_key[1]
 
 
+def dim_scale(grey: np.ndarray, q0: np.ndarray, gap_px: float, grid: GridConfig, cfg: CompletionConfig) -> float:
+    """How far the print's contrast within ``cfg.local_contrast`` local gaps (``gap_px``) of q0
+    (2,) falls short of ``grid.board_contrast`` (:func:`cotrain.detect.saddle.contrast_scale`; 1: not
+    at all, or ``cfg.local_contrast`` 0)."""
+    if cfg.local_contrast <= 0:
+        return 1.0
+    return contrast_scale(float(local_contrast(grey, q0[None], np.array([cfg.local_contrast * gap_px]))[0]), grid)
+
+
+def dim_fit(
+    grey: np.ndarray,
+    smoothed: dict[int, np.ndarray],
+    q0: np.ndarray,
+    gap_px: float,
+    half: int,
+    grid: GridConfig,
+    rim_dist: np.ndarray,
+    cfg: CompletionConfig,
+) -> np.ndarray | None:
+    """The saddle fitted at the prediction q0 (2,) in a window of half-size ``half``, with
+    ``grid``'s saddle contrast threshold scaled by :func:`dim_scale`; None where that is 1 (the
+    fit with the full threshold has had its go), where the fit fails, or where it lands
+    ``cfg.reach`` gaps or more away."""
+    k = dim_scale(grey, q0, gap_px, grid, cfg)
+    if k >= 1:
+        return None
+    q, ok, _ = fit_saddles(grey, smoothed, q0[None], half, replace(grid, min_saddle_contrast=grid.min_saddle_contrast * k), rim_dist)
+    if not ok[0] or np.linalg.norm(q[0] - q0) >= cfg.reach * gap_px:
+        return None
+    return q[0]
+
+
 def complete_board(
     grey: np.ndarray,
     smoothed: dict[int, np.ndarray],
@@ -818,6 +857,11 @@ def complete_board(
     # Each small-gap corner those rounds refused (for any reason) is tried once more then, with
     # the maps of every corner found so far.
     small_rays = False
+    # Last, where no corner is added otherwise, the corners whose saddle fit failed are fitted
+    # again with the contrast threshold scaled to the print's contrast around them (dim_fit): the
+    # corners taken before keep their positions (a print fit or a candidate sits better there).
+    dim_rounds = False
+    dim_failed: set[int] = set()  # corners whose saddle fit failed in a dim spot (dim_scale under 1) while those wait
     small_failed: set[int] = set()  # corners refused in gaps too small for rays while those wait
     rays_cfg = replace(cfg, min_ray_px=0.0)  # the rounds that read rays at every gap
     for _ in range(cfg.rounds if len(known) >= 4 else 0):
@@ -870,7 +914,7 @@ def complete_board(
             if len(small):
                 pts = np.array([todo[sel[k]][1] for k in small])
                 fitted[small], ok[small], _ = fit_saddles(grey, smoothed, pts, int(h), small_cfg, rim_dist)
-            for k, q_fit, ok_k in zip(sel, fitted, ok):
+            for k, q_fit, ok_k, fit_k in zip(sel, fitted, ok, fit):
                 t, q0, g_px, to_image, beside, at_rim, near = todo[k]
                 options = [q_fit] if ok_k and np.linalg.norm(q_fit - q0) < cfg.reach * g_px else []
                 if not options and (g_px < cfg.print_fit_gap_px or at_rim):
@@ -888,6 +932,20 @@ def complete_board(
                 best, best_corr = best_option(
                     sm, rim_dist, board, to_image, q0, t, P[t], gap, options, searched, g_px, allq, rim_px, round_cfg, refit
                 )
+                if best is None and fit_k and not ok_k and not dim_rounds:
+                    if dim_scale(grey, q0, g_px, grid, cfg) < 1:
+                        dim_failed.add(t)
+                elif best is None and fit_k and not ok_k:
+                    # Under glare, in shade or on a grey print a saddle's contrast falls under the
+                    # threshold set for a whole print, while the neighbours, found where the print is
+                    # clear, predict it within a fraction of a pixel: where nothing else is taken, a
+                    # fit with the threshold scaled by the contrast around the prediction is offered
+                    # to the same checks. Only then: a print fit or a candidate taken sits better.
+                    q_dim = dim_fit(grey, smoothed, q0, g_px, int(h), small_cfg if g_px < cfg.small_gap_px else fit_cfg, rim_dist, cfg)
+                    if q_dim is not None:
+                        best, best_corr = best_option(
+                            sm, rim_dist, board, to_image, q0, t, P[t], gap, [q_dim], False, g_px, allq, rim_px, round_cfg, refit
+                        )
                 if best is None:
                     failed[t] = beside
                     if not small_rays and options and not cfg.reads_rays(g_px):
@@ -901,11 +959,17 @@ def complete_board(
                 added += 1
         if not added:
             small_failed -= known.keys()  # found since, with more neighbours
-            if small_rays or not small_failed:
+            dim_failed -= known.keys()
+            if not small_rays and small_failed:
+                small_rays = True  # the rounds that read rays are done: the corners of small gaps again
+                for t in small_failed:
+                    failed.pop(t, None)
+            elif not dim_rounds and dim_failed:
+                dim_rounds = small_rays = True  # then the corners whose saddle was too faint, with dim_fit
+                for t in dim_failed:
+                    failed.pop(t, None)
+            else:
                 break
-            small_rays = True  # the rounds that read rays are done: the corners of small gaps again
-            for t in small_failed:
-                failed.pop(t, None)
     else:
         if cfg.rounds and len(known) >= 4:
             unfound |= {t for t, _ in to_try()}  # the rounds ran out with these still to try

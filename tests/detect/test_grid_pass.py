@@ -1,6 +1,7 @@
 """The whole grid pass (cotrain.detect.grid_pass) against exact rendered labels and a synthetic partial view."""
 
 import numpy as np
+import pytest
 import torch
 import torch.nn.functional as F
 
@@ -113,8 +114,9 @@ def test_contrast_scaled_thresholds():
         [cfg.min_saddle_contrast * k, cfg.min_seed_contrast * k, cfg.min_edge_contrast * k],
         rtol=0.01,  # the percentiles are taken over every 4th pixel
     )
+    assert low.board_contrast == pytest.approx(0.5 * k, rel=0.01)  # the contrast the thresholds now hold for
     flat = contrast_scaled(cfg, np.full_like(grey, 0.5), roi)  # no contrast: a quarter of the thresholds at most
-    assert flat.min_saddle_contrast == cfg.min_saddle_contrast * 0.25
+    assert flat.min_saddle_contrast == cfg.min_saddle_contrast * 0.25 and flat.board_contrast == 0.5 * 0.25
     assert low.min_response == cfg.min_response and low.min_alternation == cfg.min_alternation  # shares stay
     assert contrast_scaled(cfg, np.tile(np.linspace(0, 1, 400), (40, 1)).astype(np.float32), roi) is cfg
     assert contrast_scaled(GridConfig(board_contrast=0.0), grey, roi) == GridConfig(board_contrast=0.0)

@@ -6,7 +6,7 @@ import pytest
 from scipy.ndimage import map_coordinates
 
 from cotrain.detect.grid_config import GridConfig
-from cotrain.detect.saddle import fit_saddles, pixel_index, saddle_fit, smooth_for
+from cotrain.detect.saddle import MIN_CONTRAST_SCALE, contrast_scale, fit_saddles, local_contrast, pixel_index, saddle_fit, smooth_for
 
 
 def _x_junction(x0: float, y0: float, size: int = 41, angle: float = 0.3, ss: int = 8) -> np.ndarray:
@@ -199,3 +199,21 @@ def test_pixel_index_rounds_clamps_and_takes_nan_without_a_warning():
         warnings.simplefilter("error")
         got = pixel_index(q, 20, 15)
     np.testing.assert_array_equal(got, [[2, 4], [0, 14], [0, 3], [19, 0]])
+
+
+def test_local_contrast_is_the_5_to_95_percentile_spread_in_a_square_cut_to_the_image():
+    """Over a horizontal ramp (column x holds x / 99) the square of half-size 10 around a point is
+    21 columns of 21 equal values: its 5th and 95th percentiles fall in its 2nd and 20th columns,
+    a spread of 18 / 99. At the image's left edge it is cut to 11 columns, and they fall in its
+    first and last: 10 / 99. On a flat image the spread is 0."""
+    ramp = np.tile(np.linspace(0.0, 1.0, 100, dtype=np.float32), (60, 1))
+    c = local_contrast(ramp, np.array([[50.0, 30.0], [0.0, 30.0]]), np.array([10.0, 10.0]))
+    np.testing.assert_allclose(c, [18 / 99, 10 / 99], rtol=1e-5)
+    assert local_contrast(np.full((20, 20), 0.4, np.float32), np.array([[5.0, 5.0]]), np.array([3.0]))[0] == 0
+
+
+def test_contrast_scale_is_the_share_of_the_boards_contrast_between_a_quarter_and_one():
+    cfg = GridConfig(board_contrast=0.5)
+    assert contrast_scale(0.2, cfg) == pytest.approx(0.4)
+    assert contrast_scale(0.8, cfg) == 1.0 and contrast_scale(0.01, cfg) == MIN_CONTRAST_SCALE
+    assert contrast_scale(0.01, GridConfig(board_contrast=0.0)) == 1.0  # off

@@ -728,6 +728,37 @@ def test_print_fit_holds_under_noise_of_a_tenth_of_the_contrast():
     assert all(print_fit(flat, rim, g, PlaneMaps(_SMALL_GAPS[None]), t, gap_px, cfg) is None for t, gap_px in zip(inner[:40], gaps[:40]))
 
 
+def test_complete_board_finds_the_corners_a_glare_leaves_faint_and_keeps_the_rest_where_they_were():
+    """A flat view of the board (gaps of 12-14 px, beyond the print fit's) under a glare: a bright
+    spot over its far corner mixes up to 0.9 of its light into the print, leaving saddles of a
+    tenth of the print's contrast, with noise. Completed from the four tags of the opposite
+    corner, with the contrast threshold scaled to the print's contrast around each prediction
+    (``local_contrast``) every corner is found (9 fewer without it, each in the glare), each within
+    0.5 px of its label; the corners found either way are where they were."""
+    g = make_target(TargetConfig(kind="aprilgrid"))
+    H = np.array([[700.0, 30.0, 50.0], [-20.0, 690.0, 60.0], [0.05, 0.02, 1.0]])
+    size = (420, 420)
+    v = _sensor_view(g, H, size, 1.0)
+    q = PlaneMaps(H[None])(g.points().numpy()[None, :, :2])[0]
+    yy, xx = np.mgrid[0 : size[1], 0 : size[0]].astype(np.float32)
+    spot = q[-1] - 30  # near the board's far corner
+    glare = 0.9 * np.exp(-((xx - spot[0]) ** 2 + (yy - spot[1]) ** 2) / (2 * 110.0**2))
+    img = (v * (1 - glare) + 0.95 * glare + np.random.default_rng(5).normal(0, 0.008, v.shape)).astype(np.float32)
+    rim, allowed, smoothed = np.full(img.shape, 100.0, np.float32), np.ones(img.shape, bool), {}
+    cand, _ = tag_candidates(img, allowed, TagConfig(), smoothed, rim)
+    given = _anchor(g, [0, 1, 6, 7])
+    plain, scaled = (
+        complete_board(img, dict(smoothed), rim, cand, g, given, q[given], CompletionConfig(local_contrast=lc), GridConfig())
+        for lc in (0.0, 1.0)
+    )
+    assert len(scaled.ids) == g.n_corners and len(plain.ids) <= g.n_corners - 5, (len(plain.ids), len(scaled.ids))
+    assert np.linalg.norm(scaled.xy - q[scaled.ids], axis=1).max() < 0.5
+    gained = np.setdiff1d(scaled.ids, plain.ids)
+    assert (glare[tuple(np.rint(q[gained][:, ::-1]).astype(int).T)] > 0.6).all(), "a corner gained outside the glare"
+    both = np.isin(scaled.ids, plain.ids)
+    np.testing.assert_array_equal(scaled.xy[both], plain.xy)
+
+
 def test_complete_board_finds_corners_of_small_tags_by_their_print():
     """Tags of 8-14 px seen 60-90 deg off-axis through a 200-degree UCM lens and blurred by 1 px
     (gaps of 3-4 px), completed from the four tags of one block: with the print fitted where the
