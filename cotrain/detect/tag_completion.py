@@ -23,7 +23,8 @@ identified one (a grid step away) is
    fit fails because its contrast is under the threshold set for a whole print (glare, shade, a
    grey print: ``GridConfig.board_contrast``), the corner is fitted again, once the rounds above
    add nothing more, with the threshold scaled to the print's contrast within
-   ``local_contrast`` gaps of the prediction (:func:`dim_fit`);
+   ``dim_gaps`` gaps of the prediction (:func:`dim_fit`), and a confidence lowered as the
+   contrast is;
 3. verified against the print (:func:`print_correlation`): the image around the corner, sampled
    through the homography moved onto it, must correlate with the board's printed pattern around
    that corner (tag border, crossing square, the tags' data cells) by ``min_corr``, and better by
@@ -71,7 +72,7 @@ from cotrain.targets import Target
 
 @dataclass
 class CompletionConfig:
-    rounds: int = 64  # rounds of prediction, each a grid step further (they stop where none adds a corner, small gaps' included); 0: none
+    rounds: int = 64  # rounds of prediction, each a grid step further (until one adds no corner, small gaps' and dim fits' too); 0: none
     neighbours: int = 7  # identified corners nearest on the board that a prediction's homography is fitted to
     max_residual: float = 0.5  # ... which must fit them within this fraction of the local gap
     min_gap_px: float = 1.6  # no prediction where the local gap (crossing square's side) is narrower (px)
@@ -112,9 +113,7 @@ class CompletionConfig:
     refit_gap_px: float = 16.0  # from this gap on (px; 0: never), an option the moved map refuses is judged under the map through it ...
     refit_margin: float = 0.3  # ... where it must match better than each grid neighbour's print by this ...
     refit_inside: float = 0.5  # ... over this share of the patch inside the image circle, and have its edge rays along the board's axes
-    local_contrast: float = (
-        1.0  # last, failed saddle fits again with the contrast threshold scaled to the print's within this many gaps (0: never)
-    )
+    dim_gaps: float = 1.0  # last, failed saddle fits again, their threshold scaled to the print's contrast within this many gaps (0: never)
 
     def reads_rays(self, gap_px: float) -> bool:
         """Whether a corner's edge rays are read in a local gap of ``gap_px`` (its circle of
@@ -694,7 +693,7 @@ class Completion(NamedTuple):
 
     ids: np.ndarray  # (K',) the corners identified, given and added, sorted
     xy: np.ndarray  # (K', 2) their pixels
-    corr: np.ndarray  # (K',) the print correlation of the corners added; NaN for the corners given
+    corr: np.ndarray  # (K',) the print correlation of the corners added (times s^2 where dim_fit found them); NaN for the corners given
     unfound: np.ndarray  # (U,) corners beside identified ones, not predicted off the view, not found (or not tried: rounds ran out)
 
 
@@ -768,13 +767,14 @@ def best_option(
     return best, best_key[1]
 
 
-def dim_scale(grey: np.ndarray, q0: np.ndarray, gap_px: float, grid: GridConfig, cfg: CompletionConfig) -> float:
-    """How far the print's contrast within ``cfg.local_contrast`` local gaps (``gap_px``) of q0
-    (2,) falls short of ``grid.board_contrast`` (:func:`cotrain.detect.saddle.contrast_scale`; 1: not
-    at all, or ``cfg.local_contrast`` 0)."""
-    if cfg.local_contrast <= 0:
+def dim_contrast(grey: np.ndarray, q0: np.ndarray, gap_px: float, grid: GridConfig, cfg: CompletionConfig) -> float:
+    """The print's contrast within ``cfg.dim_gaps`` local gaps (``gap_px``) of q0 (2,) as a share
+    of ``grid.board_contrast``, the contrast ``grid``'s thresholds hold for (at most 1; 1 where
+    ``cfg.dim_gaps`` or ``grid.board_contrast`` is 0)."""
+    if cfg.dim_gaps <= 0 or grid.board_contrast <= 0:
         return 1.0
-    return contrast_scale(float(local_contrast(grey, q0[None], np.array([cfg.local_contrast * gap_px]))[0]), grid)
+    c = float(local_contrast(grey, q0[None], np.array([cfg.dim_gaps * gap_px]))[0])
+    return min(c / grid.board_contrast, 1.0)
 
 
 def dim_fit(
@@ -786,18 +786,20 @@ def dim_fit(
     grid: GridConfig,
     rim_dist: np.ndarray,
     cfg: CompletionConfig,
-) -> np.ndarray | None:
+) -> tuple[np.ndarray, float] | None:
     """The saddle fitted at the prediction q0 (2,) in a window of half-size ``half``, with
-    ``grid``'s saddle contrast threshold scaled by :func:`dim_scale`; None where that is 1 (the
-    fit with the full threshold has had its go), where the fit fails, or where it lands
-    ``cfg.reach`` gaps or more away."""
-    k = dim_scale(grey, q0, gap_px, grid, cfg)
-    if k >= 1:
+    ``grid``'s saddle contrast threshold scaled by the print's share of contrast there, s =
+    :func:`dim_contrast` (at least :data:`cotrain.detect.saddle.MIN_CONTRAST_SCALE`), and s; None
+    where s is 1 (the fit with the full threshold has had its go), where the fit fails, or where
+    it lands ``cfg.reach`` gaps or more away."""
+    share = dim_contrast(grey, q0, gap_px, grid, cfg)
+    if share >= 1:
         return None
+    k = contrast_scale(share * grid.board_contrast, grid)
     q, ok, _ = fit_saddles(grey, smoothed, q0[None], half, replace(grid, min_saddle_contrast=grid.min_saddle_contrast * k), rim_dist)
     if not ok[0] or np.linalg.norm(q[0] - q0) >= cfg.reach * gap_px:
         return None
-    return q[0]
+    return q[0], share
 
 
 def complete_board(
@@ -860,8 +862,10 @@ def complete_board(
     # Last, where no corner is added otherwise, the corners whose saddle fit failed are fitted
     # again with the contrast threshold scaled to the print's contrast around them (dim_fit): the
     # corners taken before keep their positions (a print fit or a candidate sits better there).
+    # These last rounds take small gaps' corners on their print's margin too, as the rounds
+    # before them do.
     dim_rounds = False
-    dim_failed: set[int] = set()  # corners whose saddle fit failed in a dim spot (dim_scale under 1) while those wait
+    dim_failed: set[int] = set()  # corners whose saddle fit failed in a dim spot (dim_contrast under 1) while those wait
     small_failed: set[int] = set()  # corners refused in gaps too small for rays while those wait
     rays_cfg = replace(cfg, min_ray_px=0.0)  # the rounds that read rays at every gap
     for _ in range(cfg.rounds if len(known) >= 4 else 0):
@@ -933,7 +937,7 @@ def complete_board(
                     sm, rim_dist, board, to_image, q0, t, P[t], gap, options, searched, g_px, allq, rim_px, round_cfg, refit
                 )
                 if best is None and fit_k and not ok_k and not dim_rounds:
-                    if dim_scale(grey, q0, g_px, grid, cfg) < 1:
+                    if dim_contrast(grey, q0, g_px, grid, cfg) < 1:
                         dim_failed.add(t)
                 elif best is None and fit_k and not ok_k:
                     # Under glare, in shade or on a grey print a saddle's contrast falls under the
@@ -941,11 +945,15 @@ def complete_board(
                     # clear, predict it within a fraction of a pixel: where nothing else is taken, a
                     # fit with the threshold scaled by the contrast around the prediction is offered
                     # to the same checks. Only then: a print fit or a candidate taken sits better.
-                    q_dim = dim_fit(grey, smoothed, q0, g_px, int(h), small_cfg if g_px < cfg.small_gap_px else fit_cfg, rim_dist, cfg)
-                    if q_dim is not None:
+                    # Its score (the detection's confidence, the calibrator's weight: an inverse
+                    # variance) is the print correlation times s^2, s the print's share of contrast
+                    # there: the same noise moves a saddle of s times the contrast 1/s times as far.
+                    dim = dim_fit(grey, smoothed, q0, g_px, int(h), small_cfg if g_px < cfg.small_gap_px else fit_cfg, rim_dist, cfg)
+                    if dim is not None:
                         best, best_corr = best_option(
-                            sm, rim_dist, board, to_image, q0, t, P[t], gap, [q_dim], False, g_px, allq, rim_px, round_cfg, refit
+                            sm, rim_dist, board, to_image, q0, t, P[t], gap, [dim[0]], False, g_px, allq, rim_px, round_cfg, refit
                         )
+                        best_corr *= dim[1] ** 2
                 if best is None:
                     failed[t] = beside
                     if not small_rays and options and not cfg.reads_rays(g_px):

@@ -733,8 +733,11 @@ def test_complete_board_finds_the_corners_a_glare_leaves_faint_and_keeps_the_res
     spot over its far corner mixes up to 0.9 of its light into the print, leaving saddles of a
     tenth of the print's contrast, with noise. Completed from the four tags of the opposite
     corner, with the contrast threshold scaled to the print's contrast around each prediction
-    (``local_contrast``) every corner is found (9 fewer without it, each in the glare), each within
-    0.5 px of its label; the corners found either way are where they were."""
+    (``dim_gaps``) every corner is found (9 fewer without it when written, each in the glare),
+    each within 0.5 px of its label. Their scores (the calibrator's weights), print correlations
+    times the square of the print's share of contrast there (about 0.2), are under 0.1, against
+    ``min_corr`` or more for the corners added where the print is clear. The corners found either
+    way are where they were."""
     g = make_target(TargetConfig(kind="aprilgrid"))
     H = np.array([[700.0, 30.0, 50.0], [-20.0, 690.0, 60.0], [0.05, 0.02, 1.0]])
     size = (420, 420)
@@ -748,13 +751,14 @@ def test_complete_board_finds_the_corners_a_glare_leaves_faint_and_keeps_the_res
     cand, _ = tag_candidates(img, allowed, TagConfig(), smoothed, rim)
     given = _anchor(g, [0, 1, 6, 7])
     plain, scaled = (
-        complete_board(img, dict(smoothed), rim, cand, g, given, q[given], CompletionConfig(local_contrast=lc), GridConfig())
-        for lc in (0.0, 1.0)
+        complete_board(img, dict(smoothed), rim, cand, g, given, q[given], CompletionConfig(dim_gaps=lc), GridConfig()) for lc in (0.0, 1.0)
     )
     assert len(scaled.ids) == g.n_corners and len(plain.ids) <= g.n_corners - 5, (len(plain.ids), len(scaled.ids))
     assert np.linalg.norm(scaled.xy - q[scaled.ids], axis=1).max() < 0.5
     gained = np.setdiff1d(scaled.ids, plain.ids)
     assert (glare[tuple(np.rint(q[gained][:, ::-1]).astype(int).T)] > 0.6).all(), "a corner gained outside the glare"
+    clear = ~np.isin(scaled.ids, given) & ~np.isin(scaled.ids, gained)
+    assert (scaled.corr[np.isin(scaled.ids, gained)] < 0.1).all() and (scaled.corr[clear] >= CompletionConfig().min_corr).all()
     both = np.isin(scaled.ids, plain.ids)
     np.testing.assert_array_equal(scaled.xy[both], plain.xy)
 

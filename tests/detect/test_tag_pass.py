@@ -1148,13 +1148,13 @@ def test_a_blurred_view_is_read_at_half_resolution_too():
     with the half-resolution pass the result is a superset holding most visible corners, each at
     its own label (fitted again at full resolution). Completion that moves the print onto the
     image where the fits fail (``print_fit``), or that fits the saddles the blur has left faint
-    with a threshold scaled to their contrast (``local_contrast``), finds more at full
+    with a threshold scaled to their contrast (``dim_gaps``), finds more at full
     resolution alone, each at its own label too."""
     g = make_target(TargetConfig(kind="aprilgrid", margin=0.3))
     c = np.array(centre(g))
     img, q, vis, _ = render(g, "kb4", 200, (c + [0.0, 0.0, 0.5]).tolist(), c.tolist())
     grey = cv2.GaussianBlur(img.astype(np.float32) / 255, (0, 0), 2.5)
-    saddles = replace(TagConfig().complete, print_fit_gap_px=0.0, print_fit_rim_px=0.0, local_contrast=0.0)
+    saddles = replace(TagConfig().complete, print_fit_gap_px=0.0, print_fit_rim_px=0.0, dim_gaps=0.0)
     alone = tag_pass(grey, g, TagConfig(half_below=0, complete=saddles))
     both = tag_pass(grey, g, TagConfig(complete=saddles))
     assert len(alone.ids) < TagConfig().half_below
@@ -1162,11 +1162,11 @@ def test_a_blurred_view_is_read_at_half_resolution_too():
     assert len(both.ids) > 0.8 * vis.sum()
     err = check_ids(both, q, vis, tol=1.5)
     assert np.median(err) < 0.3
-    faint = tag_pass(grey, g, TagConfig(half_below=0, complete=replace(saddles, local_contrast=1.0)))
+    faint = tag_pass(grey, g, TagConfig(half_below=0, complete=replace(saddles, dim_gaps=1.0)))
     assert len(faint.ids) > 0.8 * vis.sum()
     err = check_ids(faint, q, vis, tol=1.5)
     assert np.median(err) < 0.3
-    printed = tag_pass(grey, g, TagConfig(half_below=0, complete=replace(TagConfig().complete, local_contrast=0.0)))
+    printed = tag_pass(grey, g, TagConfig(half_below=0, complete=replace(TagConfig().complete, dim_gaps=0.0)))
     assert len(printed.ids) > len(alone.ids) + 20
     err = check_ids(printed, q, vis, tol=1.5)
     assert np.median(err) < 0.3
