@@ -1,8 +1,9 @@
-"""An AprilGrid rig end to end: ``python -m calib_eval.benchmark.aprilgrid_rig [--rig FoV220_90] [--frames N] [--out DIR]``.
+"""An AprilGrid rig end to end: ``python -m calib_eval.benchmark.aprilgrid_rig [--rig FoV220_90] [--frames N] [--glare P] [--out DIR]``.
 
 A stereo rig (the paper's configurations, :func:`calib_eval.benchmark.rigs.paper_config`) looks at
 Kalibr's 6 x 6 AprilGrid: the frames are rendered, the tag pass detects them
-(:class:`cotrain.detect.detector.AprilGridDetector`), the selector picks the observations and the
+(:class:`cotrain.detect.detector.AprilGridDetector`; ``--glare``: a spot of light on the print in
+that share of the frames), the selector picks the observations and the
 calibrator solves, unchanged: the target comes from the detections. Scored against the ground truth
 with the checkerboard's tolerances (:mod:`calib_eval.benchmark.robustness`), and every detected
 corner against its ground-truth projection (:func:`corner_errors`); writes
@@ -49,15 +50,17 @@ def corner_errors(seq: Sequence, gt: GroundTruth, board: Target) -> np.ndarray:
     return np.concatenate(out)
 
 
-def run(rig_name: str, frames: int, out: Path, seed: int = 11) -> dict:
+def run(rig_name: str, frames: int, out: Path, seed: int = 11, glare: float = 0.0, detector: AprilGridDetector | None = None) -> dict:
+    """Render, detect (``detector``, default the tag pass as shipped), select, calibrate and score;
+    the summary as ``aprilgrid_rig.json`` holds it."""
     out.mkdir(parents=True, exist_ok=True)
     rig = paper_config(rig_name)
     target = TargetConfig(kind="aprilgrid")
     seq_dir = out / "sequence"
     t0 = time.time()
-    _, gt = render_rig_sequence(rig, frames, seq_dir, seed=seed, target=target)
+    _, gt = render_rig_sequence(rig, frames, seq_dir, seed=seed, target=target, glare=glare)
     t_render = time.time() - t0
-    det = AprilGridDetector(make_target(target))
+    det = detector or AprilGridDetector(make_target(target))
     for c in range(len(gt.params)):
         write_camera_detections(seq_dir / f"cam{c}", lambda paths: detect_files(paths, det, workers=0))
     t_detect = time.time() - t0 - t_render
@@ -72,6 +75,7 @@ def run(rig_name: str, frames: int, out: Path, seed: int = 11) -> dict:
     summary = {
         "rig": rig_name,
         "frames": frames,
+        "glare": glare,
         "target": make_target(target).to_json(),
         "observations": len(seq.observations),
         "corners": int(sum(len(o.ids) for o in seq.observations)),
@@ -103,7 +107,9 @@ def table(s: dict) -> str:
         [
             "# AprilGrid rig: rendered, detected by the tag pass, selected, calibrated",
             "",
-            f"{s['rig']}, Kalibr's 6 x 6 AprilGrid, {s['frames']} frames: {s['observations']} observations with "
+            f"{s['rig']}, Kalibr's 6 x 6 AprilGrid, {s['frames']} frames"
+            + (f" (a glare on the print in {s['glare']:.0%} of them)" if s.get("glare") else "")
+            + f": {s['observations']} observations with "
             f"{s['corners']} corners detected; the selector kept {s['selected']}.",
             f"Against their ground-truth projections: median {e['median']:.3f} px, 99th percentile {e['p99']:.3f} px, "
             f"{e['over_1px']} over 1 px, {e['over_3px']} over 3 px (wrong).",
@@ -125,11 +131,14 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m calib_eval.benchmark.aprilgrid_rig", description=__doc__.splitlines()[0])
     p.add_argument("--rig", default="FoV220_90")
     p.add_argument("--frames", type=int, default=120)
+    p.add_argument("--glare", type=float, default=0.0, help="share of the frames with a spot of light on the print")
     p.add_argument("--out", default="runs/aprilgrid_rig")
     a = p.parse_args(argv)
     torch.set_num_threads(2)
     np.set_printoptions(precision=4)
-    s = run(a.rig, a.frames, Path(a.out))
+    if not 0.0 <= a.glare <= 1.0:
+        p.error(f"--glare must lie in [0, 1], not {a.glare}")
+    s = run(a.rig, a.frames, Path(a.out), glare=a.glare)
     print(table(s))
     return 0 if s["result"]["strict"] else 1
 

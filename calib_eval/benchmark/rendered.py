@@ -24,17 +24,26 @@ from cotrain.targets import TargetConfig, make_target
 
 
 def render_rig_sequence(
-    rig: RigSpec, frames: int, seq_dir: Path, seed: int = 11, progress: bool = True, target: TargetConfig | None = None
+    rig: RigSpec,
+    frames: int,
+    seq_dir: Path,
+    seed: int = 11,
+    progress: bool = True,
+    target: TargetConfig | None = None,
+    glare: float = 0.0,
 ) -> tuple[Sequence, GroundTruth]:
     """Render ``frames`` synchronised views of ``rig`` into ``seq_dir`` (``camC/images``,
-    ``camC/timestamps.csv``) of ``target`` (default the checkerboard). Returns the noise-free
+    ``camC/timestamps.csv``) of ``target`` (default the checkerboard), a spot of glare on the
+    print in a share ``glare`` of the frames (``RenderConfig.p_glare``). Returns the noise-free
     ground-truth observations and the ground truth.
 
     Deterministic in (rig, seed): a longer sequence starts with the frames of a shorter one, and an
     image already in ``seq_dir`` is kept, not rendered again (an interrupted run resumes)."""
     target = target or TargetConfig()
     seq, gt = make_sequence(rig, SynthSpec(n_frames=frames, noise_px=0.0, target=target), seed=seed)
-    rc = RenderConfig(height=rig.height, width=rig.width, p_occluder=0.0, p_no_target=0.0, p_motion=0.0, max_blur_sigma=0.6, target=target)
+    rc = RenderConfig(
+        height=rig.height, width=rig.width, p_occluder=0.0, p_no_target=0.0, p_motion=0.0, max_blur_sigma=0.6, p_glare=glare, target=target
+    )
     board = make_target(rc.target)
     radius = rig_radius(rig)
     seq_dir = Path(seq_dir)

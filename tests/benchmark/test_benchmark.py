@@ -179,3 +179,30 @@ def test_rig_corner_errors_measure_the_injected_noise():
     o.q[k] = o.q[j]  # reported at its neighbour's place
     e = corner_errors(clean, gt, board)
     assert step > 1.0 and abs(e[k] - step) < 1e-6 and np.delete(e, k).max() < 1e-9
+
+
+def test_rig_frames_with_glare_differ_from_the_clean_ones_by_a_bright_spot(tmp_path):
+    """``render_rig_sequence(glare=1.0)``: every frame the same as without glare (the same scene
+    and board pose) but for a spot of light on the print, which only brightens it (blurred over
+    the noise, whose shot part grows with the light: by less than half a grey level anywhere
+    darker); most pixels are untouched. Asking for another share of glare renders the frames again."""
+    import cv2
+
+    from calib_eval.benchmark.rendered import render_rig_sequence
+    from calib_eval.benchmark.rigs import paper_config
+    from cotrain.targets import TargetConfig
+
+    rig, target = paper_config("FoV220_90"), TargetConfig(kind="aprilgrid")
+    for name, glare in (("clean", 0.0), ("glare", 1.0)):
+        render_rig_sequence(rig, 2, tmp_path / name, seed=11, progress=False, target=target, glare=glare)
+    brighter = []
+    for img in sorted((tmp_path / "clean").glob("cam*/images/*.png")):
+        a = cv2.imread(str(img), cv2.IMREAD_GRAYSCALE).astype(np.float32)
+        b = cv2.imread(str(tmp_path / "glare" / img.relative_to(tmp_path / "clean")), cv2.IMREAD_GRAYSCALE).astype(np.float32)
+        d = cv2.GaussianBlur(b, (0, 0), 4) - cv2.GaussianBlur(a, (0, 0), 4)
+        assert d.min() > -0.5 and (np.abs(b - a) <= 1).mean() > 0.75
+        brighter.append((d > 20).sum())
+    assert len(brighter) == 4 and min(brighter) > 100, brighter
+    render_rig_sequence(rig, 2, tmp_path / "clean", seed=11, progress=False, target=target, glare=1.0)  # asked again with glare
+    again = cv2.imread(str(next((tmp_path / "clean").glob("cam0/images/*.png"))), cv2.IMREAD_GRAYSCALE)
+    assert np.array_equal(again, cv2.imread(str(next((tmp_path / "glare").glob("cam0/images/*.png"))), cv2.IMREAD_GRAYSCALE))
