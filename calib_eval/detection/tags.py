@@ -1,6 +1,6 @@
-"""AprilGrid detection evaluation: ``python -m calib_eval.detection.tags [--per-fov N] [--fov ...] [--out DIR]``.
+"""AprilGrid detection evaluation: ``python -m calib_eval.detection.tags [--per-fov N] [--fov ...] [--size WxH] [--out DIR]``.
 
-1. Render a seeded AprilGrid set (Kalibr's 6 x 6 default, 1280x720, half f-theta kb4, half the
+1. Render a seeded AprilGrid set (Kalibr's 6 x 6 default, 1280x720 or ``--size``, half f-theta kb4, half the
    other families, partial views included, plus frames without a target), with the same realism
    as the checkerboard set (:mod:`calib_eval.detection.evaluation`).
 2. Run our tag pass (:class:`cotrain.detect.detector.AprilGridDetector`) and the AprilGrid
@@ -38,7 +38,7 @@ import numpy as np
 import torch
 
 from calib_eval.detection.conditions import CONDITIONS
-from calib_eval.detection.evaluation import TOL_PX, _render_cfg
+from calib_eval.detection.evaluation import TOL_PX, _render_cfg, parse_size
 from cotrain.detect.buffers import keep_image_buffers
 from cotrain.detect.detector import AprilGridDetector
 from cotrain.geometry import cameras
@@ -410,9 +410,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--fov", type=int, nargs="+", default=None)
     p.add_argument("--seed", type=int, default=TagEvalConfig.seed)
     p.add_argument("--per-condition", type=int, default=TagEvalConfig.per_condition, help="frames per hard condition (0: none)")
+    p.add_argument("--size", default="1280x720", help="image size WIDTHxHEIGHT (other rigs: 640x480, 848x800, 1920x1080, ...)")
     p.add_argument("--out", default="runs/tags_eval")
     a = p.parse_args(argv)
-    cfg = TagEvalConfig(per_fov=a.per_fov, seed=a.seed, per_condition=a.per_condition)
+    try:
+        w, h = parse_size(a.size)
+    except ValueError as e:
+        p.error(str(e))
+    cfg = TagEvalConfig(per_fov=a.per_fov, seed=a.seed, per_condition=a.per_condition, width=w, height=h)
     if a.fov:
         cfg.fovs = a.fov
     torch.set_num_threads(2)

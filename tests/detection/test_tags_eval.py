@@ -7,6 +7,7 @@ import os
 
 import cv2
 import numpy as np
+import pytest
 
 from calib_eval.detection.tags import PEERS, TagEvalConfig, render_frame, run_peers, score_frame, summarise, tags_to_corners
 from cotrain.targets import TargetConfig, make_target
@@ -129,3 +130,17 @@ def test_a_frame_where_nothing_is_found_is_read_again_with_a_wider_seed_cone():
     assert err.max() < 1.5 and np.median(err) < 0.4, (err.max(), np.median(err))
     _, empty, _, _ = _set_frame(TagEvalConfig(), 0, 0)
     assert len(tag_pass(empty, g, TagConfig()).ids) == 0
+
+
+def test_the_set_is_rendered_at_the_size_asked_and_a_bad_size_is_refused(tmp_path, capsys):
+    """``--size WxH`` renders the frames at that size (a 320x240 frame here); a size that is not
+    WIDTHxHEIGHT ends with argparse's one-line error and exit status 2, before anything renders."""
+    from calib_eval.detection.tags import main, render_set
+
+    cfg = TagEvalConfig(fovs=[200], per_fov=1, n_empty=0, per_condition=0, width=320, height=240)
+    labels = render_set(cfg, make_target(TargetConfig(kind="aprilgrid")), tmp_path)
+    assert cv2.imread(str(tmp_path / "images" / labels[0]["image"]), cv2.IMREAD_GRAYSCALE).shape == (240, 320)
+    with pytest.raises(SystemExit) as e:
+        main(["--size", "640", "--out", str(tmp_path / "bad")])
+    assert e.value.code == 2 and "WIDTHxHEIGHT" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
