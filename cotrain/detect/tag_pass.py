@@ -172,9 +172,7 @@ class TagConfig:
 class TagResult:
     ids: np.ndarray  # (K,) corner ids (Kalibr's)
     xy: np.ndarray  # (K, 2) input-image pixels
-    confidence: (
-        np.ndarray
-    )  # (K,) 1 for corners of decoded tags, lower through the lattice; completed corners: their print correlation (Completion.corr)
+    confidence: np.ndarray  # (K,) 1 for corners of decoded tags, lower through the lattice; completed corners: Completion.corr
     tags: np.ndarray  # (T,) ids of the tags that decode alone to where the board's placement puts them
     hamming: np.ndarray  # (T,) their bit errors
     dropped_tags: int = 0  # tags that decode alone to another place than the board's (not used), and second boards' tags
