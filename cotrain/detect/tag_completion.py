@@ -98,6 +98,8 @@ class CompletionConfig:
     check_large_px: float = 20.0  # ... or, in tags at least this wide (px) ...
     check_margin_large: float = 0.35  # ... by more than this (a local homography fits a large tag's bend less well) ...
     check_min_corr_large: float = 0.1  # ... or at all, where its own print correlates under this (nothing of it is there)
+    moved_px: float = 3.0  # then one this far (px) or more from where its neighbours' map puts it (print_moved; 0: never) ...
+    moved_margin: float = 0.2  # ... where the print matches better there by this, is left to completion to place (else put back)
     lens: bool = True  # homographies of the corners' rays under the tag pass's lens guess, where it has one (tag_pass.TagConfig.lens_fov)
     print_fit_gap_px: float = 10.0  # where the saddle fits fail in a gap under this (px), the print is moved onto the image (print_fit) ...
     print_fit_radius: float = 1.5  # ... over the pixels within this many local gaps of it ...
@@ -460,6 +462,64 @@ def _uncontradicted(
     margin = np.where(large, cfg.check_margin_large, cfg.check_margin)
     beaten = (other > corr[:, 0] + margin) | (large & (corr[:, 0] < cfg.check_min_corr_large) & (other > corr[:, 0]))
     return (~enough & ~strict) | (enough & ~beaten & ((corr[:, 0] >= min_corr) | ~strict))
+
+
+def print_moved(
+    sm: np.ndarray,
+    rim_dist: np.ndarray,
+    board: Target,
+    ids: np.ndarray,
+    xy: np.ndarray,
+    cfg: CompletionConfig,
+    lens: EquidistantLens | None = None,
+) -> np.ndarray:
+    """(K,) bool: which identified corners ``ids`` (K,) at ``xy`` (K, 2) lie ``cfg.moved_px`` or
+    more from where the map of the ``cfg.neighbours`` other corners nearest them on the board puts
+    them (:func:`local_maps`, through ``lens`` where given), while the image of ``sm`` (H, W)
+    sampled through that map matches the print around the corner better by more than
+    ``cfg.moved_margin`` there than moved onto the corner (each over at least :data:`MIN_INSIDE`
+    of the patch inside the image circle). Such a corner is most likely no junction of the board:
+    the growth slid a step along an edge (a tag's border running into the board's rim or the black
+    beyond the image circle, where the print check's patch is cut short and its neighbours' prints
+    fit no better). As in :func:`print_check`, the corners are judged twice, the second time with
+    maps of the corners the first did not judge moved, and only a corner both judge moved is: a
+    moved corner bends its neighbours' maps too. All False where fewer than four other corners
+    support a map."""
+    K = len(ids)
+    moved = np.zeros(K, bool)
+    if cfg.moved_px <= 0 or min(cfg.neighbours, K - 1) < 4:
+        return moved
+    moved = _moved(sm, rim_dist, board, ids, xy, np.ones(K, bool), cfg, lens)
+    if not moved.any() or min(cfg.neighbours, K - int(moved.sum()) - 1) < 4:
+        return moved
+    return moved & _moved(sm, rim_dist, board, ids, xy, ~moved, cfg, lens)
+
+
+def _moved(
+    sm: np.ndarray,
+    rim_dist: np.ndarray,
+    board: Target,
+    ids: np.ndarray,
+    xy: np.ndarray,
+    support: np.ndarray,
+    cfg: CompletionConfig,
+    lens: EquidistantLens | None,
+) -> np.ndarray:
+    """One pass of :func:`print_moved`, each corner's map fitted to the nearest corners of
+    ``support`` (K,) bool other than itself."""
+    kP = board.board_xy()[ids]
+    near = nearest_others(kP, support, min(cfg.neighbours, int(support.sum()) - 1))
+    to_image, posed = local_maps(kP[near], xy[near], lens)
+    q0 = to_image(kP[:, None])[:, 0]  # (K, 2) where the neighbours put each corner
+    far = np.nonzero(posed & np.isfinite(q0[:, 0]) & (np.linalg.norm(xy - q0, axis=1) >= cfg.moved_px))[0]
+    moved = np.zeros(len(ids), bool)
+    if not len(far):
+        return moved
+    maps = to_image.take(far)
+    at_corner, _, in_corner = _print_correlations(sm, rim_dist, board, maps, xy[far] - q0[far], ids[far], cfg)
+    at_map, _, in_map = _print_correlations(sm, rim_dist, board, maps, np.zeros((len(far), 2)), ids[far], cfg)
+    moved[far] = (at_map[:, 0] > at_corner[:, 0] + cfg.moved_margin) & (in_map >= MIN_INSIDE) & (in_corner >= MIN_INSIDE)
+    return moved
 
 
 MIN_BORDER_RAY_PX = 3.0  # rays_along: the smallest circle read next to the image's border (px; the blurred core of an X is 1-2 px)

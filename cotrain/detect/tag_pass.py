@@ -88,7 +88,7 @@ from cotrain.detect.lattice import (
     values_at,
 )
 from cotrain.detect.saddle import fit_saddles, outside_circle, saddle_response, smooth_cached, smooth_for, window_half
-from cotrain.detect.tag_completion import CompletionConfig, complete_board, print_check
+from cotrain.detect.tag_completion import CompletionConfig, complete_board, print_check, print_moved
 from cotrain.targets.aprilgrid import BORDER_BITS, CELLS, DATA_BITS, N_CODES, AprilGrid, printed_bits
 
 
@@ -2091,10 +2091,15 @@ def _tag_pass_in(
     if cfg.complete.check:
         # A corner the print around it contradicts (a neighbour's pattern matches better) is dropped;
         # completion may find it where it is.
-        ok = print_check(
-            smooth_cached(smoothed, grey, 1), rim_dist, board, ids_a, xy_a, cfg.complete, lens=lens if cfg.complete.lens else None
-        )
+        ok = print_check(sm, rim_dist, board, ids_a, xy_a, cfg.complete, lens=lens if cfg.complete.lens else None)
         ids_a, xy_a, conf_a = ids_a[ok], xy_a[ok], conf_a[ok]
+    aside = np.zeros(len(ids_a), bool)
+    if cfg.complete.check and cfg.complete.rounds:
+        # A corner some pixels from where its neighbours put it, where the print matches better
+        # there, is set aside for completion to place; where completion does not, it is put back.
+        aside = print_moved(sm, rim_dist, board, ids_a, xy_a, cfg.complete, lens if cfg.complete.lens else None)
+    aside_ids, aside_xy, aside_conf = ids_a[aside], xy_a[aside], conf_a[aside]
+    ids_a, xy_a, conf_a = ids_a[~aside], xy_a[~aside], conf_a[~aside]
     unfound = None
     if cfg.complete.rounds and len(ids_a) >= 4:
         # Corners the growth missed, predicted from the identified ones and checked against the
@@ -2104,7 +2109,11 @@ def _tag_pass_in(
             grey, smoothed, rim_dist, xy, board, ids_a, xy_a, cfg.complete, cfg.grid, lens if cfg.complete.lens else None
         )
         conf_a = np.array([given.get(i, c) for i, c in zip(ids_a.tolist(), corr.tolist())])
-        unfound = len(missing)
+        unfound = len(set(missing.tolist()) - set(aside_ids.tolist()))
+    back = ~np.isin(aside_ids, ids_a)
+    ids_a = np.concatenate([ids_a, aside_ids[back]])
+    xy_a = np.concatenate([xy_a, aside_xy[back]])
+    conf_a = np.concatenate([conf_a, aside_conf[back]])
     order = np.argsort(ids_a)
     return TagResult(
         ids_a[order],

@@ -1,6 +1,8 @@
 """Completion of a placed AprilGrid (cotrain.detect.tag_completion): local homographies, the check
 against the print, and corners recovered from a few identified ones."""
 
+from dataclasses import replace
+
 import cv2
 import numpy as np
 import torch
@@ -22,6 +24,7 @@ from cotrain.detect.tag_completion import (
     print_check,
     print_correlation,
     print_fit,
+    print_moved,
     smallest_step,
 )
 from cotrain.detect.tag_pass import TagConfig, tag_candidates, tag_pass
@@ -181,17 +184,44 @@ def test_print_check_drops_a_large_tags_corner_whose_own_print_is_not_there():
     assert print_check(sm, rim, g, ids, xy, CompletionConfig(check_min_corr_large=-np.inf)).all()
 
 
+def test_print_moved_finds_a_corner_slid_along_its_tags_side_that_the_print_check_keeps():
+    """A corner slid 10-20 % of a 52 px tag side along it (5-10 px; as the growth slides where a
+    tag's border runs into the board's rim) still matches its own print best, so the print check
+    keeps it; where its neighbours put it the print matches better: print_moved finds it, and no
+    other corner. Slid 2.6 px (under ``moved_px``), or with the test off, it is left alone."""
+    g, sm, rim, q, ids = _tilted_view()
+    cfg = CompletionConfig()
+    assert not print_moved(sm, rim, g, ids, q[ids], cfg).any()
+    for share in (0.1, 0.15, 0.2):
+        xy = q[ids].copy()
+        xy[ids == 27] = q[27] + share * (q[26] - q[27])
+        assert print_check(sm, rim, g, ids, xy, cfg).all()
+        assert ids[print_moved(sm, rim, g, ids, xy, cfg)].tolist() == [27]
+        assert not print_moved(sm, rim, g, ids, xy, replace(cfg, moved_px=0.0)).any()
+    xy = q[ids].copy()
+    xy[ids == 27] = q[27] + 0.05 * (q[26] - q[27])
+    assert np.linalg.norm(xy[ids == 27] - q[27]) < cfg.moved_px
+    assert not print_moved(sm, rim, g, ids, xy, cfg).any()
+    # Too few corners for a map: nothing is judged.
+    few = ids[:4]
+    assert not print_moved(sm, rim, g, few, q[few] + 8.0, cfg).any()
+
+
 def test_a_colour_cameras_sharpened_frame_gives_no_corner_off_its_place():
     """A frame of the independent renderer through a colour camera's processing (``--isp``: Bayer
     mosaic, white balance, demosaicing, an unsharp mask; seed 5, FoV 240, frame 13): the lattice
     grew two corners 13-19 px off into the squeezed tags at the board's far edge, whose own print
-    correlates under 0.1 there. The print check drops them; no corner is reported off its place."""
+    correlates under 0.1 there. The print check drops them; no corner is reported off its place.
+    Without that rule of the print check, print_moved sets them aside (they lie where their
+    neighbours' maps do not put them) and completion places them; without both, they stay."""
     from calib_eval.detection.foreign import ForeignConfig, render_frame
 
     g = make_target(TargetConfig(kind="aprilgrid"))
     fr = render_frame(240, ForeignConfig(target="aprilgrid", isp=True), np.random.default_rng([5, 240, 13]), g)
     grey = fr.image.astype(np.float32) / 255
-    for cfg, wrong in ((TagConfig(), 0), (TagConfig(complete=CompletionConfig(check_min_corr_large=-np.inf)), 2)):
+    no_rule = CompletionConfig(check_min_corr_large=-np.inf)
+    for complete, wrong in ((CompletionConfig(), 0), (no_rule, 0), (replace(no_rule, moved_px=0.0), 2)):
+        cfg = TagConfig(complete=complete)
         r = tag_pass(grey, g, cfg)
         err = np.linalg.norm(r.xy - fr.corners[r.ids], axis=1)
         assert len(r.ids) > 100 and int((err > 3).sum()) == wrong
