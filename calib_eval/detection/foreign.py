@@ -44,6 +44,10 @@ is reused.
   unsharp mask (amount 0.6-1.5, sigma 0.8-1.6 px), with the dark and bright halos along edges
   that phone, action and many USB cameras leave. The labels are the clean frame's. Combines with
   ``--photo``.
+- ``--defocus SIGMA`` (:attr:`ForeignConfig.defocus`): a soft lens (many fisheye lenses at their
+  rim, or focused for another distance): the lens blur is widened to the root sum of squares of
+  the drawn one and SIGMA px. The frames are otherwise their sharp twins (the same draws); a
+  Gaussian blur leaves an X-junction where it is, so the labels and what is detectable stay.
 
 Labels: every corner's projection through the same closed-form law (an independent check of our
 geometry is in the tests: the equidistant law against ``cv2.fisheye.projectPoints``). A corner is
@@ -61,6 +65,7 @@ from __future__ import annotations
 import argparse
 import functools
 import json
+import math
 import sys
 import time
 from dataclasses import asdict, dataclass
@@ -96,6 +101,7 @@ class ForeignConfig:
     min_visible: int = 6  # frames are drawn again until this many corners are detectable
     photo: bool = False  # photographed prints: grey paper, uneven light and shadow, glare, more noise, JPEG in every frame
     isp: bool = False  # a colour camera's processing before the JPEG: Bayer mosaic, white balance, demosaicing, sharpening
+    defocus: float = 0.0  # a soft lens: this Gaussian blur (px, sigma) on top of the drawn lens blur, in quadrature
 
 
 @dataclass
@@ -316,7 +322,7 @@ def render_frame(fov: float, cfg: ForeignConfig, rng: np.random.Generator, board
         visible &= d_occ > 0
         clear &= d_occ > np.maximum(3.0, 0.25 * size)
     # Optics and sensor, in linear light; then sRGB.
-    img = cv2.GaussianBlur(img, (0, 0), rng.uniform(0.3, 1.0))
+    img = cv2.GaussianBlur(img, (0, 0), math.hypot(rng.uniform(0.3, 1.0), cfg.defocus))
     _, theta_px = rays(np.stack([xs, ys], -1), lens, f, centre)
     img = img * (1 - rng.uniform(0.1, 0.5) * (np.minimum(theta_px, theta_max) / theta_max) ** 2) * rng.uniform(0.6, 1.3)
     if cfg.photo:  # a corner next to a saturated pixel cannot be found where it is: not detectable
@@ -514,18 +520,30 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=ForeignConfig.seed)
     ap.add_argument("--photo", action="store_true", help="photographed prints: grey paper, uneven light, shadow, glare, noise, JPEG")
     ap.add_argument("--isp", action="store_true", help="a colour camera's processing: Bayer mosaic, white balance, demosaicing, sharpening")
-    ap.add_argument("--out", type=Path, default=None, help="output folder (default report/foreign_<target or board file>[_photo][_isp])")
+    ap.add_argument("--defocus", type=float, default=0.0, metavar="SIGMA", help="a soft lens: a Gaussian blur of SIGMA px more (default 0)")
+    ap.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="output folder (default report/foreign_<target or board>[_photo][_isp][_defocusS])",
+    )
     ap.add_argument("--no-progress", action="store_true")
     a = ap.parse_args(argv)
     if a.per_fov < 1:
         print("error: --per-fov must be at least 1", file=sys.stderr)
         return 2
+    if not 0 <= a.defocus <= 20:
+        print("error: --defocus must be between 0 and 20 px", file=sys.stderr)
+        return 2
     try:
         kind = load_target(a.board).kind if a.board else a.target or "checkerboard"
-        cfg = ForeignConfig(per_fov=a.per_fov, seed=a.seed, target=a.target or kind, board=str(a.board or ""), photo=a.photo, isp=a.isp)
+        cfg = ForeignConfig(
+            per_fov=a.per_fov, seed=a.seed, target=a.target or kind, board=str(a.board or ""), photo=a.photo, isp=a.isp, defocus=a.defocus
+        )
         make_board(cfg)  # a file of another kind than --target: said before anything is drawn
         out = a.out or Path(
             f"report/foreign_{a.board.stem if a.board else cfg.target}{'_photo' if a.photo else ''}{'_isp' if a.isp else ''}"
+            + (f"_defocus{a.defocus:g}" if a.defocus else "")
         )
         print(evaluate(cfg, out, progress=not a.no_progress))
     except (OSError, ValueError) as e:  # an output folder that cannot be written, a broken labels.json
@@ -550,7 +568,7 @@ def evaluate(cfg: ForeignConfig, out: Path, progress: bool = True) -> str:
     results = {name: score(p, labels, board.symmetries()) for name, p in preds.items()}
     size = f"tag {cfg.min_tag_px:g}" if cfg.target == "aprilgrid" else f"square {cfg.min_square_px:g}"
     which = f"--board {cfg.board}" if cfg.board else f"--target {cfg.target}"
-    photo = (" --photo" if cfg.photo else "") + (" --isp" if cfg.isp else "")
+    photo = (" --photo" if cfg.photo else "") + (" --isp" if cfg.isp else "") + (f" --defocus {cfg.defocus:g}" if cfg.defocus else "")
     md = (
         f"Independent renderer, {board} (`python -m calib_eval.detection.foreign {which}{photo}`, seed {cfg.seed}, "
         f"{cfg.per_fov} frames per FoV at {cfg.width}x{cfg.height}): recall of detectable corners ({size} px across at least) "

@@ -17,8 +17,9 @@ import cv2
 import numpy as np
 
 from cotrain.detect.grid_config import GridConfig
+from cotrain.detect.image_circle import EquidistantLens
 from cotrain.detect.saddle import fit_saddles, outside_circle, pixel_index, smooth_cached
-from cotrain.detect.tag_completion import CompletionConfig, print_check
+from cotrain.detect.tag_completion import CompletionConfig, print_check, print_moved
 from cotrain.targets import Target
 
 AGREE_PX = 1.5  # a corner both resolutions report must lie this close (px) in both, else the half-resolution result is not used
@@ -48,13 +49,17 @@ def corners_at_half_resolution(
     check: CompletionConfig,
     min_corr: float = -1.0,
     rim_px: float = 0.0,
+    lens: EquidistantLens | None = None,
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """The corners a pass found at half resolution (``half_ids`` (L,) at ``half_xy`` (L, 2) in
     :func:`halve`'s pixels) that it did not find at full resolution (``ids`` (K,) at ``xy`` (K, 2))
     in the (H, W) image ``grey``, and that hold there: each is fitted again at full resolution
     (``grid.final_max_half``; it keeps its position mapped back where that fit fails or moves it
-    1 px or more), lies ``rim_px`` or more from the image circle's rim, and is kept by the print
-    check among all the corners (held to its small margin and to ``min_corr``).
+    1 px or more), lies ``rim_px`` or more from the image circle's rim, is kept by the print
+    check among all the corners (held to its small margin and to ``min_corr``), and lies where its
+    neighbours' maps put it (:func:`cotrain.detect.tag_completion.print_moved`, through ``lens``,
+    in the frame's pixels, where given: a heavy blur lets the half-resolution growth slide a
+    corner along its tag's side, where its own print still matches best).
 
     Returns the indices (into ``half_ids``) of the corners added and their positions (n, 2) in the
     frame's pixels; None where a corner both report lies :data:`AGREE_PX` or more apart in the two
@@ -75,6 +80,7 @@ def corners_at_half_resolution(
     added = np.arange(len(all_ids)) >= len(ids)
     all_xy = np.concatenate([np.asarray(xy).reshape(-1, 2), q_new])
     ok = print_check(smooth_cached(smoothed, grey, 1), rim_dist, board, all_ids, all_xy, check, strict=added, min_corr=min_corr)[added]
+    ok &= ~print_moved(smooth_cached(smoothed, grey, 1), rim_dist, board, all_ids, all_xy, check, lens)[added]
     x, y = pixel_index(q_new, grey.shape[1], grey.shape[0]).T
     ok &= rim_dist[y, x] >= rim_px
     return new[ok], q_new[ok]

@@ -1849,7 +1849,8 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
 
 def _tag_pass_both(grey: np.ndarray, board: AprilGrid, cfg: TagConfig, view: _View | None = None) -> TagResult:
     """:func:`tag_pass` without its second look: at full resolution (``view``: the frame as read
-    for it, :func:`_view_of`), then at half resolution where few corners were found."""
+    for it, :func:`_view_of`, else read here), then at half resolution where few corners were found."""
+    view = view or _view_of(grey, cfg)
     r = _tag_pass_circle(grey, board, cfg, view)
     if len(r.ids) >= cfg.half_below or r.scale > 1 or min(grey.shape) < cfg.half_min_side:
         return r
@@ -1859,7 +1860,8 @@ def _tag_pass_both(grey: np.ndarray, board: AprilGrid, cfg: TagConfig, view: _Vi
     # resolution, fitted again and checked against the print; their tags are added to the
     # decoded ones where a corner of theirs is kept.
     r2 = _tag_pass_circle(halve(grey), board, replace(cfg, min_side_px=0))
-    found = corners_at_half_resolution(grey, r.ids, r.xy, r2.ids, r2.xy, board, cfg.grid, cfg.complete)
+    lens = view.frame_lens() if cfg.complete.lens else None
+    found = corners_at_half_resolution(grey, r.ids, r.xy, r2.ids, r2.xy, board, cfg.grid, cfg.complete, lens=lens)
     if found is None or not len(found[0]):
         return r
     sel, q = found
@@ -1898,6 +1900,14 @@ class _View(NamedTuple):
     allowed: np.ndarray  # (H, W) bool: inside the image circle
     lens: EquidistantLens | None  # the lens guessed from the image circle (in the crop's pixels)
     candidates: _Candidates
+
+    def frame_lens(self) -> EquidistantLens | None:
+        """:attr:`lens` in the frame's own pixels (before the enlargement and the crop)."""
+        if self.lens is None:
+            return None
+        f, (x0, y0) = self.scale, self.origin
+        c = ((self.lens.centre[0] + x0 + 0.5) / f - 0.5, (self.lens.centre[1] + y0 + 0.5) / f - 0.5)
+        return EquidistantLens(c, self.lens.focal / f)
 
 
 def _view_of(grey: np.ndarray, cfg: TagConfig) -> _View:

@@ -207,6 +207,33 @@ def test_print_moved_finds_a_corner_slid_along_its_tags_side_that_the_print_chec
     assert not print_moved(sm, rim, g, few, q[few] + 8.0, cfg).any()
 
 
+def test_half_resolution_adds_its_corners_but_not_one_its_neighbours_put_elsewhere():
+    """A flat view read at both resolutions: the half-resolution reading adds the corners of one
+    tag row that the full one missed (near their true places: each is fitted again at full
+    resolution), except one of them slid 8 px along its tag's side (as a heavy blur makes the
+    half-resolution growth do), which its own print still matches best, so the print check
+    alone keeps it, but where its neighbours put it the print matches better (print_moved)."""
+    from cotrain.detect.half_resolution import corners_at_half_resolution
+
+    g, sm, rim, q, ids = _tilted_view()
+    grey = sm.astype(np.float32)
+    row = ids[(ids // g.nx) == 4]  # one row of inner corners: the half-resolution reading's own
+    full = ids[~np.isin(ids, row)]
+    half_xy = (q[row] + 0.5) / 2 - 0.5  # halve()'s pixels of the true places (the frame's sides are even)
+    slid = row[3]
+    along = (q[slid + 1] - q[slid]) / np.linalg.norm(q[slid + 1] - q[slid])
+    half_xy[3] = (q[slid] + 8.0 * along + 0.5) / 2 - 0.5
+    found = corners_at_half_resolution(grey, full, q[full], row, half_xy, g, GridConfig(), CompletionConfig())
+    assert found is not None
+    sel, xy = found
+    assert set(row[sel].tolist()) == set(row.tolist()) - {int(slid)}
+    assert np.abs(xy - q[row[sel]]).max() < 0.5  # fitted again at full resolution (the view is point-sampled)
+    # Without print_moved the print check keeps the slid corner, 8 px off its place.
+    sel0, xy0 = corners_at_half_resolution(grey, full, q[full], row, half_xy, g, GridConfig(), CompletionConfig(moved_px=0.0))
+    assert int(slid) in row[sel0].tolist()
+    assert np.linalg.norm(xy0[row[sel0].tolist().index(int(slid))] - q[slid]) > 7
+
+
 def test_a_colour_cameras_sharpened_frame_gives_no_corner_off_its_place():
     """A frame of the independent renderer through a colour camera's processing (``--isp``: Bayer
     mosaic, white balance, demosaicing, an unsharp mask; seed 5, FoV 240, frame 13): the lattice

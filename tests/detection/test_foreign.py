@@ -136,6 +136,33 @@ def test_labels_sit_on_the_rendered_corners():
     assert np.median(moved) < 0.15 and np.percentile(moved, 90) < 0.35
 
 
+def test_a_defocused_frame_is_its_sharp_twin_blurred_with_its_corners_where_labelled():
+    """``defocus``: the same draws (labels, detectable corners, JPEG), a frame with less detail
+    (its steepest edges are flatter), and cornerSubPix started at the labels still stays there: a
+    Gaussian blur leaves an X-junction where it is."""
+    sharp, soft = ForeignConfig(width=480, height=360, min_visible=10), ForeignConfig(width=480, height=360, min_visible=10, defocus=2.5)
+    moved = []
+    for i in range(3):
+        fs = render_frame(180, sharp, np.random.default_rng([17, i]))
+        fd = render_frame(180, soft, np.random.default_rng([17, i]))
+        assert fd.jpeg == fs.jpeg and (fd.corners == fs.corners).all() and (fd.detectable == fs.detectable).all()
+        edge = [np.percentile(np.hypot(cv2.Sobel(f.image, cv2.CV_32F, 1, 0), cv2.Sobel(f.image, cv2.CV_32F, 0, 1)), 99.5) for f in (fs, fd)]
+        assert edge[1] < 0.6 * edge[0]  # the steepest edges (the board's) are flatter
+        q = fd.corners[fd.detectable].astype(np.float32).reshape(-1, 1, 2)
+        crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 0.001)
+        r = cv2.cornerSubPix(fd.image, q.copy(), (8, 8), (-1, -1), crit)  # a window a few blurs wide
+        moved.append(np.hypot(*(r - q).reshape(-1, 2).T))
+    moved = np.concatenate(moved)
+    assert len(moved) >= 30 and np.median(moved) < 0.25
+
+
+@pytest.mark.parametrize("value", ["-1", "25"])
+def test_a_defocus_out_of_range_is_one_line_and_exit_2(capsys, tmp_path, value):
+    assert main(["--defocus", value, "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error:") and err.count("\n") == 1
+
+
 def test_bad_frame_count_is_one_line_and_exit_2(capsys, tmp_path):
     assert main(["--per-fov", "0", "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err
