@@ -1,4 +1,5 @@
-"""Frames from a second, independent renderer: ``python -m calib_eval.detection.foreign [--target KIND | --board YAML] [--photo] [--isp]``.
+"""Frames from a second, independent renderer: ``python -m calib_eval.detection.foreign [--target KIND | --board YAML]
+[--photo] [--isp] [--defocus SIGMA]``.
 
 Our detectors are judged on frames other renderers draw, and everything they were tuned on came
 from one renderer (:mod:`cotrain.render`, kornia). This module draws frames another way, sharing
@@ -47,7 +48,8 @@ is reused.
 - ``--defocus SIGMA`` (:attr:`ForeignConfig.defocus`): a soft lens (many fisheye lenses at their
   rim, or focused for another distance): the lens blur is widened to the root sum of squares of
   the drawn one and SIGMA px. The frames are otherwise their sharp twins (the same draws); a
-  Gaussian blur leaves an X-junction where it is, so the labels and what is detectable stay.
+  Gaussian blur leaves an X-junction where it is, so the labels stay, and so does what is
+  detectable (but under ``--photo``, where the glare's saturated pixels are found after the blur).
 
 Labels: every corner's projection through the same closed-form law (an independent check of our
 geometry is in the tests: the equidistant law against ``cv2.fisheye.projectPoints``). A corner is
@@ -513,14 +515,15 @@ def table(results: dict[str, dict], fovs: tuple[int, ...]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    usage = " ".join(__doc__.split("\n\n")[0].split())  # the docstring's first paragraph, on one line
+    ap = argparse.ArgumentParser(description=usage, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--target", choices=("checkerboard", "aprilgrid"), default=None, help="the board drawn: its kind's default")
     ap.add_argument("--board", type=Path, default=None, help="a target file (Kalibr's target yaml or ours): its board is drawn")
     ap.add_argument("--per-fov", type=int, default=ForeignConfig.per_fov, help="frames per FoV")
     ap.add_argument("--seed", type=int, default=ForeignConfig.seed)
     ap.add_argument("--photo", action="store_true", help="photographed prints: grey paper, uneven light, shadow, glare, noise, JPEG")
     ap.add_argument("--isp", action="store_true", help="a colour camera's processing: Bayer mosaic, white balance, demosaicing, sharpening")
-    ap.add_argument("--defocus", type=float, default=0.0, metavar="SIGMA", help="a soft lens: a Gaussian blur of SIGMA px more (default 0)")
+    ap.add_argument("--defocus", type=float, default=ForeignConfig.defocus, metavar="SIGMA", help="a soft lens: SIGMA px more blur")
     ap.add_argument(
         "--out",
         type=Path,
@@ -568,9 +571,9 @@ def evaluate(cfg: ForeignConfig, out: Path, progress: bool = True) -> str:
     results = {name: score(p, labels, board.symmetries()) for name, p in preds.items()}
     size = f"tag {cfg.min_tag_px:g}" if cfg.target == "aprilgrid" else f"square {cfg.min_square_px:g}"
     which = f"--board {cfg.board}" if cfg.board else f"--target {cfg.target}"
-    photo = (" --photo" if cfg.photo else "") + (" --isp" if cfg.isp else "") + (f" --defocus {cfg.defocus:g}" if cfg.defocus else "")
+    flags = (" --photo" if cfg.photo else "") + (" --isp" if cfg.isp else "") + (f" --defocus {cfg.defocus:g}" if cfg.defocus else "")
     md = (
-        f"Independent renderer, {board} (`python -m calib_eval.detection.foreign {which}{photo}`, seed {cfg.seed}, "
+        f"Independent renderer, {board} (`python -m calib_eval.detection.foreign {which}{flags}`, seed {cfg.seed}, "
         f"{cfg.per_fov} frames per FoV at {cfg.width}x{cfg.height}): recall of detectable corners ({size} px across at least) "
         "within 3 px, with the right id"
         + (" (findChessboardCornersSB: matched by position)" if cfg.target == "checkerboard" else " (peers: a tag's corners take its ids)")

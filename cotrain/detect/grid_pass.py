@@ -547,8 +547,12 @@ def merge_half_resolution(grey: np.ndarray, full: GridResult, half: GridResult, 
             return full
     elif not half.margin >= cfg.half_min_margin_alone:
         return full
+    # Not held to print_moved (CompletionConfig.moved_px 0): the grid pass guesses no lens, so its
+    # maps would be pixel homographies, which bend from the board at the rim (on the checkerboard
+    # sets it changed nothing: 676 frames).
+    check = CompletionConfig(moved_px=0.0)
     found = corners_at_half_resolution(
-        grey, full.ids, full.xy, half.ids, half.xy, board, cfg, CompletionConfig(), min_corr=cfg.half_min_corr, rim_px=cfg.half_rim_px
+        grey, full.ids, full.xy, half.ids, half.xy, board, cfg, check, min_corr=cfg.half_min_corr, rim_px=cfg.half_rim_px
     )
     if found is None or not len(found[0]):
         return full

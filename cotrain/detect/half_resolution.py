@@ -6,7 +6,8 @@ tag pass, :mod:`cotrain.detect.tag_pass`, and the grid pass with the detector,
 :mod:`cotrain.detect.grid_pass`) read a frame where they found little again at half resolution
 and add what only that finds, through :func:`corners_at_half_resolution`: the two results must
 agree where both report a corner, and each added corner is fitted again at full resolution and
-checked against the print around it (:func:`cotrain.detect.tag_completion.print_check`).
+checked against the print around it (:func:`cotrain.detect.tag_completion.print_check`) and
+against where its neighbours put it (:func:`cotrain.detect.tag_completion.print_moved`).
 
 Pure functions over numpy arrays; pixels follow docs/conventions.md.
 """
@@ -79,8 +80,10 @@ def corners_at_half_resolution(
     all_ids = np.concatenate([ids, half_ids[new]])
     added = np.arange(len(all_ids)) >= len(ids)
     all_xy = np.concatenate([np.asarray(xy).reshape(-1, 2), q_new])
-    ok = print_check(smooth_cached(smoothed, grey, 1), rim_dist, board, all_ids, all_xy, check, strict=added, min_corr=min_corr)[added]
-    ok &= ~print_moved(smooth_cached(smoothed, grey, 1), rim_dist, board, all_ids, all_xy, check, lens)[added]
+    sm = smooth_cached(smoothed, grey, 1)
+    ok = print_check(sm, rim_dist, board, all_ids, all_xy, check, strict=added, min_corr=min_corr)[added]
+    kept = np.concatenate([np.ones(len(ids), bool), ok])  # the maps of print_moved: of these corners only
+    ok[ok] = ~print_moved(sm, rim_dist, board, all_ids[kept], all_xy[kept], check, lens)[len(ids) :]
     x, y = pixel_index(q_new, grey.shape[1], grey.shape[0]).T
     ok &= rim_dist[y, x] >= rim_px
     return new[ok], q_new[ok]

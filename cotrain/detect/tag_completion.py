@@ -1,6 +1,8 @@
 """Completion of a placed AprilGrid: the corners the lattice growth did not reach, and the check
 of every identified corner against the print (:func:`print_check`, run first: a corner that a
-grid neighbour's print matches better is dropped, and completion may find it where it is).
+grid neighbour's print matches better is dropped, and completion may find it where it is; then
+:func:`print_moved`: a corner its neighbours put some pixels away, where the print matches
+better, is set aside for completion to place).
 
 Once the tag pass (:mod:`cotrain.detect.tag_pass`) has identified a board's corners, every other
 corner of the board has a known place on the page. Round by round, each corner beside an
@@ -98,7 +100,7 @@ class CompletionConfig:
     check_large_px: float = 20.0  # ... or, in tags at least this wide (px) ...
     check_margin_large: float = 0.35  # ... by more than this (a local homography fits a large tag's bend less well) ...
     check_min_corr_large: float = 0.1  # ... or at all, where its own print correlates under this (nothing of it is there)
-    moved_px: float = 3.0  # then one this far (px) or more from where its neighbours' map puts it (print_moved; 0: never) ...
+    moved_px: float = 3.0  # then one this far (px, of the frame) or more from where its neighbours' map puts it (print_moved; 0: never) ...
     moved_margin: float = 0.2  # ... where the print matches better there by this, is left to completion to place (else put back)
     lens: bool = True  # homographies of the corners' rays under the tag pass's lens guess, where it has one (tag_pass.TagConfig.lens_fov)
     print_fit_gap_px: float = 10.0  # where the saddle fits fail in a gap under this (px), the print is moved onto the image (print_fit) ...
@@ -483,8 +485,9 @@ def print_moved(
     beyond the image circle, where the print check's patch is cut short and its neighbours' prints
     fit no better). As in :func:`print_check`, the corners are judged twice, the second time with
     maps of the corners the first did not judge moved, and only a corner both judge moved is: a
-    moved corner bends its neighbours' maps too. All False where fewer than four other corners
-    support a map."""
+    moved corner bends its neighbours' maps too (where fewer than four corners are left for the
+    second, the first's judgement stands). All False where fewer than four other corners support
+    a map."""
     K = len(ids)
     moved = np.zeros(K, bool)
     if cfg.moved_px <= 0 or min(cfg.neighbours, K - 1) < 4:

@@ -1796,12 +1796,14 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
     tests are fixed in pixels, and tags of 8-12 px in a 640x480 frame resolve only enlarged; the
     thresholds that judge a tag's size in pixels (``small_tag_px``, ``small_gap_px``,
     ``keep_unfitted_px``, ``rim_strict_px``) scale with the factor, so the identity rules see
-    the tags as they are. Positions are given in the frame's pixels either way.
+    the tags as they are, as does completion's ``moved_px`` (a distance in the frame's pixels).
+    Positions are given in the frame's pixels either way.
 
     A frame not enlarged, with a shorter side of ``cfg.half_min_side`` px or more, where fewer
     than ``cfg.half_below`` corners are found, is read again at half resolution (blurred tags,
     large tags), and the corners only that finds are added where the print check keeps them
-    (:func:`cotrain.detect.tag_completion.print_check`); not where completion found every corner
+    (:func:`cotrain.detect.tag_completion.print_check`) and their neighbours put them
+    (:func:`cotrain.detect.tag_completion.print_moved`); not where completion found every corner
     it predicted in view (``TagResult.unfound`` 0: a partial view found whole).
 
     A frame where nothing is found is read once more at full resolution with seeds whose
@@ -1936,6 +1938,7 @@ def _tag_pass_circle(grey: np.ndarray, board: AprilGrid, cfg: TagConfig, view: _
     f = view.scale
     if f > 1:
         cfg = replace(cfg, **{k: getattr(cfg, k) * f for k in ("small_tag_px", "small_gap_px", "keep_unfitted_px", "rim_strict_px")})
+        cfg = replace(cfg, complete=replace(cfg.complete, moved_px=cfg.complete.moved_px * f))
     r = _tag_pass_in(view.grey, view.allowed, board, cfg, view.lens, view.candidates)
     xy = r.xy + np.array(view.origin, np.float64)
     if f > 1:
@@ -2120,6 +2123,8 @@ def _tag_pass_in(
         )
         conf_a = np.array([given.get(i, c) for i, c in zip(ids_a.tolist(), corr.tolist())])
         unfound = len(set(missing.tolist()) - set(aside_ids.tolist()))
+    # (Where setting corners aside left under 4, completion did not run: unfound stays None, as
+    # for any board completion does not run on, and the frame may be read at half resolution.)
     back = ~np.isin(aside_ids, ids_a)
     ids_a = np.concatenate([ids_a, aside_ids[back]])
     xy_a = np.concatenate([xy_a, aside_xy[back]])

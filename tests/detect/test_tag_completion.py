@@ -229,7 +229,9 @@ def test_half_resolution_adds_its_corners_but_not_one_its_neighbours_put_elsewhe
     assert set(row[sel].tolist()) == set(row.tolist()) - {int(slid)}
     assert np.abs(xy - q[row[sel]]).max() < 0.5  # fitted again at full resolution (the view is point-sampled)
     # Without print_moved the print check keeps the slid corner, 8 px off its place.
-    sel0, xy0 = corners_at_half_resolution(grey, full, q[full], row, half_xy, g, GridConfig(), CompletionConfig(moved_px=0.0))
+    found0 = corners_at_half_resolution(grey, full, q[full], row, half_xy, g, GridConfig(), CompletionConfig(moved_px=0.0))
+    assert found0 is not None
+    sel0, xy0 = found0
     assert int(slid) in row[sel0].tolist()
     assert np.linalg.norm(xy0[row[sel0].tolist().index(int(slid))] - q[slid]) > 7
 

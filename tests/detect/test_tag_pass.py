@@ -1173,19 +1173,20 @@ def test_a_blurred_view_is_read_at_half_resolution_too():
     assert np.median(err) < 0.3
 
 
-def test_a_views_lens_in_the_frames_pixels_projects_where_the_crop_lens_does():
-    """A 640x480 frame is read enlarged 1.5x and cropped to its image circle: the view's lens is in
-    the crop's pixels; frame_lens() maps every ray to the same image point in the frame's pixels
-    (x_frame = (x_crop + origin + 0.5) / f - 0.5), and its circle is the frame's."""
-    grey = np.zeros((480, 640), np.float32)
-    cv2.circle(grey, (330, 236), 226, 0.6, -1)
+@pytest.mark.parametrize("size, centre, radius, scale", [((480, 640), (330, 236), 226, 1.5), ((720, 1280), (655, 362), 350, 1.0)])
+def test_a_views_lens_in_the_frames_pixels_is_the_frames_image_circle(size, centre, radius, scale):
+    """A frame is read cropped to its image circle (a 640x480 one enlarged 1.5x first): the view's
+    lens is in the crop's pixels; frame_lens() is centred on the circle drawn in the frame and
+    spans its radius with the guessed FoV, and maps every ray to the crop lens's image point
+    taken back to the frame (x_frame = (x_crop + origin + 0.5) / f - 0.5)."""
+    grey = np.zeros(size, np.float32)
+    cv2.circle(grey, centre, radius, 0.6, -1)
     view = _view_of(grey, TagConfig())
-    assert view.scale == 1.5 and view.lens is not None and view.origin != (0, 0)
+    assert view.scale == scale and view.lens is not None and view.origin != (0, 0)
     lens = view.frame_lens()
+    assert np.allclose(lens.centre, centre, atol=1.5)
+    assert np.isclose(lens.focal * np.radians(TagConfig().lens_fov / 2), radius, rtol=0.02)
     v = np.array([[0.0, 0.0, 1.0], [0.6, 0.1, 0.79], [-0.9, 0.3, -0.2], [0.2, -0.95, 0.1]])
     v /= np.linalg.norm(v, axis=1, keepdims=True)
-    q_crop = view.lens.project(v)
-    q_frame = (q_crop + np.array(view.origin) + 0.5) / view.scale - 0.5
+    q_frame = (view.lens.project(v) + np.array(view.origin) + 0.5) / view.scale - 0.5
     assert np.allclose(lens.project(v), q_frame, atol=1e-9)
-    assert np.allclose(lens.centre, (330, 236), atol=1.5)
-    assert np.isclose(lens.focal * np.radians(TagConfig().lens_fov / 2), 226, rtol=0.02)
