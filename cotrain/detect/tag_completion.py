@@ -394,6 +394,17 @@ def neighbour_check(
     return keep if np.mean(~keep) <= max_share else np.ones(K, bool)
 
 
+def neighbour_maps(
+    P: np.ndarray, xy: np.ndarray, support: np.ndarray, n: int, lens: EquidistantLens | None = None
+) -> tuple[PlaneMaps, np.ndarray, np.ndarray]:
+    """Each corner's map from its ``n`` nearest other corners of ``support`` (K,) bool on the board
+    (board points P (K, 2), image points xy (K, 2); :func:`local_maps`, through ``lens`` where
+    given): the K maps, which were posed (K,) bool, and where each puts its own corner (K, 2)."""
+    near = nearest_others(P, support, n)
+    to_image, posed = local_maps(P[near], xy[near], lens)
+    return to_image, posed, to_image(P[:, None])[:, 0]
+
+
 def print_check(
     sm: np.ndarray,
     rim_dist: np.ndarray,
@@ -450,10 +461,9 @@ def _uncontradicted(
     ``support`` (K,) bool other than itself."""
     n = min(cfg.neighbours, int(support.sum()) - 1)
     kP = board.board_xy()[ids]
-    near = nearest_others(kP, support, n)
-    to_image, posed = local_maps(kP[near], xy[near], lens)
+    to_image, posed, q0 = neighbour_maps(kP, xy, support, n, lens)
     # The patch through each corner's homography, moved so that the corner lands on its position.
-    q0 = to_image(kP[:, None])  # (K, 1, 2)
+    q0 = q0[:, None]  # (K, 1, 2)
     corr, other_ok, inside = _print_correlations(sm, rim_dist, board, to_image, xy - q0[:, 0], ids, cfg)
     enough = (inside >= MIN_INSIDE) & posed & np.isfinite(q0[:, 0, 0])
     other = np.where(other_ok, corr[:, 1:], -np.inf).max(1)
@@ -510,10 +520,7 @@ def _moved(
 ) -> np.ndarray:
     """One pass of :func:`print_moved`, each corner's map fitted to the nearest corners of
     ``support`` (K,) bool other than itself."""
-    kP = board.board_xy()[ids]
-    near = nearest_others(kP, support, min(cfg.neighbours, int(support.sum()) - 1))
-    to_image, posed = local_maps(kP[near], xy[near], lens)
-    q0 = to_image(kP[:, None])[:, 0]  # (K, 2) where the neighbours put each corner
+    to_image, posed, q0 = neighbour_maps(board.board_xy()[ids], xy, support, min(cfg.neighbours, int(support.sum()) - 1), lens)
     far = np.nonzero(posed & np.isfinite(q0[:, 0]) & (np.linalg.norm(xy - q0, axis=1) >= cfg.moved_px))[0]
     moved = np.zeros(len(ids), bool)
     if not len(far):
