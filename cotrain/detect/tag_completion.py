@@ -532,6 +532,33 @@ def _moved(
     return moved
 
 
+def own_print_corr(
+    sm: np.ndarray,
+    rim_dist: np.ndarray,
+    board: Target,
+    ids: np.ndarray,
+    xy: np.ndarray,
+    which: np.ndarray,
+    cfg: CompletionConfig,
+    lens: EquidistantLens | None = None,
+) -> np.ndarray:
+    """(n,) the print correlation of corners ``which`` (n,) (indices into ``ids`` (K,) at ``xy``
+    (K, 2)) where they lie, the image of ``sm`` (H, W) sampled through the map of the
+    ``cfg.neighbours`` other corners nearest each on the board (:func:`neighbour_maps`) moved onto
+    it; NaN where no map is posed or under :data:`MIN_INSIDE` of the patch lies inside the image
+    circle (and all NaN where fewer than four other corners support a map)."""
+    which = np.asarray(which, int)
+    out = np.full(len(which), np.nan)
+    n = min(cfg.neighbours, len(ids) - 1)
+    if n < 4 or not len(which):
+        return out
+    to_image, posed, q0 = neighbour_maps(board.board_xy()[ids], xy, np.ones(len(ids), bool), n, lens)
+    corr, _, inside = _print_correlations(sm, rim_dist, board, to_image.take(which), xy[which] - q0[which], ids[which], cfg)
+    good = posed[which] & np.isfinite(q0[which, 0]) & (inside >= MIN_INSIDE)
+    out[good] = corr[good, 0]
+    return out
+
+
 MIN_BORDER_RAY_PX = 3.0  # rays_along: the smallest circle read next to the image's border (px; the blurred core of an X is 1-2 px)
 
 

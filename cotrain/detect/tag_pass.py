@@ -88,7 +88,7 @@ from cotrain.detect.lattice import (
     values_at,
 )
 from cotrain.detect.saddle import fit_saddles, outside_circle, saddle_response, smooth_cached, smooth_for, window_half
-from cotrain.detect.tag_completion import CompletionConfig, complete_board, print_check, print_moved
+from cotrain.detect.tag_completion import CompletionConfig, complete_board, own_print_corr, print_check, print_moved
 from cotrain.targets.aprilgrid import BORDER_BITS, CELLS, DATA_BITS, N_CODES, AprilGrid, printed_bits
 
 
@@ -1779,6 +1779,10 @@ def consistent_boards(found: list[_Board], tol_px: float = 2.0) -> tuple[list[_B
     return kept, dropped
 
 
+# The lowest confidence a corner put back after print_moved gets (its own print's correlation,
+# clipped: a confidence of 0 reads as unknown, weight 1, in a sequence's detections).
+MIN_PUT_BACK_CONFIDENCE = 0.05
+
 # The tag pass works on the image circle's bounding box grown by this (px): samples up to this far beyond the
 # rim read the black frame as on the whole image (farther ones read NaN; the rays, tag reads and fits reach less far).
 CIRCLE_PAD_PX = 48
@@ -2128,6 +2132,13 @@ def _tag_pass_in(
     back = ~np.isin(aside_ids, ids_a)
     ids_a = np.concatenate([ids_a, aside_ids[back]])
     xy_a = np.concatenate([xy_a, aside_xy[back]])
+    if back.any():
+        # A corner put back is one the print placed elsewhere: its confidence (the calibrator's
+        # weight) is its own print's correlation where it lies, among all the corners now found.
+        put = np.arange(len(ids_a) - int(back.sum()), len(ids_a))
+        corr = own_print_corr(sm, rim_dist, board, ids_a, xy_a, put, cfg.complete, lens if cfg.complete.lens else None)
+        aside_conf = aside_conf.copy()
+        aside_conf[back] = np.minimum(aside_conf[back], np.clip(np.nan_to_num(corr, nan=1.0), MIN_PUT_BACK_CONFIDENCE, 1.0))
     conf_a = np.concatenate([conf_a, aside_conf[back]])
     order = np.argsort(ids_a)
     return TagResult(

@@ -236,6 +236,26 @@ def test_half_resolution_adds_its_corners_but_not_one_its_neighbours_put_elsewhe
     assert np.linalg.norm(xy0[row[sel0].tolist().index(int(slid))] - q[slid]) > 7
 
 
+def test_a_corner_put_back_after_print_moved_weighs_what_its_own_print_says():
+    """A frame of the independent renderer (seed 5, FoV 220, frame 16) blurred 1.5 px more: the
+    growth puts the corner of a decoded tag at the image circle's rim 9 px off (id 114).
+    print_moved sets it aside; completion does not place it; it is put back, with its own
+    print's correlation there (under 0.1) as its confidence, the calibrator's weight, where it
+    had 0.99 or more. Every other corner lies within a pixel of its label with a confidence of 0.3 or more."""
+    from calib_eval.detection.foreign import ForeignConfig, render_frame
+
+    g = make_target(TargetConfig(kind="aprilgrid"))
+    fr = render_frame(220, ForeignConfig(target="aprilgrid"), np.random.default_rng([5, 220, 16]), g)
+    grey = cv2.GaussianBlur(fr.image, (0, 0), 1.5).astype(np.float32) / 255
+    for complete, conf_114 in ((CompletionConfig(), (0.05, 0.1)), (CompletionConfig(moved_px=0.0), (0.99, 1.0))):
+        r = tag_pass(grey, g, TagConfig(complete=complete))
+        err = np.linalg.norm(r.xy - fr.corners[r.ids], axis=1)
+        k = r.ids.tolist().index(114)
+        assert 8 < err[k] < 10 and conf_114[0] <= r.confidence[k] <= conf_114[1]
+        others = np.arange(len(r.ids)) != k
+        assert others.sum() > 60 and err[others].max() < 1 and r.confidence[others].min() >= 0.3
+
+
 def test_a_colour_cameras_sharpened_frame_gives_no_corner_off_its_place():
     """A frame of the independent renderer through a colour camera's processing (``--isp``: Bayer
     mosaic, white balance, demosaicing, an unsharp mask; seed 5, FoV 240, frame 13): the lattice
