@@ -68,7 +68,7 @@ from scipy.spatial import cKDTree
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.image_circle import EquidistantLens, PlaneMaps, local_views
 from cotrain.detect.lattice import corner_rays, values_at
-from cotrain.detect.saddle import contrast_scale, fit_saddles, local_contrast, pixel_index, smooth_cached, window_half
+from cotrain.detect.saddle import MIN_CONTRAST_SCALE, fit_saddles, local_contrast, pixel_index, smooth_cached, window_half
 from cotrain.targets import Target
 
 
@@ -892,7 +892,7 @@ def dim_fit(
     share = dim_contrast(grey, q0, gap_px, grid, cfg)
     if share >= 1:
         return None
-    k = contrast_scale(share * grid.board_contrast, grid)
+    k = max(share, MIN_CONTRAST_SCALE)  # share < 1 here, and board_contrast > 0 (dim_contrast)
     q, ok, _ = fit_saddles(grey, smoothed, q0[None], half, replace(grid, min_saddle_contrast=grid.min_saddle_contrast * k), rim_dist)
     if not ok[0] or np.linalg.norm(q[0] - q0) >= cfg.reach * gap_px:
         return None
