@@ -442,7 +442,7 @@ def grid_pass(
         if len(dark) < cfg.min_cells:
             return None  # a line of corners (or a diagonal) is not a checker lattice
         lc, lr = corner_votes(lat, logp_col, offset, box, cfg), corner_votes(lat, logp_row, offset, box, cfg)
-        edges = edge_evidence(blur1, lat, cfg)
+        edges = edge_evidence(blur1, lat, cfg, xy)
         placed = assign_ids(lat.ab, lc, lr, dark, board, cfg, edges, extent_weight(lat, rim_dist, extent_rim_px))
         return placed, edges, placed.violated <= max(cfg.max_violated_edges, cfg.max_violated_share * sum(e[3] for e in edges))
 

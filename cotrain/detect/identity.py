@@ -21,7 +21,7 @@ from typing import NamedTuple
 import numpy as np
 
 from cotrain.detect.grid_config import GridConfig
-from cotrain.detect.lattice import STEPS, Lattice, next_step, value_at, values_at
+from cotrain.detect.lattice import STEPS, Lattice, diag_contrast, edge_contrasts, next_step, value_at, values_at
 from cotrain.geometry.letterbox import CELLS, Letterbox
 from cotrain.targets.checkerboard import ROTATIONS, Checkerboard
 
@@ -99,7 +99,9 @@ def cell_darkness(blur: np.ndarray, lat: Lattice) -> dict[tuple[int, int], float
 EDGE_T = np.arange(0.3, 2.0, 0.05)  # outward profile positions, in lattice steps
 
 
-def edge_evidence(blur: np.ndarray, lat: Lattice, cfg: GridConfig | None = None) -> list[tuple[int, int, int, float]]:
+def edge_evidence(
+    blur: np.ndarray, lat: Lattice, cfg: GridConfig | None = None, candidates: np.ndarray | None = None
+) -> list[tuple[int, int, int, float]]:
     """Where the lattice stops because the board does: (k, da, db, e) for boundary corner k whose
     neighbour (a + da, b + db) is missing, e in [0, 1] the evidence that the squares end one
     square further on and the white margin follows. ``blur``: the (H, W) image blurred by 1 px.
@@ -117,6 +119,11 @@ def edge_evidence(blur: np.ndarray, lat: Lattice, cfg: GridConfig | None = None)
     blurred steps is noise), else the last step; the sideways step comes from a neighbour across.
     Where one of them is missing (a lattice one corner deep, a corner at a tip) it is the other
     turned by 90 degrees (lattice axes have a x b > 0 in the image).
+
+    Nor is there evidence where the board visibly goes on (:func:`board_goes_on`): one of the
+    X-junction ``candidates`` (M, 2) lies where the next corner would, with the checker edge
+    running to it. Where the squares grow fast (a board close to the lens) the predicted step falls
+    short, and the last black square's side, bending away from the profile, passed for its end.
     """
     cfg = cfg or GridConfig()
     where = lat.where
@@ -176,8 +183,53 @@ def edge_evidence(blur: np.ndarray, lat: Lattice, cfg: GridConfig | None = None)
             continue
         if np.median(np.concatenate([A[band], B[band]])) > max(A[i_half], B[i_half]) + cfg.margin_max_brighter * contrast:
             continue  # far brighter than the white squares: no paper of theirs, a light occluder or the scene
+        bright = np.sign(A[i_half] - B[i_half]) * jobs[n][5]  # towards the brighter of the last two squares
+        if candidates is not None and board_goes_on(blur, lat.xy[k], jobs[n][4], jobs[n][5], bright, candidates, contrast, cfg):
+            continue
         out.append((k, da, db, float(np.clip(1 - np.abs(A[band] - B[band]).mean() / contrast, 0, 1))))
     return out
+
+
+def board_goes_on(
+    blur: np.ndarray,
+    p: np.ndarray,
+    step: np.ndarray,
+    across: np.ndarray,
+    bright: np.ndarray,
+    candidates: np.ndarray,
+    contrast: float,
+    cfg: GridConfig,
+) -> bool:
+    """Whether the checker board goes on from corner p (2,) along ``step`` (2,), the step its
+    lattice line would take next (``cfg.goes_on_min_step_px`` long at least: under motion blur the
+    smear of small squares makes junctions in the margin): one of ``candidates`` (M, 2) lies
+    ``cfg.goes_on_min_steps`` to ``cfg.goes_on_max_steps`` steps out within ``cfg.goes_on_angle``
+    of the step's direction, and the segment to it runs along the edge of the two squares beside it
+    (:func:`cotrain.detect.lattice.edge_contrasts` a tenth of its length to either side: the side
+    of ``bright`` (2,), where the brighter square lies, brighter by ``cfg.goes_on_min_contrast`` of
+    their ``contrast`` at a quarter, half and three quarters of the way), and its checker colours
+    alternate against p's, by ``cfg.goes_on_min_alternation`` of p's quadrant contrast (``across``
+    (2,): the lattice step across at p). Beyond the board's last corner the segment crosses the
+    white margin, where both sides are white, and a junction there (a blurred square's smear, a
+    pattern behind the board) keeps no checker colours with p; where the last squares' side meets
+    the margin, two of the four quadrants are margin, and the colours alternate by half."""
+    L = float(np.hypot(step[0], step[1]))
+    if not len(candidates) or L < cfg.goes_on_min_step_px:
+        return False
+    w = candidates - p
+    dist = np.hypot(w[:, 0], w[:, 1])
+    cos = (w @ step) / np.maximum(dist * L, 1e-9)
+    near = (dist >= cfg.goes_on_min_steps * L) & (dist <= cfg.goes_on_max_steps * L) & (cos >= np.cos(np.radians(cfg.goes_on_angle)))
+    par = diag_contrast(blur, p, step, across, cfg.diag_offset) if near.any() else 0.0
+    for j in np.nonzero(near)[0]:
+        o = np.array([-w[j, 1], w[j, 0]]) / dist[j]
+        c = edge_contrasts(blur, p, candidates[j], o if o @ bright > 0 else -o, 0.1 * dist[j])
+        if not (np.all(np.isfinite(c)) and np.all(c >= cfg.goes_on_min_contrast * contrast)):
+            continue
+        pc = diag_contrast(blur, candidates[j], w[j], across * (dist[j] / L), cfg.diag_offset)
+        if pc * par < 0 and abs(pc) >= cfg.goes_on_min_alternation * abs(par):
+            return True
+    return False
 
 
 # --------------------------------------------------------------------------------------------

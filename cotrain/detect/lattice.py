@@ -185,7 +185,7 @@ def _bilinear(img, x, y):
 
 @numba.njit(cache=True, nogil=True)
 def _diag_kernel(img, px, py, ax, ay, bx, by, offset):
-    """:func:`_diag_contrast` in scalars, compiled; NaN where a sample lies over a pixel outside ``img``."""
+    """:func:`diag_contrast` in scalars, compiled; NaN where a sample lies over a pixel outside ``img``."""
     d1x, d1y, d2x, d2y = offset * (ax + bx), offset * (ay + by), offset * (ax - bx), offset * (ay - by)
     return (
         _bilinear(img, px + d2x, py + d2y)
@@ -195,7 +195,7 @@ def _diag_kernel(img, px, py, ax, ay, bx, by, offset):
     )
 
 
-def _diag_contrast(img: np.ndarray, p: np.ndarray, ea: np.ndarray, eb: np.ndarray, offset: float) -> float:
+def diag_contrast(img: np.ndarray, p: np.ndarray, ea: np.ndarray, eb: np.ndarray, offset: float) -> float:
     """Brightness of the (+a, -b) / (-a, +b) quadrants minus the (+a, +b) / (-a, -b) ones around
     corner ``p`` (2,) (steps ``ea``, ``eb`` (2,), sampled ``offset`` of the way along the
     diagonals): its sign alternates between lattice neighbours on a checker. (Compiled: the
@@ -213,7 +213,7 @@ def _fill_alternates(img: np.ndarray, pred: np.ndarray, ea: np.ndarray, eb: np.n
     the parent corner's quadrant contrast ``parent`` (by ``cfg.fill_min_alternation``): only then
     is a saddle searched there. Beyond the board's last corners they do not, and those failing
     searches were most of the growth's time."""
-    pc = _diag_contrast(img, pred, ea, eb, cfg.diag_offset)
+    pc = diag_contrast(img, pred, ea, eb, cfg.diag_offset)
     return pc * parent < 0 and abs(pc) >= cfg.fill_min_alternation * abs(parent)
 
 
@@ -332,7 +332,7 @@ def _edge_kernel(img, px, py, qx, qy, ox, oy, depth, sign, least):
 
 def _bright_side(da: int, db: int, sa: np.ndarray, sb: np.ndarray) -> np.ndarray:
     """Unit vector across a step (da, db) from a corner with steps sa, sb (2,): the side that is
-    bright where the corner's quadrant contrast (:func:`_diag_contrast`) is positive."""
+    bright where the corner's quadrant contrast (:func:`diag_contrast`) is positive."""
     ox, oy = -(da * float(sb[0]) + db * float(sa[0])), -(da * float(sb[1]) + db * float(sa[1]))  # scalar: once per step tried
     n = max(math.hypot(ox, oy), 1e-9)
     return np.array([ox / n, oy / n])
@@ -441,7 +441,7 @@ def grow_lattice(
     placed = np.empty((len(xy) + 16, 2))  # pts as one array, for the crowding test
     placed[0] = p0
     sm1 = smooth_cached(smoothed, grey, 2)
-    par = {(0, 0): _diag_contrast(sm1, p0, sa, sb, cfg.diag_offset)}
+    par = {(0, 0): diag_contrast(sm1, p0, sa, sb, cfg.diag_offset)}
     if abs(par[(0, 0)]) < cfg.min_seed_contrast:
         return None
     lab = [(0, 0)]
@@ -526,7 +526,7 @@ def grow_lattice(
             depth = cfg.step_edge_depth * min(len_new, hypot(across[0], across[1]))
             if not step_has_edge(sm1, pts[k], found, bright, depth, par[(a, b)], cfg):
                 continue  # no checker edge along the step: off the board, or a knight's move
-            pc = _diag_contrast(sm1, found, na, nbv, cfg.diag_offset)
+            pc = diag_contrast(sm1, found, na, nbv, cfg.diag_offset)
             if pc * par[(a, b)] >= 0 or abs(pc) < cfg.min_alternation * abs(par[(a, b)]):
                 continue  # checker colours do not alternate: a slipped row or column, or not this board
             par[t] = pc

@@ -267,3 +267,31 @@ def test_a_corner_without_extent_weight_gives_the_geometry_no_margin():
     same = assign_ids(ab, flat_c, flat_r, dark, BOARD, cfg, edges, extent_weight=np.ones(len(ab)))
     np.testing.assert_array_equal(same.ids, fooled.ids)
     assert (same.margin, same.geometry_margin) == (fooled.margin, fooled.geometry_margin)
+
+
+def test_board_goes_on_where_the_next_corner_lies_beyond_a_short_prediction():
+    """``board_goes_on`` on a fronto-parallel board of 30 px squares: from corner (4, 3) with a
+    predicted step of 20 px (stale, as where squares grow fast) the next corner 1.5 steps down is
+    there, with the checker edge running to it; without that corner among the candidates, or in
+    a direction 45 deg off, nothing is. From the last row (4, 5) the board ends: a junction one
+    step down, beyond the white margin, has no checker edge to it. A corner two squares on (a
+    knight's move, 1.6 steps out at 18 deg) keeps the colours of (4, 3), not alternating ones."""
+    from cotrain.detect.identity import board_goes_on
+
+    cfg = GridConfig()
+    img, q = board_image(sq=30, org=(30, 20), size=(360, 290))
+    blur = smooth_for(img, -1)
+    k = 3 * NX + 4
+    down, right = np.array([0.0, 20.0]), np.array([30.0, 0.0])
+    bright = right if img[int(q[k, 1]) + 8, int(q[k, 0]) + 8] > 0.5 else -right  # the lighter square below
+    contrast = 0.84
+    assert board_goes_on(blur, q[k], down, right, bright, q, contrast, cfg)
+    others = np.delete(q, k + NX, axis=0)
+    assert not board_goes_on(blur, q[k], down, right, bright, others, contrast, cfg)
+    assert not board_goes_on(blur, q[k], down + right * 2 / 3, right, bright, q, contrast, cfg)
+    last = 5 * NX + 4
+    beyond = np.vstack([q, q[last] + [0.0, 30.0]])  # in the margin and the grey beyond it
+    bright_last = right if img[int(q[last, 1]) + 8, int(q[last, 0]) + 8] > 0.5 else -right
+    assert not board_goes_on(blur, q[last], np.array([0.0, 30.0]), right, bright_last, beyond, contrast, cfg)
+    knight = np.delete(q, k + NX, axis=0)  # (4, 4) missing: (5, 5) is the nearest along the edge
+    assert not board_goes_on(blur, q[k], np.array([20.0, 40.0]) / 1.5, right, bright, knight, contrast, cfg)

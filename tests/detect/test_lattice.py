@@ -148,14 +148,14 @@ def test_step_has_edge_along_lattice_steps_only():
     side where the parent corner's quadrant contrast says; a knight's move (two along, one across)
     and a step out over the board's white margin have no such edge all along."""
     from cotrain.detect.grid_config import GridConfig
-    from cotrain.detect.lattice import _bright_side, _diag_contrast, edge_contrasts, step_has_edge
+    from cotrain.detect.lattice import _bright_side, diag_contrast, edge_contrasts, step_has_edge
 
     sq = 24
     img, q = board_image(sq=sq, org=(30, 30), size=(330, 250))
     cfg = GridConfig()
     sa, sb = np.array([sq, 0.0]), np.array([0.0, sq])
     k = 2 * NX + 3  # corner (3, 2)
-    par = _diag_contrast(img, q[k], sa, sb, cfg.diag_offset)
+    par = diag_contrast(img, q[k], sa, sb, cfg.diag_offset)
     depth = cfg.step_edge_depth * sq
     for da, db in ((1, 0), (-1, 0), (0, 1), (0, -1)):
         nb = q[k] + da * sa + db * sb
@@ -164,7 +164,7 @@ def test_step_has_edge_along_lattice_steps_only():
     knight = q[k] + 2 * sa + sb
     assert not step_has_edge(img, q[k], knight, _bright_side(1, 0, sa, sb), depth, par, cfg)
     last = NX - 1 + 2 * NX  # corner (8, 2): the next one along a would lie on the white margin
-    par_last = _diag_contrast(img, q[last], sa, sb, cfg.diag_offset)
+    par_last = diag_contrast(img, q[last], sa, sb, cfg.diag_offset)
     assert not step_has_edge(img, q[last], q[last] + 1.6 * sa, _bright_side(1, 0, sa, sb), depth, par_last, cfg)
     # Known values: 0.84 (white minus black) on the three samples of a true step.
     np.testing.assert_allclose(np.abs(edge_contrasts(img, q[k], q[k] + sa, np.array([0.0, 1.0]), depth)), 0.84, atol=0.02)
@@ -213,7 +213,7 @@ def test_edge_neighbour_follows_the_edge_where_the_prediction_missed():
     from scipy.spatial import cKDTree
 
     from cotrain.detect.grid_config import GridConfig
-    from cotrain.detect.lattice import _bright_side, _diag_contrast, edge_neighbour
+    from cotrain.detect.lattice import _bright_side, diag_contrast, edge_neighbour
     from cotrain.detect.saddle import fit_saddles
 
     sq = 24
@@ -224,7 +224,7 @@ def test_edge_neighbour_follows_the_edge_where_the_prediction_missed():
     tree = cKDTree(xy)
     sa, sb = np.array([sq, 0.0]), np.array([0.0, sq])
     k = 2 * NX + 3  # corner (3, 2)
-    par = _diag_contrast(img, xy[k], sa, sb, cfg.diag_offset)
+    par = diag_contrast(img, xy[k], sa, sb, cfg.diag_offset)
     bright = _bright_side(1, 0, sa, sb)
     used = {k}
     found = edge_neighbour(img, xy[k], 1.5 * sa, bright, par, xy, axes, tree, used, cfg)
@@ -233,7 +233,7 @@ def test_edge_neighbour_follows_the_edge_where_the_prediction_missed():
     assert edge_neighbour(img, xy[k], 1.5 * sa, bright, par, xy, axes, tree, used, cfg) is None  # the next one is two squares on
     assert edge_neighbour(img, xy[k], sa + sb, bright, par, xy, axes, tree, {k}, cfg) is None
     last = 2 * NX + NX - 1  # corner (8, 2)
-    par_last = _diag_contrast(img, xy[last], sa, sb, cfg.diag_offset)
+    par_last = diag_contrast(img, xy[last], sa, sb, cfg.diag_offset)
     assert edge_neighbour(img, xy[last], sa, bright, par_last, xy, axes, tree, {last}, cfg) is None
 
 
@@ -392,7 +392,7 @@ def test_compiled_colour_tests_match_their_sampled_definitions():
     import cv2
 
     from cotrain.detect.grid_config import GridConfig
-    from cotrain.detect.lattice import _diag_contrast, edge_contrasts, step_has_edge, value_at
+    from cotrain.detect.lattice import diag_contrast, edge_contrasts, step_has_edge, value_at
 
     cfg = GridConfig()
     rng = np.random.default_rng(3)
@@ -402,7 +402,7 @@ def test_compiled_colour_tests_match_their_sampled_definitions():
         ea, eb = rng.normal(0, 8, 2), rng.normal(0, 8, 2)
         d1, d2 = 0.3 * (ea + eb), 0.3 * (ea - eb)
         ref = value_at(img, p + d2) + value_at(img, p - d2) - value_at(img, p + d1) - value_at(img, p - d1)
-        assert _diag_contrast(img, p, ea, eb, 0.3) == pytest.approx(ref, abs=1e-4)
+        assert diag_contrast(img, p, ea, eb, 0.3) == pytest.approx(ref, abs=1e-4)
     answers = []
     for _ in range(3000):
         p = rng.uniform([-3, -3], [163, 123])

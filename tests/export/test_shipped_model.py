@@ -106,3 +106,24 @@ def test_shipped_aprilgrid_network_matches_its_checkpoint():
     assert got["corners"].shape == (2, 144, 2)
     for name in OUTPUTS:
         np.testing.assert_allclose(got[name], ref[name].numpy(), atol=0.02 if name == "corners" else 2e-3)
+
+
+def test_a_board_close_to_the_lens_is_not_placed_by_margins_it_does_not_have():
+    """A board seen close to the lens through a 1920x1080 fisheye (the held-out seed-31 set's large
+    squares row, frame 9): its squares grow 2.4x from one row of corners to the next, the step the
+    lattice predicts falls short, and the last black square's side, bending away, read as the
+    board's end beside two corners where the board goes on. With that margin evidence the
+    geometry placed the lattice half a turn wrong, 29 nats ahead: 21 corners with wrong ids at full
+    confidence. The next corner is there, with the checker edge running to it
+    (``identity.board_goes_on``): no margin evidence, and no wrong corner."""
+    from calib_eval.detection.conditions import CONDITIONS
+    from calib_eval.detection.evaluation import BENCH_VERSION
+    from cotrain.geometry import cameras
+
+    cfg = EvalConfig(width=1920, height=1080, seed=31)
+    condition = "large squares at the rim"
+    rc = _render_cfg((180.0, 240.0), cfg, [m for m in cameras.MODELS if m != "kb4"], condition=condition)
+    batch = render_batch(rc, [9], seed=cfg.seed * 1000 + BENCH_VERSION * 100 + 50 + list(CONDITIONS).index(condition))
+    found = Detector().detect(batch["image"][0, 0].numpy())
+    q = batch["corners_raw"][0].numpy()
+    assert np.all(np.linalg.norm(found.xy - q[found.ids], axis=1) < 3)
