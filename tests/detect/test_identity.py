@@ -272,26 +272,35 @@ def test_a_corner_without_extent_weight_gives_the_geometry_no_margin():
 def test_board_goes_on_where_the_next_corner_lies_beyond_a_short_prediction():
     """``board_goes_on`` on a fronto-parallel board of 30 px squares: from corner (4, 3) with a
     predicted step of 20 px (stale, as where squares grow fast) the next corner 1.5 steps down is
-    there, with the checker edge running to it; without that corner among the candidates, or in
-    a direction 45 deg off, nothing is. From the last row (4, 5) the board ends: a junction one
-    step down, beyond the white margin, has no checker edge to it. A corner two squares on (a
-    knight's move, 1.6 steps out at 18 deg) keeps the colours of (4, 3), not alternating ones."""
+    there, with the checker edge running to it; without that corner among the candidates, or in a
+    direction 45 deg off, nothing is. Two squares on, with the corner between them missing, the
+    edge changes sides half-way. From the last row (4, 5), where the board ends, the junction one
+    step down lies where the last squares' side meets the white margin: the edge runs to it, but
+    two of its quadrants are margin and its colours flip by half of the corner's, under
+    ``goes_on_min_alternation`` (0.7; at 0.4 it would pass for the board going on)."""
+    from dataclasses import replace
+
     from cotrain.detect.identity import board_goes_on
 
     cfg = GridConfig()
     img, q = board_image(sq=30, org=(30, 20), size=(360, 290))
     blur = smooth_for(img, -1)
-    k = 3 * NX + 4
-    down, right = np.array([0.0, 20.0]), np.array([30.0, 0.0])
-    bright = right if img[int(q[k, 1]) + 8, int(q[k, 0]) + 8] > 0.5 else -right  # the lighter square below
     contrast = 0.84
-    assert board_goes_on(blur, q[k], down, right, bright, q, contrast, cfg)
-    others = np.delete(q, k + NX, axis=0)
-    assert not board_goes_on(blur, q[k], down, right, bright, others, contrast, cfg)
-    assert not board_goes_on(blur, q[k], down + right * 2 / 3, right, bright, q, contrast, cfg)
+    right = np.array([30.0, 0.0])
+
+    def lighter_below(k: int) -> np.ndarray:  # the side of the lighter of the two squares below corner k
+        return right if img[int(q[k, 1]) + 8, int(q[k, 0]) + 8] > 0.5 else -right
+
+    k = 3 * NX + 4
+    down = np.array([0.0, 20.0])
+    assert board_goes_on(blur, q[k], down, right, lighter_below(k), q, contrast, cfg)
+    without_next = np.delete(q, k + NX, axis=0)
+    assert not board_goes_on(blur, q[k], down, right, lighter_below(k), without_next, contrast, cfg)
+    assert not board_goes_on(blur, q[k], down + right * 2 / 3, right, lighter_below(k), q, contrast, cfg)
+    assert not board_goes_on(blur, q[k], np.array([0.0, 40.0]), right, lighter_below(k), without_next, contrast, cfg)
     last = 5 * NX + 4
-    beyond = np.vstack([q, q[last] + [0.0, 30.0]])  # in the margin and the grey beyond it
-    bright_last = right if img[int(q[last, 1]) + 8, int(q[last, 0]) + 8] > 0.5 else -right
-    assert not board_goes_on(blur, q[last], np.array([0.0, 30.0]), right, bright_last, beyond, contrast, cfg)
-    knight = np.delete(q, k + NX, axis=0)  # (4, 4) missing: (5, 5) is the nearest along the edge
-    assert not board_goes_on(blur, q[k], np.array([20.0, 40.0]) / 1.5, right, bright, knight, contrast, cfg)
+    at_margin = np.vstack([q, q[last] + [0.0, 30.0]])
+    step = np.array([0.0, 30.0])
+    assert not board_goes_on(blur, q[last], step, right, lighter_below(last), at_margin, contrast, cfg)
+    loose = replace(cfg, goes_on_min_alternation=0.4)
+    assert board_goes_on(blur, q[last], step, right, lighter_below(last), at_margin, contrast, loose)
