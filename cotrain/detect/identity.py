@@ -213,20 +213,24 @@ def board_goes_on(
     white margin, where both sides are white, and a junction there (a blurred square's smear, a
     pattern behind the board) keeps no checker colours with p; where the last squares' side meets
     the margin, two of the four quadrants are margin, and the colours alternate by half."""
-    L = float(np.hypot(step[0], step[1]))
-    if not len(candidates) or L < cfg.goes_on_min_step_px:
+    step_len = float(np.hypot(step[0], step[1]))
+    if not len(candidates) or step_len < cfg.goes_on_min_step_px:
         return False
     w = candidates - p
     dist = np.hypot(w[:, 0], w[:, 1])
-    cos = (w @ step) / np.maximum(dist * L, 1e-9)
-    near = (dist >= cfg.goes_on_min_steps * L) & (dist <= cfg.goes_on_max_steps * L) & (cos >= np.cos(np.radians(cfg.goes_on_angle)))
+    cos = (w @ step) / np.maximum(dist * step_len, 1e-9)
+    near = (
+        (dist >= cfg.goes_on_min_steps * step_len)
+        & (dist <= cfg.goes_on_max_steps * step_len)
+        & (cos >= np.cos(np.radians(cfg.goes_on_angle)))
+    )
     par = diag_contrast(blur, p, step, across, cfg.diag_offset) if near.any() else 0.0
     for j in np.nonzero(near)[0]:
         o = np.array([-w[j, 1], w[j, 0]]) / dist[j]
         c = edge_contrasts(blur, p, candidates[j], o if o @ bright > 0 else -o, 0.1 * dist[j])
         if not (np.all(np.isfinite(c)) and np.all(c >= cfg.goes_on_min_contrast * contrast)):
             continue
-        pc = diag_contrast(blur, candidates[j], w[j], across * (dist[j] / L), cfg.diag_offset)
+        pc = diag_contrast(blur, candidates[j], w[j], across * (dist[j] / step_len), cfg.diag_offset)
         if pc * par < 0 and abs(pc) >= cfg.goes_on_min_alternation * abs(par):
             return True
     return False
