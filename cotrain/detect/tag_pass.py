@@ -2105,16 +2105,17 @@ def _tag_pass_in(
                 tags.append(c.tag)
                 ham.append(c.hamming)
     ids_a, xy_a, conf_a = np.array(ids, int), np.array(xy_out).reshape(-1, 2), np.array(conf)
+    print_lens = lens if cfg.complete.lens else None  # the print check's and completion's maps go through it
     if cfg.complete.check:
         # A corner the print around it contradicts (a neighbour's pattern matches better) is dropped;
         # completion may find it where it is.
-        ok = print_check(sm, rim_dist, board, ids_a, xy_a, cfg.complete, lens=lens if cfg.complete.lens else None)
+        ok = print_check(sm, rim_dist, board, ids_a, xy_a, cfg.complete, lens=print_lens)
         ids_a, xy_a, conf_a = ids_a[ok], xy_a[ok], conf_a[ok]
     aside = np.zeros(len(ids_a), bool)
     if cfg.complete.check and cfg.complete.rounds:
         # A corner some pixels from where its neighbours put it, where the print matches better
         # there, is set aside for completion to place; where completion does not, it is put back.
-        aside = print_moved(sm, rim_dist, board, ids_a, xy_a, cfg.complete, lens if cfg.complete.lens else None)
+        aside = print_moved(sm, rim_dist, board, ids_a, xy_a, cfg.complete, print_lens)
     aside_ids, aside_xy, aside_conf = ids_a[aside], xy_a[aside], conf_a[aside]
     ids_a, xy_a, conf_a = ids_a[~aside], xy_a[~aside], conf_a[~aside]
     unfound = None
@@ -2122,9 +2123,7 @@ def _tag_pass_in(
         # Corners the growth missed, predicted from the identified ones and checked against the
         # print; their confidence is that check's correlation.
         given = dict(zip(ids_a.tolist(), conf_a.tolist()))
-        ids_a, xy_a, corr, missing = complete_board(
-            grey, smoothed, rim_dist, xy, board, ids_a, xy_a, cfg.complete, cfg.grid, lens if cfg.complete.lens else None
-        )
+        ids_a, xy_a, corr, missing = complete_board(grey, smoothed, rim_dist, xy, board, ids_a, xy_a, cfg.complete, cfg.grid, print_lens)
         conf_a = np.array([given.get(i, c) for i, c in zip(ids_a.tolist(), corr.tolist())])
         unfound = len(set(missing.tolist()) - set(aside_ids.tolist()))
     # (Where setting corners aside left under 4, completion did not run: unfound stays None, as
@@ -2136,7 +2135,7 @@ def _tag_pass_in(
         # A corner put back is one the print placed elsewhere: its confidence (the calibrator's
         # weight) is its own print's correlation where it lies, among all the corners now found.
         put = np.arange(len(ids_a) - int(back.sum()), len(ids_a))
-        corr = own_print_corr(sm, rim_dist, board, ids_a, xy_a, put, cfg.complete, lens if cfg.complete.lens else None)
+        corr = own_print_corr(sm, rim_dist, board, ids_a, xy_a, put, cfg.complete, print_lens)
         aside_conf = aside_conf.copy()
         aside_conf[back] = np.minimum(aside_conf[back], np.clip(np.nan_to_num(corr, nan=1.0), MIN_PUT_BACK_CONFIDENCE, 1.0))
     conf_a = np.concatenate([conf_a, aside_conf[back]])
