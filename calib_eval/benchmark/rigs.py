@@ -2,6 +2,11 @@
 
 Observations are ground-truth projections of the detectable corners plus detector-like noise,
 computed with the shared camera models; no renderer is involved.
+
+Two kinds of recording: independent random views (the paper's), or a continuous recording (a
+board moving smoothly in front of the fixed rig at ``frame_rate_hz``), where cameras can be exposed
+``time_offsets_s`` after their stamps and the board can be bent (``bend_m``): the causes a
+calibration's verdict must name (:mod:`calib_eval.calibration.trust`).
 """
 
 from __future__ import annotations
@@ -38,6 +43,11 @@ class SynthSpec:
     min_square_px: float = 4.0  # corners whose local square is smaller are not detected
     distance_range: tuple[float, float] = (0.1, 1.0)  # rig-to-board distance, metres
     target: TargetConfig = field(default_factory=TargetConfig)
+    motion: str = "random"  # "random": independent views; "continuous": a smooth trajectory through random poses
+    frame_rate_hz: float = 20.0  # stamps of the views (and the trajectory's sampling when continuous)
+    keyframe_s: float = 2.5  # continuous: seconds between the random poses the trajectory passes through
+    time_offsets_s: tuple[float, ...] = ()  # per camera: exposed this long after its stamp (continuous; default 0)
+    bend_m: float = 0.0  # the board bent as a cylinder along its x axis: out-of-plane offset at the centre (m, +z)
 
 
 @dataclass
@@ -45,7 +55,9 @@ class GroundTruth:
     model: list[str]
     params: list[np.ndarray]  # per camera, Kalibr order
     T_cam_rig: np.ndarray  # (C, 4, 4); cam0 is the rig frame
-    T_rig_board: np.ndarray  # (K, 4, 4)
+    T_rig_board: np.ndarray  # (K, 4, 4), at each view's stamp
+    time_offsets_s: list[float] = field(default_factory=list)  # per camera, exposure after the stamp
+    warp_m: tuple[float, float] = (0.0, 0.0)  # the bend in the calibrator's warp terms (k_x, k_y), m
 
 
 def paper_config(name: str) -> RigSpec:
@@ -117,35 +129,89 @@ def _sample_rig_poses(rng: np.random.Generator, n: int, board: Target, spec: Syn
     return np.stack(out)
 
 
+def _continuous_poses(rng: np.random.Generator, board: Target, spec: SynthSpec, T_cam_rig: np.ndarray):
+    """A smooth board trajectory: a function t (s) -> T_rig_board (len(t), 4, 4) through random
+    poses every ``keyframe_s`` (cubic spline in position, scipy's RotationSpline in rotation)."""
+    from scipy.interpolate import CubicSpline
+    from scipy.spatial.transform import Rotation, RotationSpline
+
+    duration = spec.n_frames / spec.frame_rate_hz
+    n_key = int(math.ceil(duration / spec.keyframe_s)) + 3
+    keys = _sample_rig_poses(rng, n_key, board, spec, T_cam_rig)
+    t_key = (np.arange(n_key) - 1) * spec.keyframe_s
+    rot = RotationSpline(t_key, Rotation.from_matrix(keys[:, :3, :3]))
+    pos = CubicSpline(t_key, keys[:, :3, 3])
+
+    def at(t: np.ndarray) -> np.ndarray:
+        T = np.tile(np.eye(4), (len(t), 1, 1))
+        T[:, :3, :3] = rot(t).as_matrix()
+        T[:, :3, 3] = pos(t)
+        return T
+
+    return at
+
+
+def bent_points(board: Target, bend_m: float) -> np.ndarray:
+    """The board's points (N, 3) bent as a cylinder along x: a circular arc over the corner grid's
+    x extent with sagitta ``bend_m`` at its centre (along +z), the grid's ends in the plane."""
+    P = board.points().numpy().copy()
+    if bend_m == 0:
+        return P
+    x0, x1 = P[:, 0].min(), P[:, 0].max()
+    a, s = (x1 - x0) / 2, abs(bend_m)
+    R = (a * a + s * s) / (2 * s)
+    dx = P[:, 0] - (x0 + x1) / 2
+    P[:, 2] += math.copysign(1.0, bend_m) * (np.sqrt(R * R - dx * dx) - (R - s))
+    return P
+
+
+def _observe(model, prm, T: np.ndarray, P: np.ndarray, board: Target, rig: RigSpec, spec: SynthSpec, rng):
+    """(ids, noisy pixels) of the corners camera (model, prm) detects at T_cam_board, or (None, None)."""
+    if not sees_print(board.front, T[:3, 2], T[:3, 3]):  # printed side faces away
+        return None, None
+    pc = P @ T[:3, :3].T + T[:3, 3]
+    q, ok = cameras.project(model, torch.from_numpy(pc), prm)
+    q = q.numpy()
+    ok = ok.numpy() & (cameras.off_axis_angle(torch.from_numpy(pc)).numpy() <= math.radians(rig.fov) / 2 * 0.995)
+    ok &= (q[:, 0] > 1) & (q[:, 0] < rig.width - 2) & (q[:, 1] > 1) & (q[:, 1] < rig.height - 2)
+    # Detectable: the local square is large enough.
+    ok &= square_px(model, prm, torch.from_numpy(T), board).numpy() >= spec.min_square_px
+    if ok.sum() < spec.min_corners:
+        return None, None
+    ids = np.nonzero(ok)[0]
+    qn = q[ids] + rng.normal(scale=spec.noise_px, size=(len(ids), 2))
+    if spec.outlier_rate > 0:
+        bad = rng.random(len(ids)) < spec.outlier_rate
+        qn[bad] += rng.uniform(8, 40, size=(bad.sum(), 2)) * rng.choice([-1, 1], size=(bad.sum(), 2))
+    return ids, qn
+
+
 def make_sequence(rig: RigSpec, spec: SynthSpec, seed: int = 0) -> tuple[Sequence, GroundTruth]:
     """A synthetic sequence with ground truth. Observations: detectable corners + noise."""
     rng = np.random.default_rng(seed)
     board = make_target(spec.target)
     models, params, T_cam_rig = make_rig(rig)
-    T_rig_board = _sample_rig_poses(rng, spec.n_frames, board, spec, T_cam_rig)
-    P = board.points().numpy()
+    stamps = np.arange(spec.n_frames) / spec.frame_rate_hz
+    offsets = list(spec.time_offsets_s) + [0.0] * (len(models) - len(spec.time_offsets_s))
+    if spec.motion == "continuous":
+        trajectory = _continuous_poses(rng, board, spec, T_cam_rig)
+        T_rig_board = trajectory(stamps)
+        seen = [trajectory(stamps + dt) for dt in offsets]
+    elif spec.motion == "random":
+        if any(offsets):
+            raise ValueError("time offsets need a continuous recording (motion='continuous')")
+        T_rig_board = _sample_rig_poses(rng, spec.n_frames, board, spec, T_cam_rig)
+        seen = [T_rig_board] * len(models)
+    else:
+        raise ValueError(f"motion {spec.motion!r}: 'random' or 'continuous'")
+    P = bent_points(board, spec.bend_m)
     obs = []
     for k in range(spec.n_frames):
         for c, (model, prm) in enumerate(zip(models, params)):
-            T = T_cam_rig[c] @ T_rig_board[k]
-            if not sees_print(board.front, T[:3, 2], T[:3, 3]):  # printed side faces away
-                continue
-            pc = P @ T[:3, :3].T + T[:3, 3]
-            q, ok = cameras.project(model, torch.from_numpy(pc), prm)
-            q = q.numpy()
-            ok = ok.numpy() & (cameras.off_axis_angle(torch.from_numpy(pc)).numpy() <= math.radians(rig.fov) / 2 * 0.995)
-            ok &= (q[:, 0] > 1) & (q[:, 0] < rig.width - 2) & (q[:, 1] > 1) & (q[:, 1] < rig.height - 2)
-            # Detectable: the local square is large enough.
-            ok &= square_px(model, prm, torch.from_numpy(T), board).numpy() >= spec.min_square_px
-            if ok.sum() < spec.min_corners:
-                continue
-            ids = np.nonzero(ok)[0]
-            qn = q[ids] + rng.normal(scale=spec.noise_px, size=(len(ids), 2))
-            if spec.outlier_rate > 0:
-                bad = rng.random(len(ids)) < spec.outlier_rate
-                qn[bad] += rng.uniform(8, 40, size=(bad.sum(), 2)) * rng.choice([-1, 1], size=(bad.sum(), 2))
-            obs.append(Observation(c, k, ids, qn, np.ones(len(ids)), f"{k:06d}"))
+            ids, qn = _observe(model, prm, T_cam_rig[c] @ seen[c][k], P, board, rig, spec, rng)
+            if ids is not None:
+                obs.append(Observation(c, k, ids, qn, np.ones(len(ids)), f"{k:06d}"))
     cams = [CameraInfo(f"cam{i}", rig.width, rig.height) for i in range(len(models))]
-    seq = Sequence(cams, spec.n_frames, obs, np.arange(spec.n_frames, dtype=np.int64) * 50_000_000, board)
-    gt = GroundTruth(models, [p.numpy() for p in params], T_cam_rig, T_rig_board)
+    seq = Sequence(cams, spec.n_frames, obs, np.round(stamps * 1e9).astype(np.int64), board)
+    gt = GroundTruth(models, [p.numpy() for p in params], T_cam_rig, T_rig_board, offsets, (spec.bend_m, 0.0))
     return seq, gt

@@ -25,7 +25,8 @@ import torch
 from torch import Tensor
 
 from calib_eval.calibration.initialisation import average_pose, focal_search, initial_guess, view_pose
-from calib_eval.calibration.solver import Problem, SolveResult, solve
+from calib_eval.calibration.solver import Free, Params, Problem, SolveResult, covariance, residuals, solve
+from calib_eval.calibration.time_offset import OffsetEstimate, TimeOffsetConfig, board_velocities, estimable_cameras
 from cotrain.geometry import cameras
 from cotrain.io.sequence import Observation, Sequence
 from cotrain.targets import Target
@@ -49,6 +50,10 @@ class CalibConfig:
     view_outlier_px: float = 3.0  # after the joint stage, an observation whose median corner error exceeds this ...
     view_outlier_ratio: float = 5.0  # ... and this many times its camera's median over observations drops its view (a wrong board)
     view_outlier_cap_px: float = 10.0  # ... the threshold never exceeds this (a camera whose median is itself off)
+    flat_board: bool = False  # True: the board is taken as flat; False: its two-parameter warp is estimated in stage 3
+    time_offset: str = "estimate"  # "estimate": report each camera's offset to cam0; "auto": calibrate with it applied; "off"
+    time_offsets_s: dict[int, float] = field(default_factory=dict)  # camera -> offset (s) set by hand (applied; not estimated)
+    timing: TimeOffsetConfig = field(default_factory=TimeOffsetConfig)
 
 
 class CalibrationFailed(RuntimeError):
@@ -73,6 +78,22 @@ class CalibrationResult:
     stages: list[dict] = field(default_factory=list)
     dropped: list[dict] = field(default_factory=list)  # views dropped as a whole: view, frame, cameras, reason
     rejected: dict[tuple[int, int], np.ndarray] = field(default_factory=dict)  # (cam, view) -> corner ids stage 2 dropped (outliers)
+    warp_m: np.ndarray = field(default_factory=lambda: np.zeros(2))  # the board's warp (k_x, k_y), m at its centre (0: flat)
+    time_offsets_s: np.ndarray | None = None  # (C,) the offsets the result was calibrated with (s; zeros: none applied)
+    time_offset_estimates: list[OffsetEstimate] = field(default_factory=list)  # cameras 1..: estimated offsets, or why not
+    final: FinalSolve | None = None  # the joint stage's problem and solution (for the uncertainty and cross-validation)
+
+
+@dataclass
+class FinalSolve:
+    """The joint stage's last problem and its solution: what the trust checks linearise."""
+
+    used: list[Observation]  # the observations of the problem
+    views: list[int]  # view ids in the problem's view order
+    problem: Problem
+    params: Params
+    free: Free
+    huber: float
 
 
 def _intrinsic_stage(
@@ -203,19 +224,76 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
         return fail(str(e), intr)
 
     # Stage 3: extrinsics from co-visible views (spanning tree from cam0), then everything jointly.
-    T_cam_rig = np.tile(np.eye(4), (C, 1, 1))
     if cfg.no_init:
         for c in range(C):
             cam_poses[c] = {o.view: T for o in obs_by_cam[c] if (T := view_pose(models[c], intr[c], o, board)) is not None}
+    T_cam_rig, missing = _initial_extrinsics(cam_poses)
+    if missing:
+        names = ", ".join(seq.cameras[c].name for c in missing)
+        return fail(f"no co-visible views link {names} to cam0: extrinsics cannot be initialised", intr, T_cam_rig)
+    views = sorted({v for c in range(C) for v in cam_poses[c]})
+    T_rig_board = {}
+    for v in views:
+        cands = [np.linalg.inv(T_cam_rig[c]) @ cam_poses[c][v] for c in range(C) if v in cam_poses[c]]
+        T_rig_board[v] = cands[0] if len(cands) == 1 else average_pose(cands)
+    joint = _JointStage(seq, models, cfg, board)
+    dropped: list[dict] = []
+    no_poses = torch.zeros(0, 4, 4, dtype=torch.float64)  # set per round from T_rig_board
+    start = Params(intr, torch.from_numpy(T_cam_rig), no_poses, torch.zeros(2, dtype=torch.float64), joint.fixed_offsets)
+    out = joint.run(obs_by_cam, T_rig_board, start, dropped, stages)
+    if isinstance(out, str):
+        return fail(out, intr, T_cam_rig)
+    final, res = out
+    obs_by_cam = [[o for o in final.used if o.cam == c] for c in range(C)]
+    frames["full"] = [len(obs_by_cam[c]) for c in range(C)]
+    estimates: list[OffsetEstimate] = []
+    if cfg.time_offset in ("estimate", "auto") and C > 1 and not cfg.time_offsets_s:
+        estimates, timed = joint.estimate_time_offsets(final)
+        if timed is not None and cfg.time_offset == "auto":
+            final, res = timed
+        stages.append({"stage": "time offsets", "rms_px": res.rms, "iterations": res.iterations, "reason": res.reason})
+    stages.append({"stage": "full", "rms_px": res.rms, "iterations": res.iterations, "reason": res.reason})
+    p = final.params
+    intr_np = [x.numpy() for x in p.intr]
+    T_cr = p.T_cam_rig.numpy()
+    ok_finite = all(np.isfinite(x).all() for x in intr_np) and np.isfinite(T_cr).all()
+    worst = max(res.rms) if res.rms and all(math.isfinite(x) for x in res.rms) else float("nan")
+    success = ok_finite and math.isfinite(worst) and worst <= cfg.max_rms_px
+    reason = "ok" if success else (f"final RMS {worst:.2f} px exceeds {cfg.max_rms_px} px" if ok_finite else "non-finite parameters")
+    T_rb = {v: p.T_rig_board[i].numpy() for i, v in enumerate(final.views)}
+    return CalibrationResult(
+        success,
+        reason,
+        models,
+        intr_np,
+        T_cr,
+        T_rb,
+        res.rms,
+        frames,
+        gammas,
+        time.time() - t0,
+        stages,
+        dropped,
+        rejected,
+        p.warp.numpy().copy(),
+        p.time_offsets.numpy().copy(),
+        estimates,
+        final,
+    )
+
+
+def _initial_extrinsics(cam_poses: list[dict[int, np.ndarray]]) -> tuple[np.ndarray, list[int]]:
+    """T_cam_rig (C, 4, 4) from co-visible views along a spanning tree from cam0, and the cameras
+    no co-visible view links to cam0."""
+    C = len(cam_poses)
+    T_cam_rig = np.tile(np.eye(4), (C, 1, 1))
     known = {0}
     while len(known) < C:
         added = False
-        for c in range(C):
-            if c in known:
-                continue
-            for k in list(known):
+        for c in sorted(set(range(C)) - known):
+            for k in sorted(known):
                 shared = set(cam_poses[c]) & set(cam_poses[k])
-                if len(shared) >= 1:
+                if shared:
                     # T_c_rig = T_c_board T_board_k T_k_rig
                     cands = [cam_poses[c][v] @ np.linalg.inv(cam_poses[k][v]) @ T_cam_rig[k] for v in shared]
                     T_cam_rig[c] = average_pose(cands)
@@ -223,64 +301,126 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
                     added = True
                     break
         if not added:
-            missing = ", ".join(seq.cameras[c].name for c in range(C) if c not in known)
-            return fail(f"no co-visible views link {missing} to cam0: extrinsics cannot be initialised", intr, T_cam_rig)
-    views = sorted({v for c in range(C) for v in cam_poses[c]})
-    T_rig_board = {}
-    for v in views:
-        cands = [np.linalg.inv(T_cam_rig[c]) @ cam_poses[c][v] for c in range(C) if v in cam_poses[c]]
-        T_rig_board[v] = cands[0] if len(cands) == 1 else average_pose(cands)
-    dropped: list[dict] = []
-    Tcr = torch.from_numpy(T_cam_rig)
-    rounds = 6
-    for it in range(rounds + 1):
-        # The joint stage; observations that disagree with the rig as a whole (a board placed with
-        # the wrong identity: consistent within itself, so per-camera stages absorb it into its
-        # pose) are dropped and the stage is run again.
-        views = sorted(T_rig_board)
-        vi = {v: i for i, v in enumerate(views)}
-        used = [o for c in range(C) for o in obs_by_cam[c] if o.view in vi]
-        prob = Problem.build(used, board, vi)
-        Tb = torch.from_numpy(np.stack([T_rig_board[v] for v in views]))
-        intr_t, Tcr, Tb, res = solve(
-            prob, models, intr, Tcr, Tb, opt_extr=C > 1, iters=cfg.refine_iters * (2 if cfg.no_init else 1), huber=cfg.huber_px
+            return T_cam_rig, sorted(set(range(C)) - known)
+    return T_cam_rig, []
+
+
+class _JointStage:
+    """Stage 3: intrinsics, extrinsics, target poses (and the board's warp, and time offsets where
+    set or estimated) solved together over every camera's observations."""
+
+    def __init__(self, seq: Sequence, models: list[str], cfg: CalibConfig, board: Target):
+        self.seq, self.models, self.cfg, self.board = seq, models, cfg, board
+        C = len(models)
+        self.fixed_offsets = torch.tensor([float(cfg.time_offsets_s.get(c, 0.0)) for c in range(C)], dtype=torch.float64)
+        self.free = Free(intr=True, extr=C > 1, warp=not cfg.flat_board, time=False)
+
+    def _problem(self, used: list[Observation], T_rig_board: dict[int, np.ndarray], views: list[int]) -> Problem:
+        prob = Problem.build(used, self.board, {v: i for i, v in enumerate(views)})
+        if bool((self.fixed_offsets != 0).any()) and self.seq.timestamps_ns is not None:
+            prob.velocity = self._velocity(T_rig_board, views)
+        return prob
+
+    def _velocity(self, T_rig_board: dict[int, np.ndarray], views: list[int]) -> Tensor:
+        vel = board_velocities(T_rig_board, self.seq.timestamps_ns, self.cfg.timing)
+        return torch.from_numpy(np.stack([vel.get(v, np.zeros(6)) for v in views]))
+
+    def solve(self, prob: Problem, p: Params, free: Free) -> tuple[Params, SolveResult]:
+        iters = self.cfg.refine_iters * (2 if self.cfg.no_init else 1)
+        intr, Tcr, Tb, res = solve(
+            prob,
+            self.models,
+            p.intr,
+            p.T_cam_rig,
+            p.T_rig_board,
+            opt_extr=free.extr,
+            opt_warp=free.warp,
+            opt_time=free.time,
+            warp=p.warp,
+            time_offsets=p.time_offsets,
+            iters=iters,
+            huber=self.cfg.huber_px,
         )
-        bad = _inconsistent_views(used, res.residuals.numpy(), cfg) if it < rounds else []  # the last solve is final
-        if not bad:
-            break
-        # A wrong board pulls its view's pose, and with it the other cameras' boards of that view:
-        # which of them is wrong cannot be told from one view, so the whole view goes.
-        worst = {}
-        for o, med in bad:
-            worst[o.view] = max(worst.get(o.view, 0.0), med)
-        for v, med in sorted(worst.items()):
-            cams = [seq.cameras[o.cam].name for o in used if o.view == v]
-            frame = next(o.frame for o in used if o.view == v)
-            dropped.append(
-                {"view": v, "frame": frame, "cameras": cams, "reason": f"board off the rig by {med:.1f} px (median corner error)"}
-            )
-        obs_by_cam = [[o for o in ob if o.view not in worst] for ob in obs_by_cam]
-        short = [seq.cameras[c].name for c in range(C) if len(obs_by_cam[c]) < cfg.min_views]
-        if short:
-            return fail(
-                f"{', '.join(short)}: fewer than {cfg.min_views} views agree with the rig ({len(dropped)} views dropped)", intr, T_cam_rig
-            )
-        intr = list(intr_t)
-        seen = {o.view for ob in obs_by_cam for o in ob}
-        T_rig_board = {v: Tb[i].numpy() for v, i in vi.items() if v in seen}
-        stages.append({"stage": "full", "rms_px": res.rms, "iterations": res.iterations, "reason": f"dropped {len(worst)} views"})
-    frames["full"] = [len(obs_by_cam[c]) for c in range(C)]
-    stages.append({"stage": "full", "rms_px": res.rms, "iterations": res.iterations, "reason": res.reason})
-    intr_np = [x.numpy() for x in intr_t]
-    T_cr = Tcr.numpy()
-    ok_finite = all(np.isfinite(x).all() for x in intr_np) and np.isfinite(T_cr).all()
-    worst = max(res.rms) if res.rms and all(math.isfinite(x) for x in res.rms) else float("nan")
-    success = ok_finite and math.isfinite(worst) and worst <= cfg.max_rms_px
-    reason = "ok" if success else (f"final RMS {worst:.2f} px exceeds {cfg.max_rms_px} px" if ok_finite else "non-finite parameters")
-    T_rb = {v: Tb[i].numpy() for v, i in vi.items()}
-    return CalibrationResult(
-        success, reason, models, intr_np, T_cr, T_rb, res.rms, frames, gammas, time.time() - t0, stages, dropped, rejected
-    )
+        return Params(list(intr), Tcr, Tb, res.warp, res.time_offsets), res
+
+    def run(self, obs_by_cam, T_rig_board, start: Params, dropped: list[dict], stages: list[dict]):
+        """Solve, drop the views a board placed with the wrong identity spoils, solve again.
+        Returns (FinalSolve, SolveResult), or the reason of a failure."""
+        cfg, C, p = self.cfg, len(self.models), start
+        rounds = 6
+        for it in range(rounds + 1):
+            # Observations that disagree with the rig as a whole (a board placed with the wrong
+            # identity: consistent within itself, so per-camera stages absorb it into its pose)
+            # are dropped and the stage is run again.
+            views = sorted(T_rig_board)
+            used = [o for c in range(C) for o in obs_by_cam[c] if o.view in T_rig_board]
+            prob = self._problem(used, T_rig_board, views)
+            p.T_rig_board = torch.from_numpy(np.stack([T_rig_board[v] for v in views]))
+            p, res = self.solve(prob, p, self.free)
+            bad = _inconsistent_views(used, res.residuals.numpy(), cfg) if it < rounds else []  # the last solve is final
+            if not bad:
+                return FinalSolve(used, views, prob, p, self.free, cfg.huber_px), res
+            # A wrong board pulls its view's pose, and with it the other cameras' boards of that
+            # view: which of them is wrong cannot be told from one view, so the whole view goes.
+            worst = {}
+            for o, med in bad:
+                worst[o.view] = max(worst.get(o.view, 0.0), med)
+            for v, med in sorted(worst.items()):
+                cams = [self.seq.cameras[o.cam].name for o in used if o.view == v]
+                frame = next(o.frame for o in used if o.view == v)
+                dropped.append(
+                    {"view": v, "frame": frame, "cameras": cams, "reason": f"board off the rig by {med:.1f} px (median corner error)"}
+                )
+            obs_by_cam = [[o for o in ob if o.view not in worst] for ob in obs_by_cam]
+            short = [self.seq.cameras[c].name for c in range(C) if len(obs_by_cam[c]) < cfg.min_views]
+            if short:
+                return f"{', '.join(short)}: fewer than {cfg.min_views} views agree with the rig ({len(dropped)} views dropped)"
+            seen = {o.view for ob in obs_by_cam for o in ob}
+            T_rig_board = {v: p.T_rig_board[i].numpy() for i, v in enumerate(views) if v in seen}
+            stages.append({"stage": "full", "rms_px": res.rms, "iterations": res.iterations, "reason": f"dropped {len(worst)} views"})
+        raise AssertionError("unreachable")
+
+    def estimate_time_offsets(self, final: FinalSolve) -> tuple[list[OffsetEstimate], tuple[FinalSolve, SolveResult] | None]:
+        """Each camera's offset to cam0, estimated with everything else from the board's
+        velocities (rounds: velocities from the poses, solve, again). Returns the estimates and
+        the timed solve (None where no camera's offset is estimable)."""
+        C, names, tcfg = len(self.models), [c.name for c in self.seq.cameras], self.cfg.timing
+        if self.seq.timestamps_ns is None:
+            return [OffsetEstimate(names[c], None, None, 0, "the sequence has no timestamps") for c in range(1, C)], None
+        poses = {v: final.params.T_rig_board[i].numpy() for i, v in enumerate(final.views)}
+        vel = board_velocities(poses, self.seq.timestamps_ns, tcfg)
+        cams_by_view: dict[int, set[int]] = {}
+        for o in final.used:
+            cams_by_view.setdefault(o.view, set()).add(o.cam)
+        counts = estimable_cameras(cams_by_view, vel, C, tcfg)
+        if all(n < tcfg.min_views for n in counts.values()):
+            why = f"the recording is not continuous (fewer than {tcfg.min_views} co-visible views between smooth neighbours)"
+            return [OffsetEstimate(names[c], None, None, counts[c], why) for c in range(1, C)], None
+        free = Free(intr=True, extr=C > 1, warp=self.free.warp, time=True)
+        p, res, prob = final.params.clone(), None, final.problem
+        for _ in range(tcfg.rounds):
+            prob = Problem(**{**prob.__dict__, "velocity": self._velocity(poses, final.views)})
+            p, res = self.solve(prob, p, free)
+            poses = {v: p.T_rig_board[i].numpy() for i, v in enumerate(final.views)}
+        cov = covariance(prob, self.models, p, free=free, huber=self.cfg.huber_px)
+        out = []
+        for c in range(1, C):
+            if counts[c] < tcfg.min_views:
+                out.append(OffsetEstimate(names[c], None, None, counts[c], f"only {counts[c]} co-visible views in continuous motion"))
+                continue
+            sigma = float(cov.sigma(cov.layout.time[c])[0])
+            shift = _offset_shift_px(prob, self.models, p, c)
+            out.append(OffsetEstimate(names[c], float(p.time_offsets[c]), sigma, counts[c], "estimated", shift))
+        return out, (FinalSolve(final.used, final.views, prob, p, free, self.cfg.huber_px), res)
+
+
+def _offset_shift_px(prob: Problem, models: list[str], p: Params, c: int) -> float:
+    """Median image motion (px) of camera c's corners between its stamp and its estimated exposure."""
+    zero = p.clone()
+    zero.time_offsets[c] = 0.0
+    sel = prob.cam == c
+    d = (residuals(prob, models, zero) - residuals(prob, models, p))[sel].norm(dim=-1)
+    return float(d.median()) if len(d) else math.nan
 
 
 def _inconsistent_views(used: list[Observation], err: np.ndarray, cfg: CalibConfig) -> list[tuple[Observation, float]]:
