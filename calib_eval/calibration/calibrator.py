@@ -82,6 +82,7 @@ class CalibrationResult:
     time_offsets_s: np.ndarray | None = None  # (C,) the offsets the result was calibrated with (s; zeros: none applied)
     time_offset_estimates: list[OffsetEstimate] = field(default_factory=list)  # cameras 1..: estimated offsets, or why not
     final: FinalSolve | None = None  # the joint stage's problem and solution (for the uncertainty and cross-validation)
+    timed: FinalSolve | None = None  # the solve with the time offsets estimated (where they were), applied or not
 
 
 @dataclass
@@ -205,6 +206,12 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
                 # Stage 2: refinement over all views, then outlier rejection and a final pass.
                 x, pc_, _, res = _intrinsic_stage(models[c], x, obs_by_cam[c], board, cfg, progressive=False)
                 keep = _reject_outliers(obs_by_cam[c], pc_, models[c], x, board, cfg)
+                if _whole_views_lost(obs_by_cam[c], keep):
+                    # A view's pose is initialised with the intrinsics it starts from; a view at the
+                    # rim posed with stage 1's can stay in a wrong minimum and lose all its corners.
+                    # Pose every view again with the refined intrinsics before judging corners.
+                    x, pc_, _, res = _intrinsic_stage(models[c], x, obs_by_cam[c], board, cfg, progressive=False)
+                    keep = _reject_outliers(obs_by_cam[c], pc_, models[c], x, board, cfg)
                 removed = sum(len(o.ids) for o in obs_by_cam[c]) - sum(len(o.ids) for o in keep)
                 kept_ids = {o.view: o.ids for o in keep}
                 for o in obs_by_cam[c]:
@@ -247,6 +254,7 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
     obs_by_cam = [[o for o in final.used if o.cam == c] for c in range(C)]
     frames["full"] = [len(obs_by_cam[c]) for c in range(C)]
     estimates: list[OffsetEstimate] = []
+    timed = None
     if cfg.time_offset in ("estimate", "auto") and C > 1 and not cfg.time_offsets_s:
         estimates, timed = joint.estimate_time_offsets(final)
         if timed is not None and cfg.time_offset == "auto":
@@ -279,6 +287,7 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
         p.time_offsets.numpy().copy(),
         estimates,
         final,
+        timed[0] if timed is not None else None,
     )
 
 
@@ -437,6 +446,12 @@ def _inconsistent_views(used: list[Observation], err: np.ndarray, cfg: CalibConf
     cam_median = {c: float(np.median([m for o, m in zip(used, meds) if o.cam == c])) for c in {o.cam for o in used}}
     thr = {c: max(cfg.view_outlier_px, min(cfg.view_outlier_cap_px, cfg.view_outlier_ratio * m)) for c, m in cam_median.items()}
     return [(o, m) for o, m in zip(used, meds) if m > thr[o.cam]]
+
+
+def _whole_views_lost(obs: list[Observation], keep: list[Observation]) -> bool:
+    """Did outlier rejection take most corners of some observation (a view, not a corner, is off)?"""
+    kept = {o.view: len(o.ids) for o in keep}
+    return any(kept.get(o.view, 0) < len(o.ids) / 2 for o in obs)
 
 
 def _reject_outliers(
