@@ -126,20 +126,42 @@ def cmd_select(a: argparse.Namespace) -> int:
     return 0
 
 
+def time_offset_option(values: list[str] | None) -> tuple[str, dict[int, float]]:
+    """``--time-offset``: ``auto``, ``estimate`` or ``off``, or ``camN=SECONDS ...`` set by hand."""
+    if not values:
+        return "estimate", {}
+    if len(values) == 1 and values[0] in ("auto", "estimate", "off"):
+        return values[0], {}
+    fixed = {}
+    for v in values:
+        name, _, sec = v.partition("=")
+        try:
+            cam, seconds = int(name.removeprefix("cam")), float(sec)
+        except ValueError:
+            raise ValueError(f"--time-offset {v}: give auto, estimate, off, or camN=SECONDS (e.g. cam1=0.015)") from None
+        if cam < 1 or not name.startswith("cam"):
+            raise ValueError(f"--time-offset {v}: offsets are to cam0, so name cam1, cam2, ...")
+        fixed[cam] = seconds
+    return "off", fixed
+
+
 def cmd_calibrate(a: argparse.Namespace) -> int:
     from calib_eval.calibration.calibrator import CalibConfig, calibrate
-    from calib_eval.calibration.camchain import write_outputs
-    from calib_eval.calibration.report_html import write_report_html
+    from calib_eval.calibration.publish import publish
     from calib_eval.calibration.selector import select
+    from calib_eval.calibration.trust import TrustConfig
 
     t0 = time.time()
     if a.model and a.models:
         raise ValueError("give --model (one for every camera) or --models (one per camera), not both")
     names = a.models or [a.model or "kb4"]
     models = [model_from_name(n) for n in names]  # a one-line error for a model we do not support
+    timing, fixed = time_offset_option(a.time_offset)
     seq = _sequence(a, Path(a.cache) if a.cache else Path(a.out) / "sequence")
     if a.models and len(models) != len(seq.cameras):
         raise ValueError(f"--models names {len(models)} camera models; the sequence has {len(seq.cameras)} cameras")
+    if any(c >= len(seq.cameras) for c in fixed):
+        raise ValueError(f"--time-offset names a camera the sequence does not have ({len(seq.cameras)} cameras)")
     order, extra, anchors = None, {}, None
     if a.select:
         sel = select(seq, _selector_cfg(a))
@@ -147,15 +169,34 @@ def cmd_calibrate(a: argparse.Namespace) -> int:
         order = sel.order
         extra["selection"] = sel.summary()
         anchors = {c: [s.view for s in sel.scores if s.cam == c and s.stage == "anchor"] for c in range(len(seq.cameras))}
-    cfg = CalibConfig(model=models[0], models=models if a.models else [], fov=a.fov, no_init=a.no_init)
+    cfg = CalibConfig(
+        model=models[0],
+        models=models if a.models else [],
+        fov=a.fov,
+        no_init=a.no_init,
+        flat_board=a.flat_board,
+        time_offset=timing,
+        time_offsets_s=fixed,
+    )
     res = calibrate(seq, cfg, order)
-    chain, report = write_outputs(res, seq, a.out, {**extra, "total_runtime_s": time.time() - t0})
-    page = write_report_html(res, seq, a.out, anchors)
+    print(f"calibrated in {time.time() - t0:.1f} s; checking how far to trust it (uncertainty, cross-validation) ...", flush=True)
+    out = publish(
+        res,
+        seq,
+        cfg,
+        a.out,
+        {**extra, "total_runtime_s": time.time() - t0},
+        anchors,
+        order,
+        TrustConfig(max_projection_sigma_px=a.max_projection_sigma),
+    )
     if res.success:
         rms = ", ".join(f"{seq.cameras[c].name} {r:.3f}" for c, r in enumerate(res.rms_px))
-        print(f"calibration succeeded in {time.time() - t0:.1f} s (RMS px: {rms}) -> {chain}, {report}, {page}")
+        print(f"calibration succeeded in {time.time() - t0:.1f} s (RMS px: {rms}) -> {out.chain}, {out.report}, {out.page}")
+        print(out.trust.verdict.line())
         return 0
-    print(f"calibration failed: {res.reason} (see {report})", file=sys.stderr)
+    print(f"calibration failed: {res.reason} (see {out.report})", file=sys.stderr)
+    print(out.trust.verdict.line())
     return 1
 
 
@@ -332,6 +373,21 @@ def build_parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--select", action="store_true", help="use the selector's frames (anchors first)")
     s.add_argument("--no-init", action="store_true", help="skip intrinsic initialisation (BA-only ablation)")
+    s.add_argument("--flat-board", action="store_true", help="take the board as flat (default: estimate its warp)")
+    s.add_argument(
+        "--time-offset",
+        nargs="+",
+        metavar="OFFSET",
+        help="auto: estimate each camera's time offset to cam0 and calibrate with it; off; camN=SECONDS ...: set by hand "
+        "(default: estimate and report, calibrate without)",
+    )
+    s.add_argument(
+        "--max-projection-sigma",
+        type=float,
+        metavar="PX",
+        help="the stated use: projection uncertainty (95th percentile, px) above which the verdict says few_views "
+        "(default: half the measured corner noise)",
+    )
     s.add_argument("--out", required=True)
     s.set_defaults(func=cmd_calibrate)
 
