@@ -27,7 +27,16 @@ def cmd_synth(a: argparse.Namespace) -> int:
 
     rig = paper_config(a.config)
     rig.model = a.model
-    seq, gt = make_sequence(rig, SynthSpec(n_frames=a.frames, noise_px=a.noise, outlier_rate=a.outliers), seed=a.seed)
+    offsets = tuple(ms / 1000 for ms in a.time_offset_ms or ())
+    spec = SynthSpec(
+        n_frames=a.frames,
+        noise_px=a.noise,
+        outlier_rate=a.outliers,
+        motion="continuous" if a.continuous or offsets else "random",
+        time_offsets_s=offsets,
+        bend_m=a.bend_mm / 1000,
+    )
+    seq, gt = make_sequence(rig, spec, seed=a.seed)
     root = write_sequence(seq, a.out)
     (Path(a.out) / "ground_truth.json").write_text(
         json.dumps(
@@ -35,6 +44,8 @@ def cmd_synth(a: argparse.Namespace) -> int:
                 "model": gt.model,
                 "params": [p.tolist() for p in gt.params],
                 "T_cam_rig": gt.T_cam_rig.tolist(),
+                "time_offsets_s": gt.time_offsets_s,
+                "board_warp_m": list(gt.warp_m),
             },
             indent=1,
         )
@@ -323,6 +334,15 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--noise", type=float, default=0.3, help="detector noise, px")
     s.add_argument("--outliers", type=float, default=0.0, help="fraction of gross outliers")
     s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--continuous", action="store_true", help="a board moving smoothly at 20 Hz (default: independent random views)")
+    s.add_argument(
+        "--time-offset-ms",
+        type=float,
+        nargs="+",
+        metavar="MS",
+        help="per camera, cam0 first: exposed this long after the stamp (continuous)",
+    )
+    s.add_argument("--bend-mm", type=float, default=0.0, help="the board bent as a cylinder: offset at its centre (mm)")
     s.add_argument("--out", required=True)
     s.set_defaults(func=cmd_synth)
 

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
@@ -247,6 +247,7 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
     dropped: list[dict] = []
     no_poses = torch.zeros(0, 4, 4, dtype=torch.float64)  # set per round from T_rig_board
     start = Params(intr, torch.from_numpy(T_cam_rig), no_poses, torch.zeros(2, dtype=torch.float64), joint.fixed_offsets)
+    obs_before = obs_by_cam
     out = joint.run(obs_by_cam, T_rig_board, start, dropped, stages)
     if isinstance(out, str):
         return fail(out, intr, T_cam_rig)
@@ -257,6 +258,17 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
     timed = None
     if cfg.time_offset in ("estimate", "auto") and C > 1 and not cfg.time_offsets_s:
         estimates, timed = joint.estimate_time_offsets(final)
+        if timed is not None and cfg.time_offset == "auto" and dropped:
+            # Views the solve without offsets dropped may only have been out of time: solve again
+            # from every view with the estimated offsets, then estimate them once more.
+            offsets = {c: float(timed[0].params.time_offsets[c]) for c in range(1, C)}
+            again = _JointStage(seq, models, replace(cfg, time_offsets_s=offsets), board)
+            redropped: list[dict] = []
+            start.time_offsets = again.fixed_offsets
+            out = again.run(obs_before, T_rig_board, start, redropped, stages)
+            if not isinstance(out, str):
+                estimates, timed = joint.estimate_time_offsets(out[0])
+                dropped = redropped
         if timed is not None and cfg.time_offset == "auto":
             final, res = timed
         stages.append({"stage": "time offsets", "rms_px": res.rms, "iterations": res.iterations, "reason": res.reason})
@@ -324,15 +336,24 @@ class _JointStage:
         self.fixed_offsets = torch.tensor([float(cfg.time_offsets_s.get(c, 0.0)) for c in range(C)], dtype=torch.float64)
         self.free = Free(intr=True, extr=C > 1, warp=not cfg.flat_board, time=False)
 
-    def _problem(self, used: list[Observation], T_rig_board: dict[int, np.ndarray], views: list[int]) -> Problem:
+    def _problem(
+        self, used: list[Observation], T_rig_board: dict[int, np.ndarray], views: list[int], timed: bool = False
+    ) -> tuple[Problem, list[Observation]]:
+        """The joint problem over ``used`` (and the observations it kept). ``timed`` (or offsets set
+        by hand): the board's motion at each view, and in a view where it is unknown (no smooth
+        neighbours) only its first camera's observation: the others saw the board at another time."""
+        timed = timed or (bool((self.fixed_offsets != 0).any()) and self.seq.timestamps_ns is not None)
+        motion = board_velocities(T_rig_board, self.seq.timestamps_ns, self.cfg.timing, with_acceleration=True) if timed else {}
+        if timed:
+            first = {}
+            for o in used:
+                first[o.view] = min(first.get(o.view, o.cam), o.cam)
+            used = [o for o in used if o.view in motion or o.cam == first[o.view]]
         prob = Problem.build(used, self.board, {v: i for i, v in enumerate(views)})
-        if bool((self.fixed_offsets != 0).any()) and self.seq.timestamps_ns is not None:
-            prob.velocity = self._velocity(T_rig_board, views)
-        return prob
-
-    def _velocity(self, T_rig_board: dict[int, np.ndarray], views: list[int]) -> Tensor:
-        vel = board_velocities(T_rig_board, self.seq.timestamps_ns, self.cfg.timing)
-        return torch.from_numpy(np.stack([vel.get(v, np.zeros(6)) for v in views]))
+        if timed:
+            both = torch.from_numpy(np.stack([motion.get(v, np.zeros(12)) for v in views]))
+            prob.velocity, prob.acceleration = both[:, :6].contiguous(), both[:, 6:].contiguous()
+        return prob, used
 
     def solve(self, prob: Problem, p: Params, free: Free) -> tuple[Params, SolveResult]:
         iters = self.cfg.refine_iters * (2 if self.cfg.no_init else 1)
@@ -363,7 +384,7 @@ class _JointStage:
             # are dropped and the stage is run again.
             views = sorted(T_rig_board)
             used = [o for c in range(C) for o in obs_by_cam[c] if o.view in T_rig_board]
-            prob = self._problem(used, T_rig_board, views)
+            prob, used = self._problem(used, T_rig_board, views)
             p.T_rig_board = torch.from_numpy(np.stack([T_rig_board[v] for v in views]))
             p, res = self.solve(prob, p, self.free)
             bad = _inconsistent_views(used, res.residuals.numpy(), cfg) if it < rounds else []  # the last solve is final
@@ -406,9 +427,9 @@ class _JointStage:
             why = f"the recording is not continuous (fewer than {tcfg.min_views} co-visible views between smooth neighbours)"
             return [OffsetEstimate(names[c], None, None, counts[c], why) for c in range(1, C)], None
         free = Free(intr=True, extr=C > 1, warp=self.free.warp, time=True)
-        p, res, prob = final.params.clone(), None, final.problem
+        p, res, used = final.params.clone(), None, final.used
         for _ in range(tcfg.rounds):
-            prob = Problem(**{**prob.__dict__, "velocity": self._velocity(poses, final.views)})
+            prob, used = self._problem(final.used, poses, final.views, timed=True)
             p, res = self.solve(prob, p, free)
             poses = {v: p.T_rig_board[i].numpy() for i, v in enumerate(final.views)}
         cov = covariance(prob, self.models, p, free=free, huber=self.cfg.huber_px)
@@ -420,7 +441,7 @@ class _JointStage:
             sigma = float(cov.sigma(cov.layout.time[c])[0])
             shift = _offset_shift_px(prob, self.models, p, c)
             out.append(OffsetEstimate(names[c], float(p.time_offsets[c]), sigma, counts[c], "estimated", shift))
-        return out, (FinalSolve(final.used, final.views, prob, p, free, self.cfg.huber_px), res)
+        return out, (FinalSolve(used, final.views, prob, p, free, self.cfg.huber_px), res)
 
 
 def _offset_shift_px(prob: Problem, models: list[str], p: Params, c: int) -> float:

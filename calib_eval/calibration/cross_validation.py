@@ -107,6 +107,7 @@ def fit_half(final, models: list[str], keep: set[int], cfg: CrossValidationConfi
         len(rows),
         prob.warp_basis[sel] if prob.warp_basis is not None else None,
         prob.velocity[rows] if prob.velocity is not None else None,
+        prob.acceleration[rows] if prob.acceleration is not None else None,
     )
     p = final.params
     f = final.free

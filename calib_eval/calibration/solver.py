@@ -101,7 +101,8 @@ class Problem:
     w: Tensor  # (O,) observation weights
     n_views: int
     warp_basis: Tensor | None = None  # (O, 2) :func:`warp_basis` of each corner
-    velocity: Tensor | None = None  # (V, 6) the board's motion per second at each view, (w, v) of retract in the rig frame
+    velocity: Tensor | None = None  # (V, 6) at each view: the board's angular velocity (rad/s, rig frame) and its origin's velocity (m/s)
+    acceleration: Tensor | None = None  # (V, 6) their rates of change (per second); None: constant velocity
 
     @staticmethod
     def build(obs: list[Observation], board: Target, view_index: dict[int, int], single_camera: bool = False) -> Problem:
@@ -169,17 +170,28 @@ class Layout:
 
 
 def _effective(prob: Problem, p: Params, sel: Tensor, c: int) -> tuple[Tensor, Tensor, Tensor]:
-    """For camera c's corners ``sel``: the board pose it saw (the view's pose moved by the camera's
-    time offset along the board's velocity), the warped board points and the velocity (O, 6)."""
+    """For camera c's corners ``sel``: the board pose it saw, the warped board points, and the
+    pose's rate of change with the time offset as a left increment (O, 6).
+
+    The board seen dt after the view's stamp, to second order: R = Exp(dt w + dt^2 alpha / 2) R_v,
+    t = t_v + dt u + dt^2 a / 2 (``Problem.velocity`` = (w, u), ``Problem.acceleration`` =
+    (alpha, a)). Its rate as a left increment: (w + dt alpha, u + dt a - (w + dt alpha) x t)."""
     T_rb = p.T_rig_board[prob.view[sel]]
-    vel = prob.velocity[prob.view[sel]] if prob.velocity is not None else torch.zeros(len(sel), 6, dtype=torch.float64)
-    if float(p.time_offsets[c]) != 0.0:
-        T_rb = retract(T_rb, p.time_offsets[c] * vel)
+    zero = torch.zeros(len(sel), 6, dtype=torch.float64)
+    vel = prob.velocity[prob.view[sel]] if prob.velocity is not None else zero
+    acc = prob.acceleration[prob.view[sel]] if prob.acceleration is not None else zero
+    dt = p.time_offsets[c]
+    if float(dt) != 0.0:
+        d = dt * vel + 0.5 * dt * dt * acc
+        R = poses.rotation_from_axis_angle(d[:, :3]) @ T_rb[:, :3, :3]
+        T_rb = poses.make_pose(R, T_rb[:, :3, 3] + d[:, 3:])
+    rate = vel + dt * acc
+    rate = torch.cat([rate[:, :3], rate[:, 3:] - torch.linalg.cross(rate[:, :3], T_rb[:, :3, 3])], -1)
     X = prob.X[sel]
     if prob.warp_basis is not None and bool((p.warp != 0).any()):
         X = X.clone()
         X[:, 2] = X[:, 2] + prob.warp_basis[sel] @ p.warp
-    return T_rb, X, vel
+    return T_rb, X, rate
 
 
 def residuals(prob: Problem, model: list[str], p: Params) -> Tensor:
@@ -215,9 +227,7 @@ def linearise(prob: Problem, model: list[str], layout: Layout, p: Params) -> tup
         if ne:
             Jc[sel, :, oe : oe + ne] = Jx
         if nt:
-            # d/d dt of Exp(dt w) p_b + dt v = w x (p_r - dt v) + v, through the pose block.
-            w_x_v = torch.linalg.cross(vel[:, :3], vel[:, 3:])
-            Jc[sel, :, ot] = (Jpose @ vel[:, :, None])[..., 0] - p.time_offsets[c] * (Jpose[:, :, 3:] @ w_x_v[:, :, None])[..., 0]
+            Jc[sel, :, ot] = (Jpose @ vel[:, :, None])[..., 0]  # d/d dt through the pose block: the pose's rate
         ow, nw = layout.warp
         if nw:
             Jc[sel, :, ow : ow + nw] = Jz[:, :, None] * prob.warp_basis[sel][:, None, :]

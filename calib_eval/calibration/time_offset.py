@@ -3,8 +3,10 @@
 Each view's board pose ``T_rig_board`` is the board at the view's stamp, seen by cam0. Another
 camera exposed ``dt`` after its stamp saw the board moved along its motion: the pose moved by
 ``dt`` times the board's velocity (:func:`board_velocities`, central differences of the
-neighbouring views' poses, in the parametrisation of :func:`calib_eval.calibration.solver.retract`).
-The solver then estimates each camera's ``dt`` with everything else (``Free.time``).
+neighbouring views' poses: an angular velocity and the velocity of the board's origin).
+The motion is taken to second order: the velocity from central differences and its change from
+the two one-sided velocities. The solver then estimates each camera's ``dt`` with everything else
+(``Free.time``).
 
 A velocity is only defined where the recording is continuous: neighbours within
 ``max_gap_frames`` frame periods whose motion is smooth (the change of the per-frame motion is
@@ -32,14 +34,18 @@ class TimeOffsetConfig:
 
 
 def twist(T_a: np.ndarray, T_b: np.ndarray) -> np.ndarray:
-    """(w, v) (6,) with T_b = retract(T_a, (w, v)): w = log(R_b R_a^T), v = t_b - Exp(w) t_a."""
-    D = T_b @ np.linalg.inv(T_a)
-    return np.r_[Rotation.from_matrix(D[:3, :3]).as_rotvec(), D[:3, 3]]
+    """(w, u) (6,): the rotation from T_a to T_b as a vector in the rig frame, log(R_b R_a^T), and
+    the board origin's displacement t_b - t_a."""
+    return np.r_[Rotation.from_matrix(T_b[:3, :3] @ T_a[:3, :3].T).as_rotvec(), T_b[:3, 3] - T_a[:3, 3]]
 
 
-def board_velocities(T_rig_board: dict[int, np.ndarray], stamps_ns: np.ndarray, cfg: TimeOffsetConfig) -> dict[int, np.ndarray]:
-    """Per view with smooth neighbours on both sides: the board's velocity (6,) (rad/s, m/s) in
-    the rig frame. ``T_rig_board``: view -> pose; ``stamps_ns``: (n_views,) the views' stamps."""
+def board_velocities(
+    T_rig_board: dict[int, np.ndarray], stamps_ns: np.ndarray, cfg: TimeOffsetConfig, with_acceleration: bool = False
+) -> dict[int, np.ndarray]:
+    """Per view with smooth neighbours on both sides: the board's velocity (6,) in the rig frame,
+    angular (rad/s) and of its origin (m/s), central differences of its neighbours' poses;
+    ``with_acceleration``: (12,), the velocity and its change per second (the difference of the
+    two one-sided velocities). ``T_rig_board``: view -> pose; ``stamps_ns``: (n_views,) stamps."""
     views = sorted(T_rig_board)
     if len(views) < 3:
         return {}
@@ -55,12 +61,13 @@ def board_velocities(T_rig_board: dict[int, np.ndarray], stamps_ns: np.ndarray, 
         a = twist(T_rig_board[views[i - 1]], T_rig_board[views[i]]) / dt_a
         b = twist(T_rig_board[views[i]], T_rig_board[views[i + 1]]) / dt_b
         step = 0.5 * (dt_a + dt_b)
-        rot_ok = np.linalg.norm(a[:3] - b[:3]) * step <= cfg.smooth_ratio * np.linalg.norm(a[:3] + b[:3]) / 2 * step + math.radians(
-            cfg.rot_floor_deg
+        rot_ok = (
+            np.linalg.norm(a[:3] - b[:3]) <= cfg.smooth_ratio * np.linalg.norm(a[:3] + b[:3]) / 2 + math.radians(cfg.rot_floor_deg) / step
         )
-        trans_ok = np.linalg.norm(a[3:] - b[3:]) * step <= cfg.smooth_ratio * np.linalg.norm(a[3:] + b[3:]) / 2 * step + cfg.trans_floor_m
+        trans_ok = np.linalg.norm(a[3:] - b[3:]) <= cfg.smooth_ratio * np.linalg.norm(a[3:] + b[3:]) / 2 + cfg.trans_floor_m / step
         if rot_ok and trans_ok:
-            out[views[i]] = twist(T_rig_board[views[i - 1]], T_rig_board[views[i + 1]]) / (dt_a + dt_b)
+            v = twist(T_rig_board[views[i - 1]], T_rig_board[views[i + 1]]) / (dt_a + dt_b)
+            out[views[i]] = np.r_[v, (b - a) / step] if with_acceleration else v
     return out
 
 

@@ -210,9 +210,9 @@ def held_out_rms(res: CalibrationResult, seq: Sequence, cfg: CrossValidationConf
 # --------------------------------------------------------------------------------------------
 # The verdict
 # --------------------------------------------------------------------------------------------
-def _timing_causes(res: CalibrationResult, names: list[str], tie: dict, sigma_px: float, cfg: TrustConfig, misfit: bool) -> list[Cause]:
-    """``misfit``: a camera model was named; cameras that each fit badly also disagree together,
-    so the joint-against-own test says nothing of their timing then."""
+def _offset_causes(res: CalibrationResult, sigma_px: float, cfg: TrustConfig) -> list[Cause]:
+    """Cameras whose estimated offset is significant and moves the board by more than
+    ``min_shift_noise`` of the corner noise (not named where the offsets were applied)."""
     z = float(norm.isf(cfg.significance / 2))
     out = []
     applied = res.time_offsets_s is not None and bool(np.any(res.time_offsets_s != 0))
@@ -229,26 +229,31 @@ def _timing_causes(res: CalibrationResult, names: list[str], tie: dict, sigma_px
                     f"{e.shift_px:.2f} px in that time): calibrate with --time-offset auto or synchronise the cameras",
                 )
             )
-    if not out and tie.get("disagree") and not misfit:
-        worst = int(np.argmax(tie["share"][1:])) + 1 if len(names) > 1 else 0
-        rj, ro = tie["rms_joint_px"], tie["rms_own_px"]
-        fits = ", ".join(f"{names[c]} {ro[c]:.2f} px alone, {rj[c]:.2f} px together" for c in range(len(names)))
-        timed = [e for e in res.time_offset_estimates if e.value_s is not None]
-        hint = "" if timed else "; the recording is not continuous, so no time offset can be measured"
-        out.append(
-            Cause(
-                "unsynchronised",
-                names[worst],
-                f"the cameras disagree on the views they share ({fits}): they were probably not exposed together"
-                f"{hint}; synchronise the cameras, or record a continuous motion and calibrate with --time-offset auto",
-            )
-        )
     return out
 
 
+def _tie_causes(res: CalibrationResult, names: list[str], tie: dict) -> list[Cause]:
+    """The joint fit costing more than the cameras' own fits explain (asked only where no offset
+    and no camera model were named: cameras that each fit badly also disagree together)."""
+    if not tie.get("disagree"):
+        return []
+    worst = int(np.argmax(tie["share"][1:])) + 1
+    rj, ro = tie["rms_joint_px"], tie["rms_own_px"]
+    fits = ", ".join(f"{names[c]} {ro[c]:.2f} px alone, {rj[c]:.2f} px together" for c in range(len(names)))
+    timed = [e for e in res.time_offset_estimates if e.value_s is not None]
+    hint = "" if timed else "; the recording is not continuous, so no time offset can be measured"
+    return [
+        Cause(
+            "unsynchronised",
+            names[worst],
+            f"the cameras disagree on the views they share ({fits}): they were probably not exposed together"
+            f"{hint}; synchronise the cameras, or record a continuous motion and calibrate with --time-offset auto",
+        )
+    ]
+
+
 def _board_causes(final: FinalSolve, models: list[str], cfg: TrustConfig) -> list[Cause]:
-    """The warp of ``final`` (the timed solve where a camera was found unsynchronised: an offset
-    left in the data bends the board's estimate too) against its covariance."""
+    """The warp of ``final`` against its covariance (chi-square, 2 dof)."""
     if not final.free.warp:
         return []
     cov = covariance(final.problem, models, final.params, free=final.free, huber=final.huber)
@@ -390,11 +395,15 @@ def assess(res: CalibrationResult, seq: Sequence, calib_cfg: CalibConfig, cfg: T
     unc = uncertainty_of(final.problem, res.model, final.params, final.free, final.huber, sizes, corners)
     cv = cross_validate(final, res.model, sizes, corners, cfg.cv)
     tie = tie_test(final, res.model, unc.sigma_px, cfg) if C > 1 else {}
-    radial = radial_trend(final, res.model, unc.sigma_px, cfg)
+    causes = _offset_causes(res, unc.sigma_px, cfg)
+    # An offset left in the data bends the board's and the lens's estimates too: where one was
+    # found, the board and the model are judged on the solve that estimated it.
+    ref = res.timed if causes and res.timed is not None else final
+    radial = radial_trend(ref, res.model, unc.sigma_px, cfg)
     model_causes, comparison = _model_causes(res, seq, radial, names, cfg, calib_cfg, order)
-    causes = _timing_causes(res, names, tie, unc.sigma_px, cfg, misfit=bool(model_causes))
-    unsynced = any(c.code == "unsynchronised" for c in causes) and res.timed is not None
-    causes += _board_causes(res.timed if unsynced else final, res.model, cfg)
+    if not causes and not model_causes:
+        causes += _tie_causes(res, names, tie)
+    causes += _board_causes(ref, res.model, cfg)
     causes += model_causes + _coverage_causes(seq) + _use_causes(unc, names, cfg) + _outlier_causes(res, seq, names, cfg)
     causes += _cv_causes(cv, cfg)
     return TrustReport(Verdict("caution" if causes else "trust", causes), unc, cv, tie, radial, comparison)
