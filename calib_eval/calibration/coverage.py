@@ -36,6 +36,8 @@ class CameraCoverage:
     widest_view: float  # largest radial span (highest - lowest corner radius, of R) of a single view
     reachable: np.ndarray  # (sectors,) bool: at least a fifth of the sector's rim ring lies on the sensor
     advice: list[str] = field(default_factory=list)
+    placement: list[str] = field(default_factory=list)  # the advice that is only where to hold the board (rim sectors,
+    # the middle): its effect on the result is the projection uncertainty, so the verdict does not name it as a cause
 
     def radius_of(self, q: np.ndarray) -> np.ndarray:
         """Radii (M,) of pixels (M, 2) as fractions of R."""
@@ -85,11 +87,13 @@ def coverage(
         missing = [SECTORS[s] for s in range(len(SECTORS)) if cells[-1, s] < min_cell and reachable[s]]
         if len(obs) >= min_views and cc.max_radius >= rim and missing:
             cc.advice.append(f"{info.name}: few corners near the rim at the {_join(missing)} of the image circle; hold the board there")
+            cc.placement.append(cc.advice[-1])
         inner = [SECTORS[s] for s in range(len(SECTORS)) if cells[:2, s].sum() < min_cell]
         if len(obs) >= min_views and len(inner) > len(SECTORS) // 2:
             cc.advice.append(
                 f"{info.name}: the middle of the image is thinly covered ({_join(inner)}); add views with the board closer to the centre"
             )
+            cc.placement.append(cc.advice[-1])
         if len(obs) >= min_views and cc.widest_view < min_span:
             cc.advice.append(
                 f"{info.name}: no single view spans more than {cc.widest_view:.2f} of the image radius; add views where the board "

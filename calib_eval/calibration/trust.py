@@ -359,11 +359,15 @@ def _outlier_causes(res: CalibrationResult, seq: Sequence, names: list[str], cfg
 
 
 def _coverage_causes(seq: Sequence) -> list[Cause]:
+    """The capture advice on radial reach, radial span of single views, view counts and shared
+    views. Advice only on where to hold the board (rim sectors, the middle) stays advice: what it
+    costs is in the projection uncertainty (``few_views``)."""
     cov = coverage(seq)
     out = []
     for cc in cov.cameras:
-        out += [Cause("coverage", cc.name, a) for a in cc.advice]
-    out += [Cause("coverage", None, a) for a in cov.advice if not any(a == c.text for c in out)]
+        out += [Cause("coverage", cc.name, a) for a in cc.advice if a not in cc.placement]
+    minor = {a for cc in cov.cameras for a in cc.placement}
+    out += [Cause("coverage", None, a) for a in cov.advice if a not in minor and not any(a == c.text for c in out)]
     return out
 
 
