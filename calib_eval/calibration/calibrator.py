@@ -151,19 +151,7 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
     stages: list[dict] = []
 
     def fail(reason: str, intr=None, T_cr=None) -> CalibrationResult:
-        return CalibrationResult(
-            False,
-            reason,
-            list(models),
-            [np.asarray(x) for x in (intr or [])],
-            T_cr if T_cr is not None else np.tile(np.eye(4), (C, 1, 1)),
-            {},
-            [float("nan")] * C,
-            frames,
-            gammas,
-            time.time() - t0,
-            stages,
-        )
+        return _failure(reason, models, C, frames, gammas, time.time() - t0, stages, intr, T_cr)
 
     if len(models) != C:
         return fail(f"{len(models)} camera models given for {C} cameras")
@@ -173,17 +161,9 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
         return fail(str(e))
     if board is None:
         return fail("the sequence names no target (its detections carry none)")
-    obs_by_cam = []
-    for c in range(C):
-        ob = [o for o in seq.by_camera(c) if len(o.ids) >= cfg.min_corners]
-        if order and c in order:
-            rank = {v: i for i, v in enumerate(order[c])}
-            ob.sort(key=lambda o: rank.get(o.view, len(rank) + o.view))
-        else:
-            ob.sort(key=lambda o: o.view)
-        if len(ob) < cfg.min_views:
-            return fail(f"{seq.cameras[c].name}: only {len(ob)} usable views of the target (need {cfg.min_views})")
-        obs_by_cam.append(ob)
+    obs_by_cam = _usable_observations(seq, cfg, order)
+    if isinstance(obs_by_cam, str):
+        return fail(obs_by_cam)
 
     # Stages 1 and 2, per camera.
     intr: list[Tensor] = []
@@ -191,42 +171,15 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
     rejected: dict[tuple[int, int], np.ndarray] = {}
     try:
         for c in range(C):
-            info = seq.cameras[c]
-            guess = initial_guess(models[c], cfg.fov, info.width, info.height, cfg.shared_intrinsics_guess_radius)
-            guess = focal_search(models[c], guess, obs_by_cam[c], board)
-            if cfg.no_init:
-                x, pc_, res = guess, {}, None
-                frames.setdefault("init", []).append(0)
-            else:
-                x, pc_, g, res = _intrinsic_stage(models[c], guess, obs_by_cam[c], board, cfg, progressive=True)
-                gammas[c] = g
-                frames.setdefault("init", []).append(len(obs_by_cam[c]))
-                stages.append({"stage": "init", "camera": c, "rms_px": res.rms[0], "iterations": res.iterations, "reason": res.reason})
-            if not cfg.no_init:
-                # Stage 2: refinement over all views, then outlier rejection and a final pass.
-                x, pc_, _, res = _intrinsic_stage(models[c], x, obs_by_cam[c], board, cfg, progressive=False)
-                keep = _reject_outliers(obs_by_cam[c], pc_, models[c], x, board, cfg)
-                if _whole_views_lost(obs_by_cam[c], keep):
-                    # A view's pose is initialised with the intrinsics it starts from; a view at the
-                    # rim posed with stage 1's can stay in a wrong minimum and lose all its corners.
-                    # Pose every view again with the refined intrinsics before judging corners.
-                    x, pc_, _, res = _intrinsic_stage(models[c], x, obs_by_cam[c], board, cfg, progressive=False)
-                    keep = _reject_outliers(obs_by_cam[c], pc_, models[c], x, board, cfg)
-                removed = sum(len(o.ids) for o in obs_by_cam[c]) - sum(len(o.ids) for o in keep)
-                kept_ids = {o.view: o.ids for o in keep}
-                for o in obs_by_cam[c]:
-                    gone = np.setdiff1d(o.ids, kept_ids.get(o.view, []))
-                    if len(gone):
-                        rejected[(c, o.view)] = gone
-                obs_by_cam[c] = keep
-                if removed:
-                    x, pc_, _, res = _intrinsic_stage(models[c], x, keep, board, cfg, progressive=False)
-                frames.setdefault("refine", []).append(len(keep))
-                stages.append({"stage": "refine", "camera": c, "rms_px": res.rms[0], "iterations": res.iterations, "reason": res.reason})
-                if res.rms[0] > cfg.max_rms_px * 3:
-                    return fail(f"{seq.cameras[c].name}: intrinsic refinement ended at RMS {res.rms[0]:.2f} px", intr + [x])
-            intr.append(x)
-            cam_poses.append(pc_)
+            fit = _camera_stages(seq, c, models[c], obs_by_cam[c], cfg)
+            gammas[c] = fit.gamma
+            stages.extend(fit.stages)
+            rejected.update(fit.rejected)
+            obs_by_cam[c] = fit.obs
+            for stage, n in fit.frames.items():
+                frames.setdefault(stage, []).append(n)
+            intr.append(fit.intr)
+            cam_poses.append(fit.poses)
     except CalibrationFailed as e:
         return fail(str(e), intr)
 
@@ -238,11 +191,7 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
     if missing:
         names = ", ".join(seq.cameras[c].name for c in missing)
         return fail(f"no co-visible views link {names} to cam0: extrinsics cannot be initialised", intr, T_cam_rig)
-    views = sorted({v for c in range(C) for v in cam_poses[c]})
-    T_rig_board = {}
-    for v in views:
-        cands = [np.linalg.inv(T_cam_rig[c]) @ cam_poses[c][v] for c in range(C) if v in cam_poses[c]]
-        T_rig_board[v] = cands[0] if len(cands) == 1 else average_pose(cands)
+    T_rig_board = _initial_board_poses(cam_poses, T_cam_rig)
     joint = _JointStage(seq, models, cfg, board)
     dropped: list[dict] = []
     no_poses = torch.zeros(0, 4, 4, dtype=torch.float64)  # set per round from T_rig_board
@@ -257,22 +206,58 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
     estimates: list[OffsetEstimate] = []
     timed = None
     if cfg.time_offset in ("estimate", "auto") and C > 1 and not cfg.time_offsets_s:
-        estimates, timed = joint.estimate_time_offsets(final)
-        if timed is not None and cfg.time_offset == "auto" and dropped:
-            # Views the solve without offsets dropped may only have been out of time: solve again
-            # from every view with the estimated offsets, then estimate them once more.
-            offsets = {c: float(timed[0].params.time_offsets[c]) for c in range(1, C)}
-            again = _JointStage(seq, models, replace(cfg, time_offsets_s=offsets), board)
-            redropped: list[dict] = []
-            start.time_offsets = again.fixed_offsets
-            out = again.run(obs_before, T_rig_board, start, redropped, stages)
-            if not isinstance(out, str):
-                estimates, timed = joint.estimate_time_offsets(out[0])
-                dropped = redropped
+        estimates, timed, dropped = _time_offset_stage(joint, final, obs_before, T_rig_board, start, dropped, stages)
         if timed is not None and cfg.time_offset == "auto":
             final, res = timed
         stages.append({"stage": "time offsets", "rms_px": res.rms, "iterations": res.iterations, "reason": res.reason})
     stages.append({"stage": "full", "rms_px": res.rms, "iterations": res.iterations, "reason": res.reason})
+    return _finish(final, res, models, cfg, time.time() - t0, frames, gammas, stages, dropped, rejected, estimates, timed)
+
+
+def _failure(reason, models, C, frames, gammas, runtime, stages, intr=None, T_cr=None) -> CalibrationResult:
+    return CalibrationResult(
+        False,
+        reason,
+        list(models),
+        [np.asarray(x) for x in (intr or [])],
+        T_cr if T_cr is not None else np.tile(np.eye(4), (C, 1, 1)),
+        {},
+        [float("nan")] * C,
+        frames,
+        gammas,
+        runtime,
+        stages,
+    )
+
+
+def _initial_board_poses(cam_poses: list[dict[int, np.ndarray]], T_cam_rig: np.ndarray) -> dict[int, np.ndarray]:
+    """T_rig_board per view: the average of what the cameras that saw it imply."""
+    out = {}
+    for v in sorted({v for poses in cam_poses for v in poses}):
+        cands = [np.linalg.inv(T_cam_rig[c]) @ poses[v] for c, poses in enumerate(cam_poses) if v in poses]
+        out[v] = cands[0] if len(cands) == 1 else average_pose(cands)
+    return out
+
+
+def _usable_observations(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | None) -> list[list[Observation]] | str:
+    """Per camera, its observations with enough corners, in the order stage 1 adds them; or why
+    a camera has too few."""
+    out = []
+    for c in range(len(seq.cameras)):
+        ob = [o for o in seq.by_camera(c) if len(o.ids) >= cfg.min_corners]
+        if order and c in order:
+            rank = {v: i for i, v in enumerate(order[c])}
+            ob.sort(key=lambda o: rank.get(o.view, len(rank) + o.view))
+        else:
+            ob.sort(key=lambda o: o.view)
+        if len(ob) < cfg.min_views:
+            return f"{seq.cameras[c].name}: only {len(ob)} usable views of the target (need {cfg.min_views})"
+        out.append(ob)
+    return out
+
+
+def _finish(final, res, models, cfg, runtime, frames, gammas, stages, dropped, rejected, estimates, timed) -> CalibrationResult:
+    """The result of the final joint solve: success where every camera's RMS is within bounds."""
     p = final.params
     intr_np = [x.numpy() for x in p.intr]
     T_cr = p.T_cam_rig.numpy()
@@ -291,7 +276,7 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
         res.rms,
         frames,
         gammas,
-        time.time() - t0,
+        runtime,
         stages,
         dropped,
         rejected,
@@ -301,6 +286,72 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
         final,
         timed[0] if timed is not None else None,
     )
+
+
+@dataclass
+class _CameraFit:
+    """Stages 1 and 2 of one camera."""
+
+    intr: Tensor
+    poses: dict[int, np.ndarray]  # view -> T_cam_board
+    obs: list[Observation]  # the observations kept (outlier corners removed)
+    rejected: dict[tuple[int, int], np.ndarray]  # (cam, view) -> corner ids dropped as outliers
+    gamma: list[float]
+    stages: list[dict]
+    frames: dict[str, int]  # stage -> observations
+
+
+def _camera_stages(seq: Sequence, c: int, model: str, obs: list[Observation], cfg: CalibConfig) -> _CameraFit:
+    """Intrinsic initialisation (stage 1, progressive, gamma recorded) and refinement with outlier
+    rejection (stage 2) of camera c. Raises :class:`CalibrationFailed`."""
+    board, info = seq.target, seq.cameras[c]
+    guess = initial_guess(model, cfg.fov, info.width, info.height, cfg.shared_intrinsics_guess_radius)
+    guess = focal_search(model, guess, obs, board)
+    if cfg.no_init:
+        return _CameraFit(guess, {}, obs, {}, [], [], {"init": 0})
+    x, pc_, gamma, res = _intrinsic_stage(model, guess, obs, board, cfg, progressive=True)
+    stages = [{"stage": "init", "camera": c, "rms_px": res.rms[0], "iterations": res.iterations, "reason": res.reason}]
+    # Stage 2: refinement over all views, then outlier rejection and a final pass.
+    x, pc_, _, res = _intrinsic_stage(model, x, obs, board, cfg, progressive=False)
+    keep = _reject_outliers(obs, pc_, model, x, board, cfg)
+    if _whole_views_lost(obs, keep):
+        # A view's pose is initialised with the intrinsics it starts from; a view at the rim posed
+        # with stage 1's can stay in a wrong minimum and lose all its corners. Pose every view
+        # again with the refined intrinsics before judging corners.
+        x, pc_, _, res = _intrinsic_stage(model, x, obs, board, cfg, progressive=False)
+        keep = _reject_outliers(obs, pc_, model, x, board, cfg)
+    kept_ids = {o.view: o.ids for o in keep}
+    rejected = {}
+    for o in obs:
+        gone = np.setdiff1d(o.ids, kept_ids.get(o.view, []))
+        if len(gone):
+            rejected[(c, o.view)] = gone
+    if rejected:
+        x, pc_, _, res = _intrinsic_stage(model, x, keep, board, cfg, progressive=False)
+    stages.append({"stage": "refine", "camera": c, "rms_px": res.rms[0], "iterations": res.iterations, "reason": res.reason})
+    if res.rms[0] > cfg.max_rms_px * 3:
+        raise CalibrationFailed(f"{info.name}: intrinsic refinement ended at RMS {res.rms[0]:.2f} px")
+    return _CameraFit(x, pc_, keep, rejected, gamma, stages, {"init": len(obs), "refine": len(keep)})
+
+
+def _time_offset_stage(joint, final, obs_before, T_rig_board, start: Params, dropped: list[dict], stages: list[dict]):
+    """Estimate the cameras' time offsets from ``final``. With ``time_offset="auto"`` where the
+    solve without offsets dropped views (they may only have been out of time), solve again from
+    every view with the estimated offsets, then estimate them once more. Returns the estimates,
+    the timed solve (or None) and the dropped views."""
+    cfg, C = joint.cfg, len(joint.models)
+    estimates, timed = joint.estimate_time_offsets(final)
+    if timed is None or cfg.time_offset != "auto" or not dropped:
+        return estimates, timed, dropped
+    offsets = {c: float(timed[0].params.time_offsets[c]) for c in range(1, C)}
+    again = _JointStage(joint.seq, joint.models, replace(cfg, time_offsets_s=offsets), joint.board)
+    redropped: list[dict] = []
+    start.time_offsets = again.fixed_offsets
+    out = again.run(obs_before, T_rig_board, start, redropped, stages)
+    if isinstance(out, str):
+        return estimates, timed, dropped
+    estimates, timed = joint.estimate_time_offsets(out[0])
+    return estimates, timed, redropped
 
 
 def _initial_extrinsics(cam_poses: list[dict[int, np.ndarray]]) -> tuple[np.ndarray, list[int]]:
