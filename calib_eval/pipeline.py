@@ -24,7 +24,7 @@ from calib_eval.benchmark.benchmark import evaluate_result
 from calib_eval.benchmark.rendered import render_rig_sequence
 from calib_eval.benchmark.rigs import paper_config
 from calib_eval.calibration.calibrator import CalibConfig, calibrate
-from calib_eval.calibration.camchain import write_outputs
+from calib_eval.calibration.publish import publish
 from calib_eval.calibration.selector import SelectorConfig, select
 from calib_eval.detection.evaluation import EvalConfig, evaluate_detection
 from cotrain.config import ConfigError, load_config
@@ -132,9 +132,10 @@ def run_pipeline(cfg: PipelineConfig, from_scratch: bool = False) -> int:
         write_json_atomic(data, cam_dir / "detections.json")
     seq = load_sequence(seq_dir)
     sel = select(seq, SelectorConfig(fov=rig.fov))
-    res = calibrate(seq.subset(sel.keep), CalibConfig(model=cfg.calib_model, fov=rig.fov), order=sel.order)
+    ccfg = CalibConfig(model=cfg.calib_model, fov=rig.fov)
+    res = calibrate(seq.subset(sel.keep), ccfg, order=sel.order)
     ev_c = evaluate_result(res, gt, rig.fov)
-    write_outputs(res, seq, out / "calibration", {"selection": sel.summary(), "against_ground_truth": ev_c})
+    pub = publish(res, seq.subset(sel.keep), ccfg, out / "calibration", {"selection": sel.summary(), "against_ground_truth": ev_c})
     figures["calibration"] = ev_c
     if res.success:
         status["calibration"] = (
@@ -143,6 +144,7 @@ def run_pipeline(cfg: PipelineConfig, from_scratch: bool = False) -> int:
         )
     else:
         status["calibration"] = f"failed: {res.reason}"
+    status["calibration"] += f"; {pub.trust.verdict.line()} (calibration/report.html)"
     print(status["calibration"])
 
     # Summary.

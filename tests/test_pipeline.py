@@ -37,6 +37,9 @@ def test_pipeline_tiny_end_to_end(tmp_path):
     assert report["success"] and report["reason"] == "ok" and set(report["rms_px"]) == {"cam0", "cam1"}
     assert max(report["rms_px"].values()) < 0.3 and min(report["frames_per_stage"]["full"]) >= 4
     assert (out / "calibration" / "camchain.yaml").is_file()
+    # It says how far to trust it: a verdict on the page and in the status line.
+    assert report["verdict"]["level"] in ("trust", "caution") and "Verdict: " in (out / "calibration" / "report.html").read_text()
+    assert "verdict: " in status
     assert "| calibration | strict success" in (out / "summary.md").read_text()
 
 

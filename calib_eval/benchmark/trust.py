@@ -15,8 +15,10 @@ verdict must name (:mod:`calib_eval.calibration.trust`), calibrated and assessed
 - ``ds_as_kb4``: a double-sphere lens (the default shape) calibrated as kb4, which fits it;
 - ``few_views``: 12 frames: ``few_views`` named.
 
-Seeds start at 1000 (the checks' thresholds were set from noise statistics, and looked at on
-seeds 0-5 while building them; none of those is reported here). Every trial is written to
+The checks' thresholds come from noise statistics; they were looked at on seeds 0-5 while being
+built, and ``min_tie_excess`` was raised from 1.5 to 2 after a run on seeds 1000-1009 (1 of 10
+twelve-view rigs named unsynchronised): the reported figures are on seeds from 2000
+(``--seed0 2000``). Every trial is written to
 ``OUT/trials.jsonl`` as it finishes (a rerun skips finished trials); ``results.md`` and
 ``results.json`` summarise them.
 """
@@ -83,7 +85,7 @@ def _errors(res, gt) -> dict:
     return out
 
 
-def run_trial(case: str, trial: int) -> dict:
+def run_trial(case: str, trial: int, seed0: int = SEED0) -> dict:
     """Calibrate and assess one synthetic rig of ``case``; score it against its ground truth."""
     from calib_eval.benchmark.rigs import SynthSpec, make_sequence, paper_config
     from calib_eval.calibration.calibrator import CalibConfig, calibrate
@@ -94,7 +96,7 @@ def run_trial(case: str, trial: int) -> dict:
     rig = paper_config("FoV220_90")
     for k, v in spec.get("rig", {}).items():
         setattr(rig, k, v)
-    seq, gt = make_sequence(rig, SynthSpec(**spec["synth"]), seed=SEED0 + trial)
+    seq, gt = make_sequence(rig, SynthSpec(**spec["synth"]), seed=seed0 + trial)
     out: dict = {"case": case, "trial": trial}
     for mode in ("default", "auto") if spec.get("auto") else ("default",):
         cfg = CalibConfig(model="kb4", fov=rig.fov, time_offset="auto" if mode == "auto" else "estimate")
@@ -187,6 +189,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--trials", type=int, default=10, help="trials per case (the clean case gets 5x this)")
     p.add_argument("--cases", nargs="+", default=list(CASES), choices=list(CASES))
     p.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    p.add_argument("--seed0", type=int, default=SEED0, help="the first trial's seed (trial k: seed0 + k)")
     p.add_argument("--out", default="report/trust")
     a = p.parse_args(argv)
     out = Path(a.out)
@@ -197,7 +200,8 @@ def main(argv: list[str] | None = None) -> int:
     todo = [(c, k) for c in a.cases for k in range(a.trials * (5 if c == "clean" else 1)) if (c, k) not in have]
     print(f"{len(todo)} trials to run ({len(have)} done) with {a.workers} workers -> {out}", flush=True)
     with ProcessPoolExecutor(a.workers) as ex:
-        for i, t in enumerate(ex.map(run_trial, *zip(*todo)) if todo else []):
+        cases, trials = zip(*todo) if todo else ((), ())
+        for i, t in enumerate(ex.map(run_trial, cases, trials, [a.seed0] * len(todo))):
             done.append(t)
             with log.open("a") as f:
                 f.write(json.dumps(t) + "\n")

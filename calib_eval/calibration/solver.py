@@ -445,9 +445,17 @@ def covariance(
     r, Jc, Jp = linearise(prob, model, layout, p)
     wr = huber_weights(prob, r, huber)
     eqs = Normal.build(prob, wr, r, Jc, Jp)
-    S, _, _ = eqs.schur(0.0)
+    # Poses eliminated with a pseudo-inverse: a view whose corners lie on one line leaves a pose
+    # direction unconstrained, which carries nothing to the cameras (an inverse would blow it up).
+    Ci = torch.linalg.pinv(eqs.Cm, hermitian=True, rtol=1e-10)
+    S = eqs.A - torch.einsum("vai,vij,vbj->ab", eqs.B, Ci, eqs.B)
     dof = int(2 * prob.q.shape[0] - layout.n - 6 * prob.n_views)
     if sigma_px is None:
         sigma_px = math.sqrt(float((wr * (r * r).sum(-1)).sum()) / max(dof, 1))
-    cov = sigma_px**2 * torch.linalg.pinv(S, hermitian=True)
+    # The parameters' units differ by many orders (px, m, s, unitless distortion): invert S scaled
+    # to a unit diagonal, or round-off gives negative variances.
+    d = torch.diagonal(S).clamp_min(1e-300).rsqrt()
+    ev, V = torch.linalg.eigh(d[:, None] * S * d[None, :])
+    inv = (V / ev.clamp_min(1e-12 * float(ev.max()))) @ V.T
+    cov = sigma_px**2 * d[:, None] * inv * d[None, :]
     return Covariance(layout, cov, sigma_px, dof)
