@@ -395,7 +395,12 @@ def assess(res: CalibrationResult, seq: Sequence, calib_cfg: CalibConfig, cfg: T
     cfg = cfg or TrustConfig()
     names = [c.name for c in seq.cameras]
     if not res.success or res.final is None:
-        return TrustReport(Verdict("fail", [Cause("failed", None, f"calibration failed: {res.reason}")]), None, None, {}, [])
+        causes = [Cause("failed", None, f"calibration failed: {res.reason}")]
+        if res.final is not None:  # it got as far as the joint stage: an offset it measured may say why
+            f = res.final
+            noise = covariance(f.problem, res.model, f.params, free=f.free, huber=f.huber).sigma_px
+            causes += _offset_causes(res, noise, cfg)
+        return TrustReport(Verdict("fail", causes), None, None, {}, [])
     final, C = res.final, len(names)
     sizes = [(c.width, c.height) for c in seq.cameras]
     corners = _used_corners(final, C)
