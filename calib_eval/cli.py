@@ -173,6 +173,8 @@ def cmd_calibrate(a: argparse.Namespace) -> int:
         raise ValueError(f"--models names {len(models)} camera models; the sequence has {len(seq.cameras)} cameras")
     if any(c >= len(seq.cameras) for c in fixed):
         raise ValueError(f"--time-offset names a camera the sequence does not have ({len(seq.cameras)} cameras)")
+    if fixed and seq.timestamps_ns is None:
+        raise ValueError("--time-offset camN=SECONDS needs the views' timestamps; this sequence has none")
     order, extra, anchors = None, {}, None
     if a.select:
         sel = select(seq, _selector_cfg(a))

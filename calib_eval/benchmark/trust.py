@@ -97,7 +97,7 @@ def run_trial(case: str, trial: int, seed0: int = SEED0) -> dict:
     for k, v in spec.get("rig", {}).items():
         setattr(rig, k, v)
     seq, gt = make_sequence(rig, SynthSpec(**spec["synth"]), seed=seed0 + trial)
-    out: dict = {"case": case, "trial": trial}
+    out: dict = {"case": case, "trial": trial, "seed": seed0 + trial}
     for mode in ("default", "auto") if spec.get("auto") else ("default",):
         cfg = CalibConfig(model="kb4", fov=rig.fov, time_offset="auto" if mode == "auto" else "estimate")
         t0 = time.time()
@@ -163,6 +163,14 @@ def summarise(trials: list[dict]) -> tuple[str, dict]:
 
 
 def _case_check(case: str, spec: dict, rows: list[dict]) -> tuple[str, str]:
+    """The case's own check over its trials (failed calibrations count against it)."""
+    try:
+        return _case_check_rows(case, spec, rows)
+    except (KeyError, ValueError, TypeError) as e:  # a failed trial lacks the figures
+        return "-", f"not computed: {type(e).__name__} {e} (a trial without the figures)"
+
+
+def _case_check_rows(case: str, spec: dict, rows: list[dict]) -> tuple[str, str]:
     if case.startswith("offset"):
         a = [t["auto"] for t in rows]
         err = [abs(r["offset_s"] - spec["offset_s"]) * 1000 for r in a if r.get("offset_s") is not None]
@@ -196,6 +204,7 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     log = out / "trials.jsonl"
     done = [json.loads(x) for x in log.read_text().splitlines()] if log.exists() else []
+    done = [t for t in done if t.get("seed", a.seed0 + t["trial"]) == a.seed0 + t["trial"]]  # another --seed0's trials are not these
     have = {(t["case"], t["trial"]) for t in done}
     todo = [(c, k) for c in a.cases for k in range(a.trials * (5 if c == "clean" else 1)) if (c, k) not in have]
     print(f"{len(todo)} trials to run ({len(have)} done) with {a.workers} workers -> {out}", flush=True)

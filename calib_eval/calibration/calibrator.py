@@ -388,22 +388,31 @@ class _JointStage:
         self.free = Free(intr=True, extr=C > 1, warp=not cfg.flat_board, time=False)
 
     def _problem(
-        self, used: list[Observation], T_rig_board: dict[int, np.ndarray], views: list[int], timed: bool = False
+        self, used: list[Observation], T_rig_board: dict[int, np.ndarray], views: list[int], timed: frozenset[int] = frozenset()
     ) -> tuple[Problem, list[Observation]]:
-        """The joint problem over ``used`` (and the observations it kept). ``timed`` (or offsets set
-        by hand): the board's motion at each view, and in a view where it is unknown (no smooth
-        neighbours) only its first camera's observation: the others saw the board at another time."""
-        timed = timed or (bool((self.fixed_offsets != 0).any()) and self.seq.timestamps_ns is not None)
-        motion = board_velocities(T_rig_board, self.seq.timestamps_ns, self.cfg.timing, with_acceleration=True) if timed else {}
-        if timed:
-            first = {}
-            for o in used:
-                first[o.view] = min(first.get(o.view, o.cam), o.cam)
-            used = [o for o in used if o.view in motion or o.cam == first[o.view]]
+        """The joint problem over ``used`` (and the observations it kept). Where cameras are timed
+        (``timed``: their offsets are estimated; or set by hand), the board's motion at each view;
+        in a view where it is unknown (no smooth neighbours), a timed camera saw the board at
+        another time than the pose: its observation is kept only where no untimed camera saw the
+        view (and then only the first such camera's)."""
+        hand = {c for c in range(len(self.models)) if float(self.fixed_offsets[c]) != 0.0}
+        timed = frozenset(timed) | frozenset(hand)
+        if not timed or self.seq.timestamps_ns is None:
+            return Problem.build(used, self.board, {v: i for i, v in enumerate(views)}), used
+        motion = board_velocities(T_rig_board, self.seq.timestamps_ns, self.cfg.timing, with_acceleration=True)
+        cams: dict[int, set[int]] = {}
+        for o in used:
+            cams.setdefault(o.view, set()).add(o.cam)
+
+        def keep(o: Observation) -> bool:
+            if o.view in motion or o.cam not in timed:
+                return True
+            return not (cams[o.view] - timed) and o.cam == min(cams[o.view])
+
+        used = [o for o in used if keep(o)]
         prob = Problem.build(used, self.board, {v: i for i, v in enumerate(views)})
-        if timed:
-            both = torch.from_numpy(np.stack([motion.get(v, np.zeros(12)) for v in views]))
-            prob.velocity, prob.acceleration = both[:, :6].contiguous(), both[:, 6:].contiguous()
+        both = torch.from_numpy(np.stack([motion.get(v, np.zeros(12)) for v in views]))
+        prob.velocity, prob.acceleration = both[:, :6].contiguous(), both[:, 6:].contiguous()
         return prob, used
 
     def solve(self, prob: Problem, p: Params, free: Free) -> tuple[Params, SolveResult]:
@@ -477,10 +486,11 @@ class _JointStage:
         if all(n < tcfg.min_views for n in counts.values()):
             why = f"the recording is not continuous (fewer than {tcfg.min_views} co-visible views between smooth neighbours)"
             return [OffsetEstimate(names[c], None, None, counts[c], why) for c in range(1, C)], None
-        free = Free(intr=True, extr=C > 1, warp=self.free.warp, time=True)
+        timed = frozenset(c for c, n in counts.items() if n >= tcfg.min_views)
+        free = Free(intr=True, extr=C > 1, warp=self.free.warp, time=True, time_cameras=timed)
         p, res, used = final.params.clone(), None, final.used
         for _ in range(tcfg.rounds):
-            prob, used = self._problem(final.used, poses, final.views, timed=True)
+            prob, used = self._problem(final.used, poses, final.views, timed=timed)
             p, res = self.solve(prob, p, free)
             poses = {v: p.T_rig_board[i].numpy() for i, v in enumerate(final.views)}
         cov = covariance(prob, self.models, p, free=free, huber=self.cfg.huber_px)

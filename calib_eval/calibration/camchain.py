@@ -10,6 +10,7 @@ import yaml
 
 from calib_eval.calibration.calibrator import CalibrationResult
 from cotrain.geometry import cameras
+from cotrain.io.detections import json_safe
 from cotrain.io.sequence import Sequence
 
 
@@ -70,7 +71,7 @@ def write_outputs(res: CalibrationResult, seq: Sequence, out_dir: str | Path, ex
         **(extra or {}),
     }
     rp = out / "report.json"
-    rp.write_text(json.dumps(report, indent=2, default=_json_default))
+    rp.write_text(json.dumps(json_safe(report), indent=2, default=_json_default, allow_nan=False))  # NaN -> null
     return chain, rp
 
 

@@ -144,6 +144,7 @@ class Free:
     extr: bool = False  # cameras 1..'s poses in the rig
     warp: bool = False  # the board's two warp coefficients
     time: bool = False  # cameras 1..'s time offsets (needs Problem.velocity)
+    time_cameras: frozenset[int] | None = None  # with ``time``: only these cameras' offsets (None: every camera 1..)
 
 
 @dataclass(frozen=True)
@@ -161,7 +162,8 @@ class Layout:
     def make(n_intr: list[int], free: Free) -> Layout:
         n, intr, extr, time_ = 0, [], [], []
         for c, ni in enumerate(n_intr):
-            counts = (ni if free.intr else 0, 6 if free.extr and c > 0 else 0, 1 if free.time and c > 0 else 0)
+            timed = free.time and c > 0 and (free.time_cameras is None or c in free.time_cameras)
+            counts = (ni if free.intr else 0, 6 if free.extr and c > 0 else 0, 1 if timed else 0)
             for block, count in zip((intr, extr, time_), counts):
                 block.append((n, count))
                 n += count

@@ -175,6 +175,8 @@ def radial_trend(final: FinalSolve, models: list[str], sigma_px: float, cfg: Tru
         stat = 0.0
         for b in range(cfg.radial_bins):
             v = rr[idx == b]
+            if not len(v):  # repeated radii can leave a bin empty
+                continue
             mean, se = float(v.mean()), sigma_px / math.sqrt(len(v))
             stat += (mean / se) ** 2
             bins.append({"radius_px": float(np.median(rad[idx == b])), "mean_radial_px": mean, "se_px": se})
@@ -255,8 +257,9 @@ def _tie_causes(res: CalibrationResult, names: list[str], tie: dict) -> list[Cau
     ]
 
 
-def _board_causes(final: FinalSolve, models: list[str], cfg: TrustConfig) -> list[Cause]:
-    """The warp of ``final`` against its covariance (chi-square, 2 dof)."""
+def _board_causes(final: FinalSolve, models: list[str], cfg: TrustConfig, timed: bool = False) -> list[Cause]:
+    """The warp of ``final`` against its covariance (chi-square, 2 dof); ``timed``: ``final`` is
+    the solve with the time offsets (the sentence says so: report.json's warp is the result's)."""
     if not final.free.warp:
         return []
     cov = covariance(final.problem, models, final.params, free=final.free, huber=final.huber)
@@ -271,7 +274,8 @@ def _board_causes(final: FinalSolve, models: list[str], cfg: TrustConfig) -> lis
             "board_not_flat",
             None,
             f"the board is bent by {mm[0]:+.2f} mm along x and {mm[1]:+.2f} mm along y at its centre (sigma "
-            f"{math.sqrt(S[0, 0]) * 1000:.2f} mm): the calibration estimated the bend, but use a stiffer, flatter board",
+            f"{math.sqrt(S[0, 0]) * 1000:.2f} mm{', estimated with the time offsets' if timed else ''}): the calibration "
+            "estimated the bend, but use a stiffer, flatter board",
         )
     ]
 
@@ -396,7 +400,9 @@ def assess(res: CalibrationResult, seq: Sequence, calib_cfg: CalibConfig, cfg: T
     names = [c.name for c in seq.cameras]
     if not res.success or res.final is None:
         causes = [Cause("failed", None, f"calibration failed: {res.reason}")]
-        if res.final is not None:  # it got as far as the joint stage: an offset it measured may say why
+        finite = res.final is not None and all(bool(torch.isfinite(x).all()) for x in res.final.params.intr)
+        if finite and any(e.value_s is not None for e in res.time_offset_estimates):
+            # It got as far as the joint stage: an offset it measured may say why.
             f = res.final
             noise = covariance(f.problem, res.model, f.params, free=f.free, huber=f.huber).sigma_px
             causes += _offset_causes(res, noise, cfg)
@@ -415,7 +421,7 @@ def assess(res: CalibrationResult, seq: Sequence, calib_cfg: CalibConfig, cfg: T
     model_causes, comparison = _model_causes(res, seq, radial, names, cfg, calib_cfg, order)
     if not causes and not model_causes:
         causes += _tie_causes(res, names, tie)
-    causes += _board_causes(ref, res.model, cfg)
+    causes += _board_causes(ref, res.model, cfg, timed=ref is not final)
     causes += model_causes + _coverage_causes(seq) + _use_causes(unc, names, cfg) + _outlier_causes(res, seq, names, cfg)
     causes += _cv_causes(cv, cfg)
     return TrustReport(Verdict("caution" if causes else "trust", causes), unc, cv, tie, radial, comparison)
@@ -444,10 +450,14 @@ def report_dict(rep: TrustReport, res: CalibrationResult, names: list[str]) -> d
         "deformation_mm": {"x": float(res.warp_m[0] * 1000), "y": float(res.warp_m[1] * 1000)} if est else None,
         "deformation_sigma_mm": {"x": sigma[0], "y": sigma[1]} if sigma else None,
     }
-    out["time_offsets_s"] = {e.camera: e.value_s for e in res.time_offset_estimates}
+    estimates = {e.camera: e for e in res.time_offset_estimates}
+    out["time_offsets_s"] = {n: estimates[n].value_s if n in estimates else None for n in names[1:]}
     out["time_offsets"] = {
         "applied_s": {names[c]: float(res.time_offsets_s[c]) for c in range(1, len(names))} if res.time_offsets_s is not None else {},
-        "estimates": {e.camera: e.as_dict() for e in res.time_offset_estimates},
+        "estimates": {
+            n: estimates[n].as_dict() if n in estimates else {"value_s": None, "reason": "not estimated (--time-offset off or set by hand)"}
+            for n in names[1:]
+        },
     }
     out["checks"] = {"tie_test": rep.tie_test, "radial_trend": {names[c]: t for c, t in enumerate(rep.radial)}}
     if rep.model_comparison:

@@ -8,10 +8,11 @@ covariance of every camera parameter. From it:
 - per camera pair, the sigma of the baseline (m), of the translation and of the rotation: the
   relative pose T_b_a's error as a translation vector (m) and a rotation vector (deg), each
   reported per axis and as the RMS length of the error vector (``sqrt(trace)``);
-- per camera, the projection uncertainty over the image as mrcal draws it: the intrinsics'
+- per camera, the projection uncertainty over the image, drawn like mrcal's map: the intrinsics'
   covariance propagated to the pixel a fixed ray projects to (rays fixed in the camera frame, so
   points at infinite range; the extrinsics' share is in the pair sigmas), the worst direction's
-  1-sigma (px) on a grid over the image circle.
+  1-sigma (px) on a grid over the image circle. mrcal also carries the reference frame's
+  uncertainty into a projection at a finite range; that is not done here.
 """
 
 from __future__ import annotations
