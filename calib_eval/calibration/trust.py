@@ -245,6 +245,12 @@ def _tie_causes(res: CalibrationResult, names: list[str], tie: dict) -> list[Cau
     worst = int(np.argmax(tie["share"][1:])) + 1
     rj, ro = tie["rms_joint_px"], tie["rms_own_px"]
     fits = ", ".join(f"{names[c]} {ro[c]:.2f} px alone, {rj[c]:.2f} px together" for c in range(len(names)))
+    if res.time_offsets_s is not None and bool(np.any(res.time_offsets_s != 0)):
+        text = (
+            f"the cameras still disagree on the views they share with the time offsets applied ({fits}): the board moved "
+            "too fast for the offsets' correction, or the cameras' clocks drift; synchronise the cameras or move the board slower"
+        )
+        return [Cause("unsynchronised", names[worst], text)]
     timed = [e for e in res.time_offset_estimates if e.value_s is not None]
     hint = "" if timed else "; the recording is not continuous, so no time offset can be measured"
     return [
