@@ -426,6 +426,7 @@ class _JointStage:
             opt_extr=free.extr,
             opt_warp=free.warp,
             opt_time=free.time,
+            time_cameras=free.time_cameras,
             warp=p.warp,
             time_offsets=p.time_offsets,
             iters=iters,

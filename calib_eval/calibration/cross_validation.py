@@ -23,7 +23,7 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
-from calib_eval.calibration.solver import Covariance, Params, Problem, covariance, solve
+from calib_eval.calibration.solver import Covariance, Params, covariance, solve
 from calib_eval.calibration.uncertainty import covered, grid_pixels, pair_uncertainty, projection_sigma
 from cotrain.geometry import cameras
 
@@ -90,25 +90,12 @@ def split_views(views: list[int], rng: np.random.Generator) -> tuple[set[int], s
 
 def fit_half(final, models: list[str], keep: set[int], cfg: CrossValidationConfig) -> tuple[Params, Covariance] | None:
     """Solve the final problem restricted to the views ``keep``, from the full solution."""
-    rows = [i for i, v in enumerate(final.views) if v in keep]
     used = [o for o in final.used if o.view in keep]
     for c in range(len(models)):
         if sum(1 for o in used if o.cam == c) < cfg.min_views:
             return None
-    index = {final.views[i]: k for k, i in enumerate(rows)}
-    sel = torch.from_numpy(np.array([o.view in keep for o in final.used for _ in o.ids], bool))
-    prob = final.problem
-    sub = Problem(
-        prob.cam[sel],
-        torch.tensor([index[final.views[int(v)]] for v in prob.view[sel]], dtype=torch.long),
-        prob.X[sel],
-        prob.q[sel],
-        prob.w[sel],
-        len(rows),
-        prob.warp_basis[sel] if prob.warp_basis is not None else None,
-        prob.velocity[rows] if prob.velocity is not None else None,
-        prob.acceleration[rows] if prob.acceleration is not None else None,
-    )
+    view_ids = torch.tensor(final.views)[final.problem.view]  # (O,) each corner's view id
+    sub, rows = final.problem.select(torch.isin(view_ids, torch.tensor(sorted(keep))))
     p = final.params
     f = final.free
     intr, Tcr, Tb, res = solve(
@@ -120,6 +107,7 @@ def fit_half(final, models: list[str], keep: set[int], cfg: CrossValidationConfi
         opt_extr=f.extr,
         opt_warp=f.warp,
         opt_time=f.time,
+        time_cameras=f.time_cameras,
         warp=p.warp,
         time_offsets=p.time_offsets,
         iters=cfg.iters,

@@ -119,6 +119,19 @@ class Problem:
         Xt = t(X)
         return Problem(t(cam, torch.long), t(view, torch.long), Xt, t(q), t(w), len(view_index), warp_basis(Xt, torch.from_numpy(P)))
 
+    def select(self, keep: Tensor, one_camera: bool = False) -> tuple[Problem, Tensor]:
+        """The corners ``keep`` (O,) bool, their views renumbered in order; ``one_camera`` maps them
+        to camera 0. Returns the sub-problem and its views' indices in this one (V',)."""
+        views = torch.unique(self.view[keep])  # sorted
+        index = torch.full((self.n_views,), -1, dtype=torch.long)
+        index[views] = torch.arange(len(views))
+        rows = lambda a: a[views] if a is not None else None  # noqa: E731
+        cam = torch.zeros(int(keep.sum()), dtype=torch.long) if one_camera else self.cam[keep]
+        basis = self.warp_basis[keep] if self.warp_basis is not None else None
+        sub = Problem(cam, index[self.view[keep]], self.X[keep], self.q[keep], self.w[keep], len(views), basis)
+        sub.velocity, sub.acceleration = rows(self.velocity), rows(self.acceleration)
+        return sub, views
+
 
 @dataclass
 class Params:
@@ -346,6 +359,7 @@ def solve(
     opt_extr: bool = False,
     opt_warp: bool = False,
     opt_time: bool = False,
+    time_cameras: frozenset[int] | None = None,
     warp: Tensor | None = None,
     time_offsets: Tensor | None = None,
     iters: int = 30,
@@ -355,7 +369,7 @@ def solve(
 
     Camera parameters: intrinsics of every camera (if ``opt_intr``), extrinsics of cameras 1..
     (if ``opt_extr``; cam0 is the gauge), the board warp (if ``opt_warp``) and cameras 1..'s time
-    offsets (if ``opt_time``; needs ``prob.velocity``). Target poses T_rig_board (V, 4, 4) are
+    offsets (if ``opt_time``; only ``time_cameras`` where given; needs ``prob.velocity``). Target poses T_rig_board (V, 4, 4) are
     always optimised. Returns updated (intr, T_cam_rig, T_rig_board, result); the result carries
     the warp and the time offsets.
     """
@@ -368,7 +382,8 @@ def solve(
         zeros(2) if warp is None else warp.clone().to(torch.float64),
         zeros(C) if time_offsets is None else time_offsets.clone().to(torch.float64),
     )
-    layout = Layout.make([x.numel() for x in intr], Free(opt_intr, opt_extr, opt_warp, opt_time and prob.velocity is not None))
+    free = Free(opt_intr, opt_extr, opt_warp, opt_time and prob.velocity is not None, time_cameras)
+    layout = Layout.make([x.numel() for x in intr], free)
     r, Jc, Jp = linearise(prob, model, layout, p)
     cost = huber_cost(prob, r, huber)
     if not math.isfinite(cost):

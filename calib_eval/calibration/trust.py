@@ -111,19 +111,8 @@ def tie_test(final: FinalSolve, models: list[str], cfg: TrustConfig) -> dict:
     joint = [(prob.w * (r * r).sum(-1))[prob.cam == c].sum().item() for c in range(C)]
     own, n_own = [], 0
     for c in range(C):
-        sel = (prob.cam == c).nonzero()[:, 0]
-        views = sorted({int(v) for v in prob.view[sel]})
-        index = torch.full((prob.n_views,), -1, dtype=torch.long)
-        index[views] = torch.arange(len(views))
-        sub = Problem(
-            torch.zeros(len(sel), dtype=torch.long),
-            index[prob.view[sel]],
-            prob.X[sel],
-            prob.q[sel],
-            prob.w[sel],
-            len(views),
-            prob.warp_basis[sel],
-        )
+        sub, views = prob.select(prob.cam == c, one_camera=True)
+        sub.velocity = sub.acceleration = None  # alone, each camera's poses are its own
         T_cb = p.T_cam_rig[c] @ p.T_rig_board[views]
         _, _, _, res = solve(
             sub, [models[c]], [p.intr[c]], torch.eye(4, dtype=torch.float64)[None], T_cb, opt_warp=final.free.warp, warp=p.warp, iters=20
