@@ -54,6 +54,19 @@ def cmd_synth(a: argparse.Namespace) -> int:
     return 0
 
 
+def _resolve_fov(a: argparse.Namespace, seq, models: list[str]) -> None:
+    """``a.fov`` as given, or estimated from the sequence (and said so) where it is not."""
+    if a.fov is not None:
+        if not 30 <= a.fov <= 360:
+            raise ValueError(f"--fov {a.fov:g}: give the lens's rough field of view in degrees (30-360), or leave it out to estimate it")
+        return
+    from calib_eval.calibration.fov import estimate_fov
+
+    est = estimate_fov(seq, models)
+    a.fov = round(est.fov_deg, 1)
+    print(est.line([c.name for c in seq.cameras]), flush=True)
+
+
 def _selector_cfg(a: argparse.Namespace):
     from calib_eval.calibration.selector import SelectorConfig
 
@@ -69,28 +82,40 @@ def _selector_cfg(a: argparse.Namespace):
 
 
 def _sequence(a: argparse.Namespace, cache: Path | None):
-    """The sequence of ``select`` / ``calibrate``: the folder given, or one made from ``--bag``
-    (images and our detections cached in ``cache``, default beside the bag)."""
+    """The sequence of ``coverage`` / ``select`` / ``calibrate``: the folder given, or one made
+    from ``--bag`` or ``--images`` (our detections cached in ``cache``, default beside the input)."""
     from cotrain.io.sequence import load_sequence
 
-    if (a.seq is None) == (a.bag is None):
-        raise ValueError("give a sequence folder or --bag REC --topics T0 T1 ... (one of them)")
-    if a.bag is None:
-        if a.topics:
-            raise ValueError("--topics goes with --bag")
+    if sum(x is not None for x in (a.seq, a.bag, a.images)) != 1:
+        raise ValueError(
+            "give a sequence folder, --images DIR0 DIR1 ... (one folder per camera), or --bag REC --topics T0 T1 ... (one of them)"
+        )
+    if a.topics and a.bag is None:
+        raise ValueError("--topics goes with --bag")
+    if a.seq is not None:
         return load_sequence(a.seq, a.tolerance_ms, target=_target(a.target))
     from cotrain.detect.detector import make_detector
+    from cotrain.io.folders import check_sequence_folder
+
+    target = _target(a.target)
+    det = make_detector(target, a.detector)
+    if a.images is not None:
+        from cotrain.io.folders import sequence_from_folders
+
+        folder = check_sequence_folder(cache or Path(str(a.images[0]).rstrip("/") + ".sequence"), "--cache")
+        folder, read = sequence_from_folders(a.images, folder, det, workers=0)
+        counts = ", ".join(f"{d} {n} images" for d, n in zip(a.images, read["images"]))
+        how = "cached detections" if read["cached"] else "detected"
+        print(f"{counts} (paired by {read['pairing']}; {how}) -> {folder}")
+        return load_sequence(folder, a.tolerance_ms, target=target)
     from cotrain.io.bags import sequence_from_bag
 
     if not a.topics:
         raise ValueError("--bag needs --topics (one image topic per camera)")
-    target = _target(a.target)
-    det = make_detector(target, a.detector)
     if not 0 <= a.every < float("inf"):
         raise ValueError("--every must be 0 (every image) or a positive number of seconds")
-    folder, read = sequence_from_bag(
-        a.bag, a.topics, cache or Path(str(a.bag).rstrip("/") + ".sequence"), det, interval_s=a.every, workers=0
-    )
+    folder = check_sequence_folder(cache or Path(str(a.bag).rstrip("/") + ".sequence"), "--cache")
+    folder, read = sequence_from_bag(a.bag, a.topics, folder, det, interval_s=a.every, workers=0)
     skipped = sum(read["skipped"])
     how = "cached detections" if read["cached"] else "detected"
     counts = ", ".join(f"{t} {n} images" for t, n in zip(a.topics, read["images"]))
@@ -116,6 +141,7 @@ def cmd_select(a: argparse.Namespace) -> int:
     from calib_eval.calibration.selector import select
 
     seq = _sequence(a, Path(a.cache) if a.cache else None)
+    _resolve_fov(a, seq, [model_from_name("kb4")] * len(seq.cameras))
     sel = select(seq, _selector_cfg(a))
     rows = [
         {
@@ -156,6 +182,13 @@ def time_offset_option(values: list[str] | None) -> tuple[str, dict[int, float]]
     return "off", fixed
 
 
+def _models_count(named: int, cameras: int) -> str:
+    return (
+        f"--models names {named} camera model{'s' if named != 1 else ''} for {cameras} cameras: give one per camera, cam0 first "
+        f"(e.g. --models {' '.join(['pinhole-equi'] * cameras)}), or --model M for all of them"
+    )
+
+
 def cmd_calibrate(a: argparse.Namespace) -> int:
     from calib_eval.calibration.calibrator import CalibConfig, calibrate
     from calib_eval.calibration.publish import publish
@@ -163,18 +196,24 @@ def cmd_calibrate(a: argparse.Namespace) -> int:
     from calib_eval.calibration.trust import TrustConfig
 
     t0 = time.time()
+    if Path(a.out).exists() and not Path(a.out).is_dir():
+        raise ValueError(f"--out {a.out}: an existing file; --out names the folder for camchain.yaml, report.json and report.html")
     if a.model and a.models:
         raise ValueError("give --model (one for every camera) or --models (one per camera), not both")
     names = a.models or [a.model or "kb4"]
     models = [model_from_name(n) for n in names]  # a one-line error for a model we do not support
     timing, fixed = time_offset_option(a.time_offset)
+    given = len(a.images) if a.images else len(a.topics) if a.bag and a.topics else None
+    if a.models and given is not None and len(models) != given:
+        raise ValueError(_models_count(len(models), given))
     seq = _sequence(a, Path(a.cache) if a.cache else Path(a.out) / "sequence")
     if a.models and len(models) != len(seq.cameras):
-        raise ValueError(f"--models names {len(models)} camera models; the sequence has {len(seq.cameras)} cameras")
+        raise ValueError(_models_count(len(models), len(seq.cameras)))
     if any(c >= len(seq.cameras) for c in fixed):
         raise ValueError(f"--time-offset names a camera the sequence does not have ({len(seq.cameras)} cameras)")
     if fixed and seq.timestamps_ns is None:
         raise ValueError("--time-offset camN=SECONDS needs the views' timestamps; this sequence has none")
+    _resolve_fov(a, seq, models if a.models else models * len(seq.cameras))
     order, extra, anchors = None, {}, None
     if a.select:
         sel = select(seq, _selector_cfg(a))
@@ -222,6 +261,7 @@ def cmd_compare(a: argparse.Namespace) -> int:
     model = model_from_name(a.model)
     out = Path(a.out)
     seq = _sequence(a, Path(a.cache) if a.cache else out / "sequence")
+    _resolve_fov(a, seq, [model] * len(seq.cameras))
     order = None
     if not a.all_frames:
         sel = select(seq, _selector_cfg(a))
@@ -319,9 +359,7 @@ def cmd_opencv_detect(a: argparse.Namespace) -> int:
     else:
         detect = lambda files: opencv_detect(files, tgt, "sb" if a.sb else "classic")  # noqa: E731
     seq = images_to_sequence(paths, Path(a.out), detect)
-    print(
-        f"wrote {seq}/cam0 (images, timestamps.csv, detections.json with the target); calibrate it with calib-eval calibrate {seq} --fov F"
-    )
+    print(f"wrote {seq}/cam0 (images, timestamps.csv, detections.json with the target); calibrate it with calib-eval calibrate {seq}")
     return 0
 
 
@@ -352,6 +390,13 @@ def build_parser() -> argparse.ArgumentParser:
         """Where the observations come from: a sequence folder, or a bag and its topics."""
         s.add_argument("seq", nargs="?", help="sequence folder (cam0/, cam1/, ... with timestamps.csv and detections.json)")
         s.add_argument("--bag", help="instead of SEQ: a ROS1 .bag or ROS2 bag folder (read with rosbags, no ROS install)")
+        s.add_argument(
+            "--images",
+            nargs="+",
+            metavar="DIR",
+            help="instead of SEQ: one image folder per camera, cam0 first; images pair by identical names, by order where names differ, "
+            "by time where names are nanosecond stamps",
+        )
         s.add_argument("--topics", nargs="+", metavar="TOPIC", help="with --bag: one image topic per camera, cam0 first")
         s.add_argument(
             "--every",
@@ -360,8 +405,11 @@ def build_parser() -> argparse.ArgumentParser:
             metavar="SECONDS",
             help="with --bag: at most one image per camera per this many seconds (the same time slots for every camera)",
         )
-        s.add_argument("--cache", help="with --bag: folder for the images and detections (default: OUT/sequence, or BAG.sequence)")
-        s.add_argument("--detector", help="with --bag: ONNX model for the corners (default: the shipped model)")
+        s.add_argument(
+            "--cache",
+            help="with --bag or --images: the sequence folder for the detections (default: OUT/sequence, or BAG.sequence, DIR0.sequence)",
+        )
+        s.add_argument("--detector", help="with --bag or --images: ONNX model for the corners (default: the shipped model)")
         s.add_argument(
             "--target", help="target file (our target config, a Kalibr or a BoofCV target yaml); only where the detections name none"
         )
@@ -369,7 +417,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     def seq_args(s: argparse.ArgumentParser) -> None:
         source_args(s)
-        s.add_argument("--fov", type=float, required=True, help="rough FoV in degrees (lens data sheet)")
+        s.add_argument(
+            "--fov",
+            type=float,
+            help="rough FoV in degrees across the image circle (lens data sheet; default: estimated from the views, and said so)",
+        )
         s.add_argument("--iso-gate", type=float, default=0.3)
         s.add_argument("--drs-numerator", type=float, default=110.0, help="s_drs gate = this / FoV")
         s.add_argument("--min-corners", type=int, default=8)

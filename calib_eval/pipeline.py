@@ -6,7 +6,8 @@ Stages (each shows progress and fails loudly and early on bad input):
 3. detection: per-FoV recall and error against the geometry-based detectors;
 4. calibration: a synthetic stereo sequence rendered as images -> detect -> select -> calibrate,
    compared with the ground truth.
-Everything lands in a report folder with a short ``summary.md``.
+Everything lands in a report folder: ``index.html``, the page to read (self-contained:
+:mod:`calib_eval.report_index`), a short ``summary.md`` for terminals and ``summary.json``.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from calib_eval.calibration.calibrator import CalibConfig, calibrate
 from calib_eval.calibration.publish import publish
 from calib_eval.calibration.selector import SelectorConfig, select
 from calib_eval.detection.evaluation import EvalConfig, evaluate_detection
+from calib_eval.report_index import ground_truth_rows, markdown_table, write_index
 from cotrain.config import ConfigError, load_config
 from cotrain.detect.detector import Detector, draw_detection
 from cotrain.detect.images import load_image
@@ -71,6 +73,7 @@ def run_pipeline(cfg: PipelineConfig, from_scratch: bool = False) -> int:
     out = Path(cfg.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     status: dict[str, str] = {}
+    seconds: dict[str, float] = {}  # run time per stage
     figures: dict[str, object] = {}
     init = "" if from_scratch else cfg.init_checkpoint
     if init == "export/default.pt" and not Path(init).is_file():  # an installed package: the shipped file
@@ -89,19 +92,23 @@ def run_pipeline(cfg: PipelineConfig, from_scratch: bool = False) -> int:
     overrides = [f"train.steps={cfg.train_steps}", f"train.out_dir={run_dir}", f"train.init_from={init}", *cfg.train_overrides]
     tcfg = finalize_config(load_config(TrainConfig, cfg.train_config, overrides))
     tr = train(tcfg)
-    figures["train"] = {"steps": tr["step"], "last_loss": tr["last_loss"], "best_val_recall": tr["best_score"], "seconds": time.time() - t0}
+    seconds["train"] = time.time() - t0
+    figures["train"] = {"steps": tr["step"], "last_loss": tr["last_loss"], "best_val_recall": tr["best_score"], "seconds": seconds["train"]}
     status["train"] = "ok"
 
     # 2. Export.
     _stage("2/4 export to ONNX (parity check)")
+    t0 = time.time()
     onnx_path = out / "model.onnx"
     ex = export_onnx(run_dir / "best.pt", onnx_path)
     figures["export"] = ex
     status["export"] = f"ok (max corner difference {ex['max_corner_diff_px']:.1e} px)"
+    seconds["export"] = time.time() - t0
     print(status["export"])
 
     # 3. Detection evaluation.
     _stage("3/4 detection evaluation per FoV")
+    t0 = time.time()
     ecfg = EvalConfig(fovs=cfg.eval_fovs, per_fov=cfg.eval_per_fov, n_empty=cfg.eval_empty, conditions=[])  # FoV rows only
     ev = evaluate_detection(str(onnx_path), ecfg, out / "detection")
     figures["detection"] = ev["results"]
@@ -116,9 +123,11 @@ def run_pipeline(cfg: PipelineConfig, from_scratch: bool = False) -> int:
     ]:
         g = load_image(p)
         cv2.imwrite(str(ov_dir / p.name), draw_detection(g, det.detect(g)))
+    seconds["detection"] = time.time() - t0
 
     # 4. Calibration through the exported detector.
     _stage(f"4/4 calibration check: {cfg.calib_rig}, {cfg.calib_frames} rendered frames -> detect -> select -> calibrate")
+    t0 = time.time()
     seq_dir = out / "calibration" / "sequence"
     if seq_dir.exists():
         shutil.rmtree(seq_dir)
@@ -145,6 +154,7 @@ def run_pipeline(cfg: PipelineConfig, from_scratch: bool = False) -> int:
     else:
         status["calibration"] = f"failed: {res.reason}"
     status["calibration"] += f"; {pub.trust.verdict.line()} (calibration/report.html)"
+    seconds["calibration"] = time.time() - t0
     print(status["calibration"])
 
     # Summary.
@@ -162,14 +172,16 @@ def run_pipeline(cfg: PipelineConfig, from_scratch: bool = False) -> int:
         "",
         "## Calibration against ground truth",
         "",
-        "```",
-        json.dumps({k: v for k, v in ev_c.items() if k != "gamma"}, indent=1, default=str),
-        "```",
+        markdown_table(["figure", "value"], ground_truth_rows(ev_c)),
         "",
-        "Overlays of detections: `overlays/`. Training logs: `tensorboard --logdir train/tb`.",
+        "The whole report, plots included: `index.html`. Overlays of detections: `overlays/`. "
+        "Training logs: `tensorboard --logdir train/tb`.",
         "",
     ]
     (out / "summary.md").write_text("\n".join(lines))
-    (out / "summary.json").write_text(json.dumps({"status": status, "figures": figures, "total_s": total}, indent=1, default=str))
-    print(f"\npipeline finished in {total / 60:.1f} min -> {out}/summary.md")
+    (out / "summary.json").write_text(
+        json.dumps({"status": status, "seconds": seconds, "figures": figures, "total_s": total}, indent=1, default=str)
+    )
+    index = write_index(out, status, seconds, ev["results"], cfg.eval_fovs, ev_c, total)
+    print(f"\npipeline finished in {total / 60:.1f} min -> {index}")
     return 0

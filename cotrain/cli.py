@@ -75,16 +75,21 @@ def cmd_detect(args: argparse.Namespace) -> int:
     from cotrain.detect.images import expand_inputs, image_folders_below
     from cotrain.detect.onnx_model import OnnxModel
     from cotrain.io.detections import detect_files, write_json_atomic
+    from cotrain.io.folders import check_sequence_folder
     from cotrain.targets import AprilGrid, target_from_flags
 
     if not (0.0 <= args.threshold <= 1.0):
         raise ValueError("--threshold must be in [0, 1]")
     if args.workers < 0:
         raise ValueError("--workers must be 0 (one per core) or a positive number")
-    if bool(args.inputs) == bool(args.bag):
-        raise ValueError("give images or folders, or --bag REC --topics T0 T1 ... (one of them)")
+    if sum(map(bool, (args.inputs, args.bag, args.images))) != 1:
+        raise ValueError(
+            "give images or folders, --images DIR0 DIR1 ... (one folder per camera), or --bag REC --topics T0 T1 ... (one of them)"
+        )
     if bool(args.topics) != bool(args.bag):
         raise ValueError("--bag and --topics go together")
+    if (args.bag or args.images) and args.out:
+        check_sequence_folder(args.out)
     paths = expand_inputs(args.inputs) if args.inputs else []
     if args.inputs and not paths:
         below = [f for d in args.inputs if Path(d).is_dir() for f in image_folders_below(Path(d))]
@@ -104,6 +109,15 @@ def cmd_detect(args: argparse.Namespace) -> int:
         mode="slots" if args.slots else "grid",
         **options,
     )
+    if args.images:
+        from cotrain.io.folders import sequence_from_folders
+
+        out = Path(args.out) if args.out else Path(str(args.images[0]).rstrip("/") + ".sequence")
+        folder, read = sequence_from_folders(args.images, out, det, workers=args.workers)
+        counts = ", ".join(f"{d} {n} images" for d, n in zip(args.images, read["images"]))
+        cached = " (cached)" if read["cached"] else ""
+        print(f"{counts}, paired by {read['pairing']} -> sequence folder {folder}{cached}")
+        return 0
     if args.bag:
         from cotrain.io.bags import sequence_from_bag
 
@@ -181,10 +195,19 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--bag", help="instead of images: a ROS1 .bag or ROS2 bag folder; writes a sequence folder with detections")
     s.add_argument("--topics", nargs="+", metavar="TOPIC", help="with --bag: one image topic per camera, cam0 first")
     s.add_argument(
+        "--images",
+        nargs="+",
+        metavar="DIR",
+        help="instead of images: one folder per camera, cam0 first; writes a sequence folder with detections (docs/commands.md)",
+    )
+    s.add_argument(
         "--every", type=float, default=0.0, metavar="SECONDS", help="with --bag: at most one image per camera per this many seconds"
     )
     s.add_argument("--model", help="ONNX model (default: the shipped model)")
-    s.add_argument("--out", help="detection JSON (default detections.json); with --bag the sequence folder (default BAG.sequence)")
+    s.add_argument(
+        "--out",
+        help="detection JSON (default detections.json); with --bag or --images the sequence folder (default BAG.sequence, DIR0.sequence)",
+    )
     s.add_argument("--threshold", type=float, default=0.5, help="with --slots: visibility probability to report a corner")
     s.add_argument("--draw", help="folder for overlays of the detections")
     s.add_argument(
@@ -220,11 +243,24 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+TRAIN_EXTRA = ("torch", "kornia", "tensorboard", "onnx", "onnxscript")  # pyproject's [train] extra
+
+
 def dispatch(prog: str, args: argparse.Namespace) -> int:
     """Run a parsed sub-command; bad input (config, file, value errors) becomes a one-line message
-    and exit code 2, an interrupt exit code 130. Shared by ``cotrain`` and ``calib-eval``."""
+    and exit code 2, an interrupt exit code 130. A package of the ``[train]`` extra missing from a
+    base install (``pip install cotrain``) is a one-line error that names the install. Shared by ``cotrain`` and ``calib-eval``."""
     try:
         return int(args.func(args) or 0)
+    except ModuleNotFoundError as e:
+        if (e.name or "").split(".")[0] not in TRAIN_EXTRA:
+            raise
+        print(
+            f"{prog} {args.cmd}: error: this command needs {e.name.split('.')[0]}, which comes with the training extra: "
+            "pip install 'cotrain[train]'",
+            file=sys.stderr,
+        )
+        return 2
     except (ConfigError, ValueError, OSError) as e:  # OSError covers missing files, folders, permissions
         print(f"{prog} {args.cmd}: error: {e}", file=sys.stderr)
         return 2

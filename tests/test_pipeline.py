@@ -1,14 +1,17 @@
 """The main job end to end on a tiny setting, and its early, one-line failures."""
 
+import html
 import json
+import re
 
 import torch
 
 from cotrain.cli import run as cotrain_cli
 from tests.paths import ROOT, TINY
+from tests.test_report_index import assert_self_contained
 
 
-def test_pipeline_tiny_end_to_end(tmp_path):
+def test_pipeline_tiny_end_to_end(tmp_path, capsys):
     """A 2-step model, then the calibration check through it: 32 rendered stereo frames (fewer
     leave cam1 under the 4 views it needs after selection) must calibrate strictly."""
     out = tmp_path / "report"
@@ -40,7 +43,33 @@ def test_pipeline_tiny_end_to_end(tmp_path):
     # It says how far to trust it: a verdict on the page and in the status line.
     assert report["verdict"]["level"] in ("trust", "caution") and "Verdict: " in (out / "calibration" / "report.html").read_text()
     assert "verdict: " in status
-    assert "| calibration | strict success" in (out / "summary.md").read_text()
+    md = (out / "summary.md").read_text()
+    assert "| calibration | strict success" in md
+    # summary.md: the figures against the truth as a small table, no raw JSON block.
+    assert "```" not in md and "| strict success (near the truth) | yes |" in md and '"ext_mm"' not in md
+    # The last line printed points to the one page to read.
+    assert capsys.readouterr().out.strip().splitlines()[-1].endswith(str(out / "index.html"))
+    _check_index(out, summary, report)
+
+
+def _check_index(out, summary, report):
+    """report/index.html: self-contained, the stages, the detection rows per FoV, the training
+    curve, the calibration's own page (verdict first) and the figures against the truth, no JSON."""
+    page = (out / "index.html").read_text()
+    assert_self_contained(page)
+    assert len(page.encode()) < 3_000_000
+    assert set(summary["seconds"]) == set(summary["status"])
+    for stage, result in summary["status"].items():
+        assert f"<td class=l>{stage}</td><td class=l>{html.escape(result)}</td>" in page
+    status = summary["status"]["calibration"]
+    assert html.escape(status[status.index("verdict: ") :]) in page  # the verdict line
+    assert f"Verdict: {report['verdict']['level']}</h3>" in page and "<section class='calib'>" in page
+    for fov in (200, 240):
+        assert f"<tr class=ours><td class=l>{fov}</td><td class=l>learned</td>" in page
+        assert f"<td class=l>{fov}</td><td class=l>opencv_sb</td>" in page
+    assert re.search(r'<img alt="training curve" src="data:image/png;base64,[A-Za-z0-9+/=]{100,}">', page)
+    assert page.count('alt="recall_vs_radius" src="data:image/png') == 1 and page.count('src="data:image/jpeg') == 2
+    assert "<td class=l>strict success (near the truth)</td><td>yes</td>" in page
 
 
 def _pipeline(out):

@@ -41,6 +41,7 @@ from calib_eval.calibration.compare import MAX_RMS_PX, error_rays, mrcal_valid, 
 from calib_eval.calibration.mrcal_peer import MrcalConfig, calibrate_mrcal
 from calib_eval.calibration.selector import SelectorConfig, select
 from cotrain.io.detections import json_safe
+from cotrain.progress import progress_bar
 
 PAPER_CONFIGS = [f"FoV{f}_{y}" for f in (180, 200, 220, 240) for y in (0, 60, 90, 120)]
 ALL_CONFIGS = PAPER_CONFIGS + ["FoV220_hex"]
@@ -317,8 +318,6 @@ def run_benchmark(
     mrcal_timeout_s: float = MRCAL_TIMEOUT_S,
 ) -> dict:
     """Run (this rank's share of) the benchmark, write its shard, and on rank 0 merge all shards."""
-    from tqdm import tqdm
-
     for c in configs:
         paper_config(c)  # validates the names early
     variants = variants or VARIANTS
@@ -330,12 +329,12 @@ def run_benchmark(
     t0 = time.time()
     results = []
     if workers == 1:
-        for c, t in tqdm(mine, desc=f"benchmark rank {rank}", disable=not progress):
+        for c, t in progress_bar(mine, desc=f"benchmark rank {rank}", enabled=progress):
             results.append(run_trial(c, t, frames, variants=variants, model=model, mrcal_timeout_s=mrcal_timeout_s))
     else:
         with ProcessPoolExecutor(workers) as ex:
             futs = [ex.submit(run_trial, c, t, frames, 0.3, variants, model, mrcal_timeout_s) for c, t in mine]
-            for f in tqdm(futs, desc=f"benchmark rank {rank}", disable=not progress):
+            for f in progress_bar(futs, desc=f"benchmark rank {rank}", enabled=progress):
                 results.append(f.result())
     shard = out / f"shard_{rank}_of_{world}.json"
     tmp = shard.with_suffix(".tmp")

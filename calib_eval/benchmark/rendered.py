@@ -15,10 +15,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from calib_eval.benchmark.rigs import GroundTruth, RigSpec, SynthSpec, make_sequence, rig_radius
 from cotrain.io.sequence import Sequence
+from cotrain.progress import progress_bar
 from cotrain.render.renderer import RenderConfig, Scene, render_scene, sample_generator
 from cotrain.targets import TargetConfig, make_target
 
@@ -57,7 +57,7 @@ def render_rig_sequence(
         d = seq_dir / f"cam{c}"
         (d / "images").mkdir(parents=True, exist_ok=True)
         lines = ["frame_id,timestamp_ns,filename"]
-        for k in tqdm(range(frames), desc=f"render cam{c}", unit="img", disable=not progress):
+        for k in progress_bar(range(frames), desc=f"render cam{c}", unit="img", enabled=progress):
             name = f"{k:06d}.png"
             lines.append(f"{k},{k * 50_000_000},{name}")
             if (d / "images" / name).is_file():

@@ -24,6 +24,7 @@ import numpy as np
 
 from calib_eval.detection.evaluation import TOL_PX  # a reported corner further than this from its label is not matched (it is wrong)
 from calib_eval.detection.tags import TagEvalConfig
+from cotrain.progress import progress_bar
 
 MIN_CORNERS = 8  # corners a frame needs for its common shift to be measured
 SHIFT_PX = 0.25  # a frame whose corners are off by a common shift longer than this is "shifted"
@@ -73,8 +74,6 @@ def countable(lab: dict) -> np.ndarray:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from tqdm import tqdm
-
     from calib_eval.detection.evaluation import read_set
     from cotrain.detect.detector import make_detector
     from cotrain.detect.images import ImageError, load_image
@@ -92,7 +91,7 @@ def main(argv: list[str] | None = None) -> int:
     det = make_detector(target)
     offsets, failed = {}, []
     labels = [lab for lab in meta["labels"] if lab.get("has_target", lab.get("fov") is not None) and not lab.get("condition")]
-    for lab in tqdm(labels, desc="detect"):
+    for lab in progress_bar(labels, desc="detect"):
         try:
             d = det.detect(load_image(Path(args.set) / "images" / lab["image"]))
         except ImageError as e:

@@ -39,6 +39,7 @@ from cotrain.detect.buffers import keep_image_buffers
 from cotrain.detect.detector import Detector
 from cotrain.detect.images import ImageError, load_image
 from cotrain.geometry import cameras
+from cotrain.progress import progress_bar
 from cotrain.render.renderer import LABEL_VERSION, RenderConfig, render_batch
 from cotrain.targets import Target, TargetConfig, TargetError, load_target, make_target, target_from_json
 
@@ -94,8 +95,6 @@ def _render_cfg(
 
 def render_benchmark(cfg: EvalConfig, out: Path, progress: bool = True) -> dict:
     """Render the benchmark set into ``out/images`` and its labels into ``out/labels.json``."""
-    from tqdm import tqdm
-
     img_dir = out / "images"
     img_dir.mkdir(parents=True, exist_ok=True)
     jobs = []
@@ -108,7 +107,7 @@ def render_benchmark(cfg: EvalConfig, out: Path, progress: bool = True) -> dict:
             raise ValueError(f"unknown condition {c!r} (known: {', '.join(CONDITIONS)})")
         jobs += [(c, "cond", i) for i in range(cfg.per_condition)]
     labels = []
-    for fov, kind, i in tqdm(jobs, desc="render benchmark", disable=not progress):
+    for fov, kind, i in progress_bar(jobs, desc="render benchmark", enabled=progress):
         condition = fov if kind == "cond" else None
         if kind == "empty":
             rc = _render_cfg(200, cfg, list(cameras.MODELS), no_target=True)
@@ -165,11 +164,9 @@ def render_benchmark(cfg: EvalConfig, out: Path, progress: bool = True) -> dict:
 def run_learned(
     model: str | None, images: list[Path], target: Target, progress: bool = True, mode: str = "grid", polish: bool = False
 ) -> dict:
-    from tqdm import tqdm
-
     det = Detector(model, polish=polish, mode=mode, target=target)
     out = {}
-    for p in tqdm(images, desc=f"learned ({det.mode}{' + polish' if polish else ''})", disable=not progress):
+    for p in progress_bar(images, desc=f"learned ({det.mode}{' + polish' if polish else ''})", enabled=progress):
         t0 = time.perf_counter()
         try:
             d = det.detect(load_image(p))
@@ -185,11 +182,9 @@ def run_geometry(kind: str, images: list[Path], target: Target, progress: bool =
     """OpenCV detectors (``opencv_sb``, ``opencv_classic``) looking for ``target``; corners carry no
     identity we trust (id -1). A file that cannot be read as an image gets no corners and its
     ``error`` (as :func:`run_learned`), and the run goes on."""
-    from tqdm import tqdm
-
     method = kind.removeprefix("opencv_")
     out = {}
-    for p in tqdm(images, desc=kind, disable=not progress):
+    for p in progress_bar(images, desc=kind, enabled=progress):
         t0 = time.perf_counter()
         grey = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
         c = find_chessboard(grey, (target.nx, target.ny), method) if grey is not None else None

@@ -78,6 +78,7 @@ import numpy as np
 
 from calib_eval.detection.evaluation import score
 from calib_eval.detection.opencv_baseline import find_chessboard
+from cotrain.progress import progress_bar
 from cotrain.targets import AprilGrid, Checkerboard, TargetConfig, load_target
 
 # The radial laws: image radius rho(theta) / f and its inverse theta(rho / f).
@@ -420,13 +421,11 @@ def make_board(cfg: ForeignConfig) -> Checkerboard | AprilGrid:
 def render_set(out: Path, cfg: ForeignConfig, progress: bool = True) -> list[dict]:
     """Frames and labels (``out/images/*.png``, ``out/labels.json``, the layout of ``calib-eval
     detection``'s sets); returns the labels."""
-    from tqdm import tqdm
-
     board = make_board(cfg)
     (out / "images").mkdir(parents=True, exist_ok=True)
     labels = []
     jobs = [(fov, i) for fov in cfg.fovs for i in range(cfg.per_fov)]
-    for fov, i in tqdm(jobs, desc=f"render {cfg.target} (independent renderer)", disable=not progress):
+    for fov, i in progress_bar(jobs, desc=f"render {cfg.target} (independent renderer)", enabled=progress):
         fr = render_frame(fov, cfg, np.random.default_rng([cfg.seed, fov, i]), board)
         name = f"fov{fov}_{i:03d}.png"
         cv2.imwrite(str(out / "images" / name), fr.image)
@@ -457,8 +456,6 @@ def detect_set(out: Path, labels: list[dict], board: Checkerboard | AprilGrid, p
     (corners without trusted ids, matched by position). AprilGrid: the
     tag detectors of ``python -m calib_eval.detection.tags`` that are installed (cv2.aruco always),
     each in a process of its own, each tag's corners taking its Kalibr ids. Times are per frame, decoding left out."""
-    from tqdm import tqdm
-
     from calib_eval.detection.tags import run_peers, tags_to_corners
     from cotrain.detect.buffers import keep_image_buffers
     from cotrain.detect.detector import make_detector
@@ -473,7 +470,7 @@ def detect_set(out: Path, labels: list[dict], board: Checkerboard | AprilGrid, p
     preds: dict[str, dict] = {}
     for name, run in runs.items():  # one detector over every frame, then the next (as calib_eval.detection.tags)
         preds[name] = {}
-        for lab in tqdm(labels, desc=name, disable=not progress):
+        for lab in progress_bar(labels, desc=name, enabled=progress):
             grey = cv2.imread(str(out / "images" / lab["image"]), cv2.IMREAD_GRAYSCALE)
             t0 = time.perf_counter()
             if name.startswith("ours"):

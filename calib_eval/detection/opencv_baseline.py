@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 
 from cotrain.detect.images import ImageError, load_image
+from cotrain.progress import progress_bar
 from cotrain.targets import Checkerboard
 
 METHODS = ("sb", "classic")
@@ -44,13 +45,11 @@ def load_u8(path: Path) -> np.ndarray:
 
 def opencv_detect(paths: list[Path], target: Checkerboard, method: str = "sb", progress: bool = True) -> dict:
     """The detection JSON (docs/conventions.md) of OpenCV's detector over image files."""
-    from tqdm import tqdm
-
     if not isinstance(target, Checkerboard):
         raise ValueError(f"OpenCV's chessboard detectors find checkerboards, not {target.kind}")
     pattern = (target.nx, target.ny)
     images = []
-    for p in tqdm(paths, desc=f"opencv {method}", disable=not progress):
+    for p in progress_bar(paths, desc=f"opencv {method}", enabled=progress):
         e = {"path": str(p), "width": 0, "height": 0, "corners": [], "error": None}
         try:
             g = load_u8(p)

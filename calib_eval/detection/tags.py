@@ -42,6 +42,7 @@ from calib_eval.detection.evaluation import TOL_PX, _render_cfg, parse_size
 from cotrain.detect.buffers import keep_image_buffers
 from cotrain.detect.detector import AprilGridDetector
 from cotrain.geometry import cameras
+from cotrain.progress import progress_bar
 from cotrain.render.renderer import LABEL_VERSION, render_batch
 from cotrain.targets import AprilGrid, TargetConfig, make_target
 
@@ -158,8 +159,6 @@ def render_frame(cfg: TagEvalConfig, ecfg, fov: int | None, condition: str | Non
 
 def render_set(cfg: TagEvalConfig, board: AprilGrid, out: Path) -> list[dict]:
     """Render the set into ``out/images`` (cached with its labels in ``out/labels.json``)."""
-    from tqdm import tqdm
-
     lab_path = out / "labels.json"
     key = {"config": cfg.__dict__, "target": board.to_json(), "label_version": LABEL_VERSION}
     if lab_path.is_file():
@@ -177,7 +176,7 @@ def render_set(cfg: TagEvalConfig, board: AprilGrid, out: Path) -> list[dict]:
     jobs = [(fov, None, i) for fov in cfg.fovs for i in range(cfg.per_fov)] + [(0, None, i) for i in range(cfg.n_empty)]
     jobs += [(None, c, i) for c in cfg.conditions for i in range(cfg.per_condition)]
     labels = []
-    for fov, condition, i in tqdm(jobs, desc="render aprilgrid set"):
+    for fov, condition, i in progress_bar(jobs, desc="render aprilgrid set"):
         b, rc, name = render_frame(cfg, ecfg, fov, condition, i)
         cv2.imwrite(str(out / "images" / name), (b["image"][0, 0].numpy() * 255).round().astype(np.uint8))
         model = rc.models[int(b["model_index"][0])]

@@ -26,6 +26,7 @@ from calib_eval.detection.evaluation import EvalConfig, load_or_render, parse_si
 from cotrain.detect.detector import Detector
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.images import load_image
+from cotrain.progress import progress_bar
 
 THRESHOLDS = (6, 8, 10, 12, 15, 18, 20, 22, 25, 30)
 DEGRADATIONS = ("none", "jpeg", "blur")
@@ -76,13 +77,11 @@ def margin_table(
     grid: dict | None = None,
     size: tuple[int, int] = (1280, 720),
 ) -> dict:
-    from tqdm import tqdm
-
     meta = load_or_render(EvalConfig(seed=seed, width=size[0], height=size[1], conditions=[]), set_dir, progress)
     det = Detector(model)
     gcfg = dataclasses.replace(det.grid, **{**(grid or {}), **SWEPT})  # every placement is scored
     rows, total = [], 0
-    for n, lab in enumerate(tqdm(meta["labels"], desc="grid pass", disable=not progress)):
+    for n, lab in enumerate(progress_bar(meta["labels"], desc="grid pass", enabled=progress)):
         grey = degrade(load_image(set_dir / "images" / lab["image"]), how, seed=n)
         r = det.grid_result(grey, gcfg)
         if not lab["has_target"]:

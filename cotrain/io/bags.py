@@ -20,6 +20,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from cotrain.progress import progress_bar
+
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 _BAYER = {
     "bayer_rggb8": cv2.COLOR_BayerRGGB2GRAY,
@@ -82,7 +84,6 @@ def bag_to_sequence(bag: str | Path, topics: list[str], out: str | Path, progres
     first topic's frames reads its messages once more."""
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
-    from tqdm import tqdm
 
     path = Path(bag)
     if not path.exists():
@@ -112,7 +113,7 @@ def bag_to_sequence(bag: str | Path, topics: list[str], out: str | Path, progres
         for i in range(len(topics)):
             (out / f"cam{i}" / "images").mkdir(parents=True, exist_ok=True)
         total = sum(c.msgcount for c in conns)
-        stream = tqdm(_messages(reader, conns, bag), total=total, desc="bag", unit="msg", disable=not progress)
+        stream = progress_bar(_messages(reader, conns, bag), total=total, desc="bag", unit="msg", enabled=progress)
         for conn, t_bag, raw in stream:
             cam = cam_of[conn.topic]
             ref = -1

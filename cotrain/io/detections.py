@@ -20,6 +20,7 @@ import numpy as np
 from cotrain.detect.buffers import keep_image_buffers
 from cotrain.detect.detector import AprilGridDetector, Detector, draw_detection
 from cotrain.detect.images import ImageError, load_image
+from cotrain.progress import progress_bar
 
 LOOKAHEAD = 2  # images read and through the network ahead of the one the grid pass works on
 MAX_WORKERS = 8  # worker processes at most (workers=0: one per core up to this)
@@ -41,15 +42,13 @@ def detect_files(
     release the GIL; the passes, Python, mostly hold it). The output is the same either way; a
     file that cannot be read is an entry with its error, and a worker that dies stops the run with
     a one-line :class:`ChildProcessError`."""
-    from tqdm import tqdm
-
     if draw_dir is not None:
         draw_dir.mkdir(parents=True, exist_ok=True)
     keep_image_buffers()  # many images in this process (or its workers): their buffers are reused
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)  # a container's share
     n_proc = min(cores, MAX_WORKERS) if workers == 0 else workers
     n_proc = min(n_proc, len(paths) // detector.files_per_worker)
-    bar = dict(desc="detect", unit="img", disable=not progress or len(paths) < 2)
+    bar = dict(desc="detect", unit="img", total=len(paths), enabled=progress and len(paths) > 1)
     entries = []
     if n_proc > 1:
         # Spawned, not forked: the caller may hold torch or onnxruntime threads.
@@ -59,7 +58,7 @@ def detect_files(
             with ProcessPoolExecutor(n_proc, mp_context=ctx, initializer=_start_worker, initargs=(detector, threads)) as pool:
                 jobs = [pool.submit(_detect_in_worker, p, draw_dir) for p in paths]
                 try:
-                    entries = [job.result() for job in tqdm(jobs, **bar)]
+                    entries = [job.result() for job in progress_bar(jobs, **bar)]
                 except BaseException:
                     pool.shutdown(wait=False, cancel_futures=True)  # an error or Ctrl+C stops the files not begun
                     raise
@@ -80,7 +79,7 @@ def detect_files(
     try:
         with ThreadPoolExecutor(max_workers=1) as pool:
             ahead = [pool.submit(front, p) for p in paths[:LOOKAHEAD]]
-            for k, p in enumerate(tqdm(paths, **bar)):
+            for k, p in enumerate(progress_bar(paths, **bar)):
                 if k + LOOKAHEAD < len(paths):
                     ahead.append(pool.submit(front, paths[k + LOOKAHEAD]))
                 entries.append(_entry(detector, p, ahead[k].result, draw_dir))

@@ -24,6 +24,7 @@ from cotrain.config import ConfigError, from_dict, load_config, to_dict
 from cotrain.geometry.letterbox import CELLS
 from cotrain.model.losses import LossConfig, compute_losses
 from cotrain.model.network import CornerNet, ModelConfig
+from cotrain.progress import progress_bar
 from cotrain.render.renderer import RenderConfig, render_batch
 from cotrain.targets import Target, make_target
 
@@ -399,9 +400,7 @@ def train(cfg: TrainConfig, resume: bool = False) -> dict:
     if rank == 0 and not curve_path.exists():
         curve_path.write_text("step,wall_s,recall,error_px,id_acc,outlier_rate,board_id_acc\n")
 
-    from tqdm import tqdm
-
-    bar = tqdm(total=s.steps, initial=step, desc="train", disable=rank != 0, dynamic_ncols=True)
+    bar = progress_bar(total=s.steps, initial=step, desc="train", unit="step", enabled=rank == 0)
     t_start = time.time() - wall0
     t_ckpt = time.time()
     t_log, n_log = time.time(), 0

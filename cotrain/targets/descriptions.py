@@ -144,6 +144,12 @@ def target_from_flags(
     return None
 
 
+NOT_A_TARGET = (
+    "not a calibration target: give a Kalibr target yaml (target_type: checkerboard or aprilgrid, as for kalibr_calibrate_cameras "
+    "--target), a BoofCV target, or our target config (kind: checkerboard, squares_x, ...)"
+)
+
+
 def load_target(path: str | Path) -> Target:
     """A target file: a Kalibr target yaml (``target_type: ...``), a BoofCV one
     (``boofcv.alg.fiducial.calib.ConfigCalibrationTarget: ...``), or our ``target:`` config section
@@ -158,9 +164,14 @@ def load_target(path: str | Path) -> Target:
         return target_from_kalibr(data, str(path))
     if BOOFCV_KEY in data:
         return target_from_boofcv(data, str(path))
+    if not isinstance(data, dict):
+        raise TargetError(f"{path}: {NOT_A_TARGET}")
     section = data.get("target", data)
     if not isinstance(section, dict):
         raise TargetError(f"{path}: 'target' must be a mapping")
+    if "target" not in data and not set(section) & {f.name for f in dataclasses.fields(TargetConfig)}:
+        what = " (it looks like a camchain: camera parameters, not the board)" if any(str(k).startswith("cam") for k in section) else ""
+        raise TargetError(f"{path}: {NOT_A_TARGET}{what}")
     try:
         return make_target(build(TargetConfig, section, "target"))
     except ConfigError as e:

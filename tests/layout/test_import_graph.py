@@ -17,7 +17,7 @@ import pytest
 from tests.paths import ROOT
 
 STAGES = [
-    ("config", ("cotrain.config",)),
+    ("config and progress", ("cotrain.config", "cotrain.progress")),
     ("geometry", ("cotrain.geometry",)),
     ("targets", ("cotrain.targets",)),
     ("render", ("cotrain.render",)),
@@ -28,7 +28,7 @@ STAGES = [
     ("calibration", ("calib_eval.calibration",)),
     ("detection evaluation", ("calib_eval.detection",)),
     ("benchmark", ("calib_eval.benchmark",)),
-    ("main job", ("calib_eval.pipeline", "calib_eval.cli", "cotrain.cli", "cotrain.main_job")),
+    ("main job", ("calib_eval.pipeline", "calib_eval.report_index", "calib_eval.cli", "cotrain.cli", "cotrain.main_job")),
 ]
 PACKAGES = ("cotrain", "calib_eval", "export")
 

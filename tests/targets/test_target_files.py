@@ -66,6 +66,8 @@ def test_our_config_section_both_ways(tmp_path):
         ("target_type: checkerboard\ntargetCols: 9.5\ntargetRows: 6\nrowSpacingMeters: 0.04\ncolSpacingMeters: 0.04\n", "integer"),
         ("target:\n  squares_x: 1\n  squares_y: 7\n", "at least 2"),
         ("target:\n  colour: red\n", "unknown key"),
+        ("cam0:\n  camera_model: pinhole\n  intrinsics: [1, 2, 3, 4]\n", "not a calibration target.*looks like a camchain"),
+        ("rows: 6\ncols: 8\n", "not a calibration target: give a Kalibr target yaml"),
         ("[1, 2]\n", "top level must be a mapping"),
         ("", "describes no target"),
     ],
