@@ -57,8 +57,6 @@ def cmd_synth(a: argparse.Namespace) -> int:
 def _resolve_fov(a: argparse.Namespace, seq, models: list[str]) -> None:
     """``a.fov`` as given, or estimated from the sequence (and said so) where it is not."""
     if a.fov is not None:
-        if not 30 <= a.fov <= 360:
-            raise ValueError(f"--fov {a.fov:g}: give the lens's rough field of view in degrees (30-360), or leave it out to estimate it")
         return
     from calib_eval.calibration.fov import estimate_fov
 
@@ -92,6 +90,8 @@ def _sequence(a: argparse.Namespace, cache: Path | None):
         )
     if a.topics and a.bag is None:
         raise ValueError("--topics goes with --bag")
+    if getattr(a, "fov", None) is not None and not 30 <= a.fov <= 360:  # checked before anything is detected
+        raise ValueError(f"--fov {a.fov:g}: give the lens's rough field of view in degrees (30-360), or leave it out to estimate it")
     if a.seq is not None:
         return load_sequence(a.seq, a.tolerance_ms, target=_target(a.target))
     from cotrain.detect.detector import make_detector

@@ -243,7 +243,7 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-TRAIN_EXTRA = ("torch", "kornia", "tensorboard", "onnx", "onnxscript")  # pyproject's [train] extra
+TRAIN_EXTRA = ("torch", "kornia", "tensorboard", "onnxscript")  # pyproject's [train] extra
 
 
 def dispatch(prog: str, args: argparse.Namespace) -> int:
