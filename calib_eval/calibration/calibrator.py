@@ -21,15 +21,13 @@ import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-import torch
-from torch import Tensor
 
 from calib_eval.calibration.initialisation import average_pose, focal_search, initial_guess, view_pose
 from calib_eval.calibration.solver import Free, Params, Problem, SolveResult, covariance, residuals, solve
 from calib_eval.calibration.time_offset import OffsetEstimate, TimeOffsetConfig, board_velocities, estimable_cameras
 from cotrain.geometry import cameras
 from cotrain.io.sequence import Observation, Sequence
-from cotrain.targets import Target
+from cotrain.targets import Target, board_points
 
 
 @dataclass
@@ -98,8 +96,8 @@ class FinalSolve:
 
 
 def _intrinsic_stage(
-    model: str, intr: Tensor, obs: list[Observation], board: Target, cfg: CalibConfig, progressive: bool
-) -> tuple[Tensor, dict[int, np.ndarray], list[float], SolveResult]:
+    model: str, intr: np.ndarray, obs: list[Observation], board: Target, cfg: CalibConfig, progressive: bool
+) -> tuple[np.ndarray, dict[int, np.ndarray], list[float], SolveResult]:
     """Stage 1 (progressive, gamma recorded) or stage 2 (all at once) for one camera."""
     if progressive:
         steps = [k for k in cfg.init_steps if k < len(obs)] + ([len(obs)] if len(obs) <= max(cfg.init_steps) else [])
@@ -122,14 +120,14 @@ def _intrinsic_stage(
             continue
         vi = {o.view: i for i, o in enumerate(active)}
         prob = Problem.build(active, board, vi, single_camera=True)
-        Tb = torch.from_numpy(np.stack([poses_cb[o.view] for o in active]))
+        Tb = np.stack([poses_cb[o.view] for o in active])
         iters = cfg.init_iters if progressive else cfg.refine_iters
-        out_intr, _, Tb, res = solve(prob, [model], [intr], torch.eye(4, dtype=torch.float64)[None], Tb, iters=iters, huber=cfg.huber_px)
+        out_intr, _, Tb, res = solve(prob, [model], [intr], np.eye(4)[None], Tb, iters=iters, huber=cfg.huber_px)
         gammas.append(res.schur_cond)
         if not all(math.isfinite(v) for v in res.rms):
             raise CalibrationFailed(f"intrinsic {'initialisation' if progressive else 'refinement'} diverged at {k} frames")
         intr = out_intr[0]
-        for o, T in zip(active, Tb.numpy()):
+        for o, T in zip(active, Tb):
             poses_cb[o.view] = T
     if res is None:
         raise CalibrationFailed("too few usable views to initialise the intrinsics")
@@ -166,7 +164,7 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
         return fail(obs_by_cam)
 
     # Stages 1 and 2, per camera.
-    intr: list[Tensor] = []
+    intr: list[np.ndarray] = []
     cam_poses: list[dict[int, np.ndarray]] = []
     rejected: dict[tuple[int, int], np.ndarray] = {}
     try:
@@ -194,8 +192,8 @@ def calibrate(seq: Sequence, cfg: CalibConfig, order: dict[int, list[int]] | Non
     T_rig_board = _initial_board_poses(cam_poses, T_cam_rig)
     joint = _JointStage(seq, models, cfg, board)
     dropped: list[dict] = []
-    no_poses = torch.zeros(0, 4, 4, dtype=torch.float64)  # set per round from T_rig_board
-    start = Params(intr, torch.from_numpy(T_cam_rig), no_poses, torch.zeros(2, dtype=torch.float64), joint.fixed_offsets)
+    no_poses = np.zeros((0, 4, 4))  # set per round from T_rig_board
+    start = Params(intr, T_cam_rig.copy(), no_poses, np.zeros(2), joint.fixed_offsets)
     obs_before = obs_by_cam
     out = joint.run(obs_by_cam, T_rig_board, start, dropped, stages)
     if isinstance(out, str):
@@ -259,13 +257,13 @@ def _usable_observations(seq: Sequence, cfg: CalibConfig, order: dict[int, list[
 def _finish(final, res, models, cfg, runtime, frames, gammas, stages, dropped, rejected, estimates, timed) -> CalibrationResult:
     """The result of the final joint solve: success where every camera's RMS is within bounds."""
     p = final.params
-    intr_np = [x.numpy() for x in p.intr]
-    T_cr = p.T_cam_rig.numpy()
+    intr_np = [np.asarray(x) for x in p.intr]
+    T_cr = np.asarray(p.T_cam_rig)
     ok_finite = all(np.isfinite(x).all() for x in intr_np) and np.isfinite(T_cr).all()
     worst = max(res.rms) if res.rms and all(math.isfinite(x) for x in res.rms) else float("nan")
     success = ok_finite and math.isfinite(worst) and worst <= cfg.max_rms_px
     reason = "ok" if success else (f"final RMS {worst:.2f} px exceeds {cfg.max_rms_px} px" if ok_finite else "non-finite parameters")
-    T_rb = {v: p.T_rig_board[i].numpy() for i, v in enumerate(final.views)}
+    T_rb = {v: p.T_rig_board[i] for i, v in enumerate(final.views)}
     return CalibrationResult(
         success,
         reason,
@@ -280,8 +278,8 @@ def _finish(final, res, models, cfg, runtime, frames, gammas, stages, dropped, r
         stages,
         dropped,
         rejected,
-        p.warp.numpy().copy(),
-        p.time_offsets.numpy().copy(),
+        p.warp.copy(),
+        p.time_offsets.copy(),
         estimates,
         final,
         timed[0] if timed is not None else None,
@@ -292,7 +290,7 @@ def _finish(final, res, models, cfg, runtime, frames, gammas, stages, dropped, r
 class _CameraFit:
     """Stages 1 and 2 of one camera."""
 
-    intr: Tensor
+    intr: np.ndarray
     poses: dict[int, np.ndarray]  # view -> T_cam_board
     obs: list[Observation]  # the observations kept (outlier corners removed)
     rejected: dict[tuple[int, int], np.ndarray]  # (cam, view) -> corner ids dropped as outliers
@@ -384,7 +382,7 @@ class _JointStage:
     def __init__(self, seq: Sequence, models: list[str], cfg: CalibConfig, board: Target):
         self.seq, self.models, self.cfg, self.board = seq, models, cfg, board
         C = len(models)
-        self.fixed_offsets = torch.tensor([float(cfg.time_offsets_s.get(c, 0.0)) for c in range(C)], dtype=torch.float64)
+        self.fixed_offsets = np.array([float(cfg.time_offsets_s.get(c, 0.0)) for c in range(C)], dtype=np.float64)
         self.free = Free(intr=True, extr=C > 1, warp=not cfg.flat_board, time=False)
 
     def _problem(
@@ -411,8 +409,8 @@ class _JointStage:
 
         used = [o for o in used if keep(o)]
         prob = Problem.build(used, self.board, {v: i for i, v in enumerate(views)})
-        both = torch.from_numpy(np.stack([motion.get(v, np.zeros(12)) for v in views]))
-        prob.velocity, prob.acceleration = both[:, :6].contiguous(), both[:, 6:].contiguous()
+        both = np.stack([motion.get(v, np.zeros(12)) for v in views])
+        prob.velocity, prob.acceleration = np.ascontiguousarray(both[:, :6]), np.ascontiguousarray(both[:, 6:])
         return prob, used
 
     def solve(self, prob: Problem, p: Params, free: Free) -> tuple[Params, SolveResult]:
@@ -446,9 +444,9 @@ class _JointStage:
             views = sorted(T_rig_board)
             used = [o for c in range(C) for o in obs_by_cam[c] if o.view in T_rig_board]
             prob, used = self._problem(used, T_rig_board, views)
-            p.T_rig_board = torch.from_numpy(np.stack([T_rig_board[v] for v in views]))
+            p.T_rig_board = np.stack([T_rig_board[v] for v in views])
             p, res = self.solve(prob, p, self.free)
-            bad = _inconsistent_views(used, res.residuals.numpy(), cfg) if it < rounds else []  # the last solve is final
+            bad = _inconsistent_views(used, res.residuals, cfg) if it < rounds else []  # the last solve is final
             if not bad:
                 return FinalSolve(used, views, prob, p, self.free, cfg.huber_px), res
             # A wrong board pulls its view's pose, and with it the other cameras' boards of that
@@ -467,7 +465,7 @@ class _JointStage:
             if short:
                 return f"{', '.join(short)}: fewer than {cfg.min_views} views agree with the rig ({len(dropped)} views dropped)"
             seen = {o.view for ob in obs_by_cam for o in ob}
-            T_rig_board = {v: p.T_rig_board[i].numpy() for i, v in enumerate(views) if v in seen}
+            T_rig_board = {v: p.T_rig_board[i] for i, v in enumerate(views) if v in seen}
             stages.append({"stage": "full", "rms_px": res.rms, "iterations": res.iterations, "reason": f"dropped {len(worst)} views"})
         raise AssertionError("unreachable")
 
@@ -478,7 +476,7 @@ class _JointStage:
         C, names, tcfg = len(self.models), [c.name for c in self.seq.cameras], self.cfg.timing
         if self.seq.timestamps_ns is None:
             return [OffsetEstimate(names[c], None, None, 0, "the sequence has no timestamps") for c in range(1, C)], None
-        poses = {v: final.params.T_rig_board[i].numpy() for i, v in enumerate(final.views)}
+        poses = {v: final.params.T_rig_board[i] for i, v in enumerate(final.views)}
         vel = board_velocities(poses, self.seq.timestamps_ns, tcfg)
         cams_by_view: dict[int, set[int]] = {}
         for o in final.used:
@@ -493,7 +491,7 @@ class _JointStage:
         for _ in range(tcfg.rounds):
             prob, used = self._problem(final.used, poses, final.views, timed=timed)
             p, res = self.solve(prob, p, free)
-            poses = {v: p.T_rig_board[i].numpy() for i, v in enumerate(final.views)}
+            poses = {v: p.T_rig_board[i] for i, v in enumerate(final.views)}
         cov = covariance(prob, self.models, p, free=free, huber=self.cfg.huber_px)
         out = []
         for c in range(1, C):
@@ -511,8 +509,8 @@ def _offset_shift_px(prob: Problem, models: list[str], p: Params, c: int) -> flo
     zero = p.clone()
     zero.time_offsets[c] = 0.0
     sel = prob.cam == c
-    d = (residuals(prob, models, zero) - residuals(prob, models, p))[sel].norm(dim=-1)
-    return float(d.median()) if len(d) else math.nan
+    d = np.linalg.norm((residuals(prob, models, zero) - residuals(prob, models, p))[sel], axis=-1)
+    return float(np.median(d)) if len(d) else math.nan
 
 
 def _inconsistent_views(used: list[Observation], err: np.ndarray, cfg: CalibConfig) -> list[tuple[Observation, float]]:
@@ -538,7 +536,7 @@ def _whole_views_lost(obs: list[Observation], keep: list[Observation]) -> bool:
 
 
 def _reject_outliers(
-    obs: list[Observation], poses_cb: dict[int, np.ndarray], model: str, intr: Tensor, board: Target, cfg: CalibConfig
+    obs: list[Observation], poses_cb: dict[int, np.ndarray], model: str, intr: np.ndarray, board: Target, cfg: CalibConfig
 ) -> list[Observation]:
     errs = []
     per = []
@@ -547,9 +545,9 @@ def _reject_outliers(
             per.append(None)
             continue
         T = poses_cb[o.view]
-        pc = board.points().numpy()[o.ids] @ T[:3, :3].T + T[:3, 3]
-        q, ok = cameras.project(model, torch.from_numpy(pc), intr)
-        e = np.where(ok.numpy(), np.linalg.norm(q.numpy() - o.q, axis=1), np.inf)
+        pc = board_points(board)[o.ids] @ T[:3, :3].T + T[:3, 3]
+        q, ok = cameras.project(model, pc, intr)
+        e = np.where(ok, np.linalg.norm(q - o.q, axis=1), np.inf)
         per.append(e)
         errs.append(e[np.isfinite(e)])
     allerr = np.concatenate(errs) if errs else np.zeros(1)

@@ -14,7 +14,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from calib_eval.calibration.calibrator import CalibConfig, CalibrationResult, calibrate
 from calib_eval.calibration.mrcal_peer import MrcalConfig, MrcalResult, calibrate_mrcal
@@ -35,8 +34,7 @@ def error_rays(fov: float, n: int = 400) -> np.ndarray:
 
 def project_rays(model: str, params, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Projections (R, 2) of rays ``v`` (R, 3) by one of our cameras, and (R,) which are valid."""
-    q, ok = cameras.project(model, torch.from_numpy(v), torch.as_tensor(np.asarray(params, dtype=np.float64)))
-    return q.numpy(), ok.numpy()
+    return cameras.project(model, np.asarray(v, dtype=np.float64), np.asarray(params, dtype=np.float64))
 
 
 def pixel_difference(q1: np.ndarray, ok1: np.ndarray, q2: np.ndarray, ok2: np.ndarray) -> float:
@@ -53,8 +51,8 @@ def mrcal_valid(q: np.ndarray) -> np.ndarray:
 
 def pose_difference(T1: np.ndarray, T2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Translation (mm) and rotation (deg) between poses (K, 4, 4)."""
-    dR = torch.from_numpy(T1[:, :3, :3] @ np.swapaxes(T2[:, :3, :3], -1, -2))
-    return 1000 * np.linalg.norm(T1[:, :3, 3] - T2[:, :3, 3], axis=-1), rotation_angle_deg(dR).numpy()
+    dR = T1[:, :3, :3] @ np.swapaxes(T2[:, :3, :3], -1, -2)
+    return 1000 * np.linalg.norm(T1[:, :3, 3] - T2[:, :3, 3], axis=-1), rotation_angle_deg(dR)
 
 
 @dataclass

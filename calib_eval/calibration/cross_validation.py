@@ -20,7 +20,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-import torch
 from scipy.spatial.transform import Rotation
 
 from calib_eval.calibration.solver import Covariance, Params, covariance, solve
@@ -94,8 +93,8 @@ def fit_half(final, models: list[str], keep: set[int], cfg: CrossValidationConfi
     for c in range(len(models)):
         if sum(1 for o in used if o.cam == c) < cfg.min_views:
             return None
-    view_ids = torch.tensor(final.views)[final.problem.view]  # (O,) each corner's view id
-    sub, rows = final.problem.select(torch.isin(view_ids, torch.tensor(sorted(keep))))
+    view_ids = np.asarray(final.views)[final.problem.view]  # (O,) each corner's view id
+    sub, rows = final.problem.select(np.isin(view_ids, sorted(keep)))
     p = final.params
     f = final.free
     intr, Tcr, Tb, res = solve(
@@ -124,17 +123,17 @@ def _difference(a: Params, b: Params, cov: Covariance) -> np.ndarray:
     for c in range(len(a.intr)):
         o, n = L.intr[c]
         if n:
-            d[o : o + n] = (b.intr[c] - a.intr[c]).numpy()
+            d[o : o + n] = b.intr[c] - a.intr[c]
         o, n = L.extr[c]
         if n:
-            D = (b.T_cam_rig[c] @ torch.linalg.inv(a.T_cam_rig[c])).numpy()
+            D = b.T_cam_rig[c] @ np.linalg.inv(a.T_cam_rig[c])
             d[o : o + n] = np.r_[Rotation.from_matrix(D[:3, :3]).as_rotvec(), D[:3, 3]]
         o, n = L.time[c]
         if n:
             d[o] = float(b.time_offsets[c] - a.time_offsets[c])
     o, n = L.warp
     if n:
-        d[o : o + n] = (b.warp - a.warp).numpy()
+        d[o : o + n] = b.warp - a.warp
     return d
 
 
@@ -143,10 +142,10 @@ def _projection_diff(model, intr, a: Params, b: Params, ca: Covariance, cb: Cova
     ray, ok = cameras.unproject(model, q, intr)
     qa = cameras.project(model, ray, a.intr[c])[0]
     qb = cameras.project(model, ray, b.intr[c])[0]
-    diff = torch.where(ok, (qa - qb).norm(dim=-1), torch.full_like(qa[:, 0], math.nan)).numpy()
+    diff = np.where(ok, np.linalg.norm(qa - qb, axis=-1), math.nan)
     span = ca.layout.intr[c]
-    pred = projection_sigma(model, intr, ca.block(span) + cb.block(span), q).numpy()
-    inside = covered(q.numpy(), corners, np.array([(size[0] - 1) / 2, (size[1] - 1) / 2]))
+    pred = projection_sigma(model, intr, ca.block(span) + cb.block(span), q)
+    inside = covered(q, corners, np.array([(size[0] - 1) / 2, (size[1] - 1) / 2]))
     diff, pred = np.where(inside, diff, np.nan), np.where(inside, pred, np.nan)
     stat = lambda v: (float(np.nanmedian(v)), float(np.nanpercentile(v, 95))) if np.isfinite(v).any() else (math.nan, math.nan)  # noqa: E731
     return ProjectionDiff(xs, ys, diff.reshape(len(ys), len(xs)), *stat(diff), *stat(pred))
@@ -164,7 +163,7 @@ def cross_validate(final, models: list[str], sizes, corners, cfg: CrossValidatio
             return CrossValidation(False, f"a camera has fewer than {cfg.min_views} views in one half of the views")
         (pa, ca), (pb, cb) = fa, fb
         d = _difference(pa, pb, ca)
-        S = (ca.cov + cb.cov).numpy()
+        S = ca.cov + cb.cov
         m2 += float(d @ np.linalg.lstsq(S, d, rcond=1e-12)[0])
         n_par += len(d)
         diffs.append([_projection_diff(models[c], final.params.intr[c], pa, pb, ca, cb, c, sizes[c], corners[c]) for c in range(C)])
@@ -183,8 +182,8 @@ def cross_validate(final, models: list[str], sizes, corners, cfg: CrossValidatio
 
 
 def _pair_diff(pa: Params, pb: Params, ca: Covariance, cb: Covariance, a: int, b: int) -> dict:
-    Ta = (pa.T_cam_rig[b] @ torch.linalg.inv(pa.T_cam_rig[a])).numpy()
-    Tb = (pb.T_cam_rig[b] @ torch.linalg.inv(pb.T_cam_rig[a])).numpy()
+    Ta = pa.T_cam_rig[b] @ np.linalg.inv(pa.T_cam_rig[a])
+    Tb = pb.T_cam_rig[b] @ np.linalg.inv(pb.T_cam_rig[a])
     ua, ub = pair_uncertainty(ca, pa.T_cam_rig, a, b), pair_uncertainty(cb, pb.T_cam_rig, a, b)
     return {
         "translation_m": float(np.linalg.norm(Tb[:3, 3] - Ta[:3, 3])),

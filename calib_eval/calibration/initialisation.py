@@ -8,12 +8,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import torch
-from torch import Tensor
 
 from cotrain.geometry import cameras
 from cotrain.io.sequence import Observation
-from cotrain.targets import Target
+from cotrain.targets import Target, board_points
 
 
 # --------------------------------------------------------------------------------------------
@@ -53,26 +51,25 @@ def pose_from_bearings(X: np.ndarray, v: np.ndarray) -> np.ndarray | None:
     return T
 
 
-def view_pose(model: str, intr: Tensor, o: Observation, board: Target) -> np.ndarray | None:
-    v, ok = cameras.unproject(model, torch.from_numpy(o.q), intr)
-    ok = ok.numpy()
+def view_pose(model: str, intr: np.ndarray, o: Observation, board: Target) -> np.ndarray | None:
+    v, ok = cameras.unproject(model, np.asarray(o.q, dtype=np.float64), intr)
     if ok.sum() < 4:
         return None
-    return pose_from_bearings(board.points().numpy()[o.ids[ok]], v.numpy()[ok])
+    return pose_from_bearings(board_points(board)[o.ids[ok]], v[ok])
 
 
-def initial_guess(model: str, fov: float, width: int, height: int, radius: float = 0.0) -> Tensor:
+def initial_guess(model: str, fov: float, width: int, height: int, radius: float = 0.0) -> np.ndarray:
     """Intrinsics from the rough FoV and image size: the FoV fills a circle of ``radius`` (default
     half the shorter side) about the image centre; shape parameters at the family's defaults."""
-    return cameras.make_camera(model, fov, width, height, radius or min(width, height) / 2.0)
+    return cameras.make_camera(model, fov, width, height, radius or min(width, height) / 2.0, dtype=np.float64)
 
 
-def focal_search(model: str, guess: Tensor, obs: list[Observation], board: Target) -> Tensor:
+def focal_search(model: str, guess: np.ndarray, obs: list[Observation], board: Target) -> np.ndarray:
     """Scale the guess's focal length to best explain a few views (1-D search, bearing poses)."""
     m = cameras.get_model(model)
     best, best_cost = guess, float("inf")
     for scale in np.exp(np.linspace(math.log(0.4), math.log(2.5), 25)):
-        g = guess.clone()
+        g = guess.copy()
         g[m.index("fx")] *= scale
         g[m.index("fy")] *= scale
         costs = []
@@ -81,10 +78,10 @@ def focal_search(model: str, guess: Tensor, obs: list[Observation], board: Targe
             if T is None:
                 costs.append(1e6)
                 continue
-            pc = board.points().numpy()[o.ids] @ T[:3, :3].T + T[:3, 3]
-            q, ok = cameras.project(model, torch.from_numpy(pc), g)
-            err = np.linalg.norm(q.numpy() - o.q, axis=1)
-            err[~ok.numpy()] = 1e3
+            pc = board_points(board)[o.ids] @ T[:3, :3].T + T[:3, 3]
+            q, ok = cameras.project(model, pc, g)
+            err = np.linalg.norm(q - o.q, axis=1)
+            err[~ok] = 1e3
             costs.append(float(np.median(err)))
         c = float(np.median(costs)) if costs else float("inf")
         if c < best_cost:

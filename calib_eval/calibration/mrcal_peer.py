@@ -39,6 +39,7 @@ import cv2
 import numpy as np
 
 from cotrain.io.sequence import Sequence
+from cotrain.targets import board_points
 
 TOOL = "mrcal-calibrate-cameras"
 SYSTEM_PYTHON = "/usr/bin/python3"
@@ -246,7 +247,7 @@ def calibrate_mrcal(
         res.intrinsics = [c["intrinsics"] for c in d["cams"]]
         res.T_cam_rig = np.stack([_T_from_rt(c["rt_cam_ref"]) for c in d["cams"]])
         shift = np.eye(4)
-        shift[:3, 3] = -board.points().numpy()[0]  # our board frame -> mrcal's (origin at corner 0)
+        shift[:3, 3] = -board_points(board)[0]  # our board frame -> mrcal's (origin at corner 0)
         res.T_rig_board = {v: _T_from_rt(rt) @ shift for v, rt in zip(views, d["frames_rt_toref"])}
         res.q_rays = [np.asarray(c["q"], dtype=np.float64).reshape(-1, 2) for c in d["cams"]]
         res.success = True

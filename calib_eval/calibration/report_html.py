@@ -18,18 +18,18 @@ import math
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from calib_eval.calibration.calibrator import CalibrationResult
 from calib_eval.calibration.coverage import RINGS, coverage
 from cotrain.geometry import cameras, rotation_angle_deg
 from cotrain.io.sequence import Sequence
+from cotrain.targets import board_points
 
 
 def residuals(res: CalibrationResult, seq: Sequence) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Per camera: corner pixels (M, 2), residual vectors observed - predicted (M, 2) and (M,) which
     corners the calibration rejected as outliers, over the observations whose view it kept."""
-    P = seq.target.points().numpy()
+    P = board_points(seq.target)
     out = []
     for c in range(len(seq.cameras)):
         qs, rs, xs = [], [], []
@@ -39,10 +39,9 @@ def residuals(res: CalibrationResult, seq: Sequence) -> list[tuple[np.ndarray, n
                 continue
             T = res.T_cam_rig[c] @ T_rb
             pc = P[o.ids] @ T[:3, :3].T + T[:3, 3]
-            q, ok = cameras.project(res.model[c], torch.from_numpy(pc), torch.from_numpy(np.asarray(res.intrinsics[c], np.float64)))
-            ok = ok.numpy()
+            q, ok = cameras.project(res.model[c], pc, np.asarray(res.intrinsics[c], np.float64))
             qs.append(o.q[ok])
-            rs.append(o.q[ok] - q.numpy()[ok])
+            rs.append(o.q[ok] - q[ok])
             xs.append(np.isin(o.ids, res.rejected.get((c, o.view), []))[ok])
         if not qs:
             out.append((np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, bool)))
@@ -313,7 +312,7 @@ def _pair_section(res, seq, trust) -> list[str]:
     ]
     for (a, b), n in (shared_views(res, seq) if res.T_rig_board else {}).items():
         T = res.T_cam_rig[b] @ np.linalg.inv(res.T_cam_rig[a])
-        rot = float(rotation_angle_deg(torch.from_numpy(T[:3, :3])))
+        rot = float(rotation_angle_deg(T[:3, :3]))
         pu = u.pairs.get((a, b)) if u is not None else None
         sig = (f"{pu.translation_sigma_m * 1000:.3f}", f"{pu.rotation_sigma_deg:.4f}") if pu else ("-", "-")
         base = f"{1000 * np.linalg.norm(T[:3, 3]):.2f}" + (f" &plusmn; {pu.baseline_sigma_m * 1000:.3f}" if pu else "")

@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 from cotrain.io.sequence import Sequence
+from cotrain.targets import board_points
 
 
 @dataclass
@@ -107,7 +108,7 @@ def usable_radius(width: int, height: int, mask_radius: float | None = None) -> 
 def score_observations(seq: Sequence, cfg: SelectorConfig) -> list[FrameScore]:
     if seq.target is None:
         raise ValueError("the sequence names no target (its detections carry none)")
-    P = seq.target.points().numpy()
+    P = board_points(seq.target)
     centre_xy = P[:, :2].mean(0)
     out = []
     radii = []

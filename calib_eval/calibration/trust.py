@@ -27,7 +27,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-import torch
 from scipy.stats import chi2, norm
 
 from calib_eval.calibration.calibrator import CalibConfig, CalibrationResult, FinalSolve
@@ -108,19 +107,17 @@ def tie_test(final: FinalSolve, models: list[str], cfg: TrustConfig) -> dict:
     as many dof as the joint solve has fewer parameters. Per camera, its share of the excess."""
     p, prob, C = final.params, final.problem, len(models)
     r = residuals(prob, models, p)
-    joint = [(prob.w * (r * r).sum(-1))[prob.cam == c].sum().item() for c in range(C)]
+    joint = [float((prob.w * (r * r).sum(-1))[prob.cam == c].sum()) for c in range(C)]
     own, n_own = [], 0
     for c in range(C):
         sub, views = prob.select(prob.cam == c, one_camera=True)
         sub.velocity = sub.acceleration = None  # alone, each camera's poses are its own
         T_cb = p.T_cam_rig[c] @ p.T_rig_board[views]
-        _, _, _, res = solve(
-            sub, [models[c]], [p.intr[c]], torch.eye(4, dtype=torch.float64)[None], T_cb, opt_warp=final.free.warp, warp=p.warp, iters=20
-        )
+        _, _, _, res = solve(sub, [models[c]], [p.intr[c]], np.eye(4)[None], T_cb, opt_warp=final.free.warp, warp=p.warp, iters=20)
         e = res.residuals
         own.append(float((sub.w * e * e).sum()))
-        n_own += p.intr[c].numel() + 6 * len(views) + (2 if final.free.warp else 0)
-    n_joint = sum(x.numel() for x in p.intr) + 6 * (C - 1) * final.free.extr + 6 * prob.n_views + (2 if final.free.warp else 0)
+        n_own += p.intr[c].size + 6 * len(views) + (2 if final.free.warp else 0)
+    n_joint = sum(x.size for x in p.intr) + 6 * (C - 1) * final.free.extr + 6 * prob.n_views + (2 if final.free.warp else 0)
     n_joint += (C - 1) if final.free.time else 0
     dof = max(n_own - n_joint, 1)
     sigma_px = math.sqrt(sum(own) / max(2 * prob.q.shape[0] - n_own, 1))
@@ -149,12 +146,12 @@ def radial_trend(final: FinalSolve, models: list[str], sigma_px: float, cfg: Tru
     for c, m in enumerate(models):
         sel = prob.cam == c
         mdl = cameras.get_model(m)
-        centre = torch.stack([p.intr[c][mdl.index("cx")], p.intr[c][mdl.index("cy")]])
+        centre = np.stack([p.intr[c][mdl.index("cx")], p.intr[c][mdl.index("cy")]])
         d = prob.q[sel] - centre
-        rad = d.norm(dim=-1)
-        rr = (r[sel] * d).sum(-1) / rad.clamp_min(1e-9)
-        keep = r[sel].norm(dim=-1) < 5 * sigma_px
-        rad, rr = rad[keep].numpy(), rr[keep].numpy()
+        rad = np.linalg.norm(d, axis=-1)
+        rr = (r[sel] * d).sum(-1) / np.maximum(rad, 1e-9)
+        keep = np.linalg.norm(r[sel], axis=-1) < 5 * sigma_px
+        rad, rr = rad[keep], rr[keep]
         if len(rad) < 10 * cfg.radial_bins:
             out.append({"chi2": math.nan, "p_value": 1.0, "trend": False, "bins": []})
             continue
@@ -191,11 +188,11 @@ def held_out_rms(res: CalibrationResult, seq: Sequence, cfg: CrossValidationConf
         views = sorted(test)
         used = [o for o in final.used if o.view in test]
         prob = Problem.build(used, seq.target, {v: i for i, v in enumerate(views)})
-        Tb = torch.from_numpy(np.stack([res.T_rig_board[v] for v in views]))
+        Tb = np.stack([res.T_rig_board[v] for v in views])
         _, _, _, out = solve(prob, res.model, p.intr, p.T_cam_rig, Tb, opt_intr=False, warp=p.warp, iters=10)
-        e = out.residuals.numpy()
+        e = out.residuals
         for c in range(C):
-            sel = prob.cam.numpy() == c
+            sel = prob.cam == c
             err2[c] += float((e[sel] ** 2).sum())
             n[c] += int(sel.sum())
     return list(np.sqrt(err2 / np.maximum(n, 1)))
@@ -258,8 +255,8 @@ def _board_causes(final: FinalSolve, models: list[str], cfg: TrustConfig, timed:
     if not final.free.warp:
         return []
     cov = covariance(final.problem, models, final.params, free=final.free, huber=final.huber)
-    S = cov.block(cov.layout.warp).numpy()
-    w = final.params.warp.numpy()
+    S = cov.block(cov.layout.warp)
+    w = final.params.warp
     stat = float(w @ np.linalg.lstsq(S, w, rcond=1e-12)[0])
     if stat <= chi2.isf(cfg.significance, 2):
         return []
@@ -395,7 +392,7 @@ def assess(res: CalibrationResult, seq: Sequence, calib_cfg: CalibConfig, cfg: T
     names = [c.name for c in seq.cameras]
     if not res.success or res.final is None:
         causes = [Cause("failed", None, f"calibration failed: {res.reason}")]
-        finite = res.final is not None and all(bool(torch.isfinite(x).all()) for x in res.final.params.intr)
+        finite = res.final is not None and all(bool(np.isfinite(x).all()) for x in res.final.params.intr)
         if finite and any(e.value_s is not None for e in res.time_offset_estimates):
             # It got as far as the joint stage: an offset it measured may say why.
             f = res.final

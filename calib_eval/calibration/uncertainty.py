@@ -21,9 +21,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-import torch
 from scipy.spatial.transform import Rotation
-from torch import Tensor
 
 from calib_eval.calibration.solver import Covariance, Params, covariance, project_with_jacobians, retract
 from cotrain.geometry import cameras
@@ -77,31 +75,31 @@ class Uncertainty:
     cov: Covariance | None = None
 
 
-def pair_quantities(T_cam_rig: Tensor, a: int, b: int, R_ref: np.ndarray) -> np.ndarray:
+def pair_quantities(T_cam_rig: np.ndarray, a: int, b: int, R_ref: np.ndarray) -> np.ndarray:
     """(7,): T_b_a's translation (3, m), its rotation as a vector from ``R_ref`` (3, rad:
     log(R_b_a R_ref^T)) and the baseline |t_b_a| (m)."""
-    T = (T_cam_rig[b] @ torch.linalg.inv(T_cam_rig[a])).numpy()
+    T = T_cam_rig[b] @ np.linalg.inv(T_cam_rig[a])
     w = Rotation.from_matrix(T[:3, :3] @ R_ref.T).as_rotvec()
     return np.r_[T[:3, 3], w, np.linalg.norm(T[:3, 3])]
 
 
-def pair_uncertainty(cov: Covariance, T_cam_rig: Tensor, a: int, b: int) -> PairUncertainty:
+def pair_uncertainty(cov: Covariance, T_cam_rig: np.ndarray, a: int, b: int) -> PairUncertainty:
     """Propagate the two cameras' extrinsic covariance to T_b_a by central differences."""
     L = cov.layout
     cols = [(c, o + k) for c in (a, b) for o, n in [L.extr[c]] for k in range(n)]
-    T0 = (T_cam_rig[b] @ torch.linalg.inv(T_cam_rig[a])).numpy()
+    T0 = T_cam_rig[b] @ np.linalg.inv(T_cam_rig[a])
     g0 = pair_quantities(T_cam_rig, a, b, T0[:3, :3])
     J = np.zeros((7, len(cols)))
     h = 1e-7
     for j, (c, col) in enumerate(cols):
         k = col - L.extr[c][0]
-        d = torch.zeros(6, dtype=torch.float64)
+        d = np.zeros(6)
         d[k] = h
-        Tp, Tm = T_cam_rig.clone(), T_cam_rig.clone()
+        Tp, Tm = T_cam_rig.copy(), T_cam_rig.copy()
         Tp[c], Tm[c] = retract(T_cam_rig[c], d), retract(T_cam_rig[c], -d)
         J[:, j] = (pair_quantities(Tp, a, b, T0[:3, :3]) - pair_quantities(Tm, a, b, T0[:3, :3])) / (2 * h)
     idx = [col for _, col in cols]
-    S = cov.cov[idx][:, idx].numpy() if idx else np.zeros((0, 0))
+    S = cov.cov[idx][:, idx] if idx else np.zeros((0, 0))
     P = J @ S @ J.T
     d = np.sqrt(np.clip(np.diagonal(P), 0, None))
     return PairUncertainty(
@@ -115,21 +113,21 @@ def pair_uncertainty(cov: Covariance, T_cam_rig: Tensor, a: int, b: int) -> Pair
     )
 
 
-def projection_sigma(model: str, intr: Tensor, cov_intr: Tensor, q: Tensor) -> Tensor:
+def projection_sigma(model: str, intr: np.ndarray, cov_intr: np.ndarray, q: np.ndarray) -> np.ndarray:
     """Worst-direction 1-sigma (px) (N,) of the projection of the rays through pixels q (N, 2)
     under the intrinsics' covariance ``cov_intr`` (P, P); nan where a pixel does not unproject."""
     ray, ok = cameras.unproject(model, q, intr)
     _, valid, _, Ji = project_with_jacobians(model, ray, intr)
-    Sq = Ji @ cov_intr @ Ji.transpose(1, 2)  # (N, 2, 2)
-    lam = torch.linalg.eigvalsh(Sq)[:, -1].clamp_min(0).sqrt()
-    return torch.where(ok & valid, lam, torch.full_like(lam, math.nan))
+    Sq = Ji @ cov_intr @ Ji.transpose(0, 2, 1)  # (N, 2, 2)
+    lam = np.sqrt(np.maximum(np.linalg.eigvalsh(Sq)[:, -1], 0))
+    return np.where(ok & valid, lam, math.nan)
 
 
-def grid_pixels(width: int, height: int) -> tuple[np.ndarray, np.ndarray, Tensor]:
+def grid_pixels(width: int, height: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     xs = np.linspace(0, width - 1, GRID[0])
     ys = np.linspace(0, height - 1, GRID[1])
     X, Y = np.meshgrid(xs, ys)
-    return xs, ys, torch.from_numpy(np.c_[X.ravel(), Y.ravel()])
+    return xs, ys, np.c_[X.ravel(), Y.ravel()]
 
 
 def covered(q_grid: np.ndarray, corners: np.ndarray, centre: np.ndarray) -> np.ndarray:
@@ -141,10 +139,10 @@ def covered(q_grid: np.ndarray, corners: np.ndarray, centre: np.ndarray) -> np.n
     return np.linalg.norm(q_grid - centre, axis=1) <= r_max
 
 
-def projection_map(model: str, intr: Tensor, cov_intr: Tensor, width: int, height: int, corners: np.ndarray) -> ProjectionMap:
+def projection_map(model: str, intr: np.ndarray, cov_intr: np.ndarray, width: int, height: int, corners: np.ndarray) -> ProjectionMap:
     xs, ys, q = grid_pixels(width, height)
-    s = projection_sigma(model, intr, cov_intr, q).numpy()
-    inside = covered(q.numpy(), corners, np.array([(width - 1) / 2, (height - 1) / 2]))
+    s = projection_sigma(model, intr, cov_intr, q)
+    inside = covered(q, corners, np.array([(width - 1) / 2, (height - 1) / 2]))
     s = np.where(inside, s, np.nan)
     v = s[np.isfinite(s)]
     stats = (float(np.median(v)), float(np.percentile(v, 95)), float(v.max())) if len(v) else (math.nan,) * 3
@@ -158,9 +156,9 @@ def uncertainty_of(
     each camera's calibration used (the region its projection map covers)."""
     cov = covariance(final_problem, models, params, free=free, huber=huber)
     C, L = len(models), cov.layout
-    intr_sigma = [cov.sigma(L.intr[c]).numpy() for c in range(C)]
+    intr_sigma = [cov.sigma(L.intr[c]) for c in range(C)]
     pairs = {(a, b): pair_uncertainty(cov, params.T_cam_rig, a, b) for a in range(C) for b in range(a + 1, C)} if free.extr else {}
     maps = [projection_map(models[c], params.intr[c], cov.block(L.intr[c]), sizes[c][0], sizes[c][1], corners[c]) for c in range(C)]
-    warp_sigma = cov.sigma(L.warp).numpy() if L.warp[1] else None
+    warp_sigma = cov.sigma(L.warp) if L.warp[1] else None
     dt_sigma = {c: float(cov.sigma(L.time[c])[0]) for c in range(C) if L.time[c][1]}
     return Uncertainty(cov.sigma_px, intr_sigma, pairs, maps, warp_sigma, dt_sigma, cov)

@@ -1,6 +1,8 @@
 """Fisheye camera models, written once for the whole project.
 
-Every model is a pair of pure, batched functions over torch tensors:
+Every model is a pair of pure, batched functions over arrays (numpy or torch: one set of formulas,
+the few spellings that differ chosen from the inputs' type by :mod:`cotrain.geometry._ops`; torch
+is imported only when given a tensor):
 
 - ``project(p, params) -> (q, valid)``: points ``p`` ``(..., 3)`` in the camera frame to
   pixels ``q`` ``(..., 2)``; ``valid`` ``(...)`` is False outside the model's projection
@@ -11,7 +13,7 @@ Every model is a pair of pure, batched functions over torch tensors:
 ``params`` is ``(..., P)`` in Kalibr's intrinsics order (docs/conventions.md) and broadcasts against
 the leading dimensions of the points. The off-axis angle is always taken from the 3-D ray
 (``atan2(sqrt(x^2 + y^2), z)``), so rays beyond 90 degrees project correctly. Singularities
-(the optical axis, the edge of the domain) are handled with ``torch.where`` so that gradients
+(the optical axis, the edge of the domain) are handled with ``where`` so that (torch) gradients
 stay finite; the kb4 inverse uses a fixed number of Newton steps (traceable, exportable).
 
 Models (pixel convention of docs/conventions.md: (0, 0) is the centre of the top-left pixel):
@@ -31,43 +33,55 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
-import torch
-from torch import Tensor
+import numpy as np
+
+from cotrain.geometry._ops import ops
+
+Array = Any  # a numpy array or a torch tensor (see cotrain.geometry._ops)
 
 KB4_NEWTON_STEPS = 12  # fixed iteration count of the kb4 inverse (converges to 1e-12 rad)
 _EPS = 1e-12
 
 
-def _split(params: Tensor, n: int) -> list[Tensor]:
-    """Split ``(..., P)`` into ``n`` tensors of shape ``(..., 1)``."""
+def _split(params: Array, n: int) -> list[Array]:
+    """Split ``(..., P)`` into ``n`` arrays of shape ``(..., 1)``."""
     if params.shape[-1] != n:
         raise ValueError(f"expected {n} camera parameters, got {params.shape[-1]}")
-    return list(params.split(1, dim=-1))
+    return ops(params).split(params, n)
 
 
-def _safe_sqrt(x: Tensor) -> Tensor:
+def _safe_sqrt(x: Array) -> Array:
     """sqrt with a finite gradient at 0 (gradient 0 there)."""
+    xp = ops(x).xp
     pos = x > _EPS
-    return torch.where(pos, torch.sqrt(torch.where(pos, x, torch.ones_like(x))), torch.zeros_like(x))
+    return xp.where(pos, xp.sqrt(xp.where(pos, x, xp.ones_like(x))), xp.zeros_like(x))
 
 
-def _pixels(mx: Tensor, my: Tensor, fx: Tensor, fy: Tensor, cx: Tensor, cy: Tensor) -> Tensor:
-    return torch.cat([fx * mx + cx, fy * my + cy], dim=-1)
+def _pixels(mx: Array, my: Array, fx: Array, fy: Array, cx: Array, cy: Array) -> Array:
+    return ops(mx, fx).cat([fx * mx + cx, fy * my + cy], -1)
 
 
-def _normalised(q: Tensor, fx: Tensor, fy: Tensor, cx: Tensor, cy: Tensor) -> tuple[Tensor, Tensor]:
+def _normalised(q: Array, fx: Array, fy: Array, cx: Array, cy: Array) -> tuple[Array, Array]:
     return (q[..., :1] - cx) / fx, (q[..., 1:2] - cy) / fy
 
 
-def _unit(v: Tensor) -> Tensor:
-    return v / v.norm(dim=-1, keepdim=True).clamp_min(_EPS)
+def _unit(v: Array) -> Array:
+    o = ops(v)
+    return v / o.clamp_min(o.norm(v, -1, True), _EPS)
+
+
+def _ratio(a: Array) -> Array:
+    """(1 - a) / a for a > 0.5, a / (1 - a) otherwise (the EUCM and DS domain bound w1)."""
+    xp = ops(a).xp
+    return xp.where(a > 0.5, (1 - a) / a, a / (1 - a))
 
 
 # --------------------------------------------------------------------------------------------
 # Kannala-Brandt / equidistant (kb4)
 # --------------------------------------------------------------------------------------------
-def _kb4_poly(theta: Tensor, k: list[Tensor]) -> tuple[Tensor, Tensor]:
+def _kb4_poly(theta: Array, k: list[Array]) -> tuple[Array, Array]:
     """Return d(theta) and d'(theta) for d = theta (1 + k1 t^2 + k2 t^4 + k3 t^6 + k4 t^8)."""
     t2 = theta * theta
     k1, k2, k3, k4 = k
@@ -76,72 +90,85 @@ def _kb4_poly(theta: Tensor, k: list[Tensor]) -> tuple[Tensor, Tensor]:
     return theta * poly, dpoly
 
 
-def project_kb4(p: Tensor, params: Tensor) -> tuple[Tensor, Tensor]:
+def project_kb4(p: Array, params: Array) -> tuple[Array, Array]:
     """Kannala-Brandt projection. p: (..., 3), params: (..., 8) -> q (..., 2), valid (...)."""
+    o = ops(p, params)
+    xp = o.xp
     fx, fy, cx, cy, *k = _split(params, 8)
     x, y, z = p[..., :1], p[..., 1:2], p[..., 2:3]
     r2 = x * x + y * y
     r = _safe_sqrt(r2)
-    theta = torch.atan2(r, z)
+    theta = o.atan2(r, z)
     d, dd = _kb4_poly(theta, k)
     # d / r, with the limit 1 / z on the optical axis (z > 0 there).
-    on_axis = r < 1e-9 * z.abs()
-    z_safe = torch.where(on_axis & (z > 0), z, torch.ones_like(z))
-    r_safe = torch.where(on_axis | (r <= 0), torch.ones_like(r), r)
-    scale = torch.where(on_axis, 1.0 / z_safe, d / r_safe)
+    on_axis = r < 1e-9 * abs(z)
+    z_safe = xp.where(on_axis & (z > 0), z, xp.ones_like(z))
+    r_safe = xp.where(on_axis | (r <= 0), xp.ones_like(r), r)
+    scale = xp.where(on_axis, 1.0 / z_safe, d / r_safe)
     q = _pixels(scale * x, scale * y, fx, fy, cx, cy)
-    norm = torch.sqrt(r2 + z * z)
+    norm = xp.sqrt(r2 + z * z)
     valid = (norm[..., 0] > _EPS) & (dd[..., 0] > 0) & (theta[..., 0] < math.pi - 1e-6)
     valid = valid & ~(on_axis & (z <= 0))[..., 0]
     return q, valid
 
 
-def unproject_kb4(q: Tensor, params: Tensor) -> tuple[Tensor, Tensor]:
+def unproject_kb4(q: Array, params: Array) -> tuple[Array, Array]:
     """Kannala-Brandt unprojection (fixed-step Newton). q: (..., 2) -> v (..., 3), valid (...)."""
+    o = ops(q, params)
+    xp = o.xp
     fx, fy, cx, cy, *k = _split(params, 8)
     mx, my = _normalised(q, fx, fy, cx, cy)
     rd = _safe_sqrt(mx * mx + my * my)
     theta = rd
     for _ in range(KB4_NEWTON_STEPS):
         d, dd = _kb4_poly(theta, k)
-        dd_safe = torch.where(dd.abs() > 1e-9, dd, torch.ones_like(dd))
-        theta = (theta - (d - rd) / dd_safe).clamp(0.0, math.pi)
+        dd_safe = xp.where(abs(dd) > 1e-9, dd, xp.ones_like(dd))
+        theta = o.clamp(theta - (d - rd) / dd_safe, 0.0, math.pi)
     d, dd = _kb4_poly(theta, k)
     ok = rd > 1e-12
-    rd_safe = torch.where(ok, rd, torch.ones_like(rd))
-    s = torch.where(ok, torch.sin(theta) / rd_safe, torch.ones_like(rd))
-    v = torch.cat([s * mx, s * my, torch.cos(theta)], dim=-1)
-    tol = 1e-4 if q.dtype == torch.float32 else 1e-9
-    valid = (dd[..., 0] > 0) & ((d - rd).abs()[..., 0] < tol * (1 + rd[..., 0])) & (theta[..., 0] < math.pi - 1e-6)
+    rd_safe = xp.where(ok, rd, xp.ones_like(rd))
+    s = xp.where(ok, xp.sin(theta) / rd_safe, xp.ones_like(rd))
+    v = o.cat([s * mx, s * my, xp.cos(theta)], -1)
+    tol = 1e-4 if q.dtype == o.float32 else 1e-9
+    valid = (dd[..., 0] > 0) & (abs(d - rd)[..., 0] < tol * (1 + rd[..., 0])) & (theta[..., 0] < math.pi - 1e-6)
     return _unit(v), valid
 
 
 # --------------------------------------------------------------------------------------------
 # Unified camera model (Mei / omni, no distortion)
 # --------------------------------------------------------------------------------------------
-def project_ucm(p: Tensor, params: Tensor) -> tuple[Tensor, Tensor]:
+def _ucm_bound(xi: Array) -> Array:
+    """w of the UCM's projection domain: 1 / xi for xi > 1, xi otherwise (never dividing by 0)."""
+    xp = ops(xi).xp
+    big = xi > 1
+    return xp.where(big, 1.0 / xp.where(big, xi, xp.ones_like(xi)), xi)
+
+
+def project_ucm(p: Array, params: Array) -> tuple[Array, Array]:
     """UCM projection. p: (..., 3), params (xi, fx, fy, cx, cy): (..., 5) -> q, valid."""
+    xp = ops(p, params).xp
     xi, fx, fy, cx, cy = _split(params, 5)
     x, y, z = p[..., :1], p[..., 1:2], p[..., 2:3]
     d = _safe_sqrt(x * x + y * y + z * z)
     den = z + xi * d
-    w = torch.where(xi > 1, 1.0 / xi, xi)
+    w = _ucm_bound(xi)
     valid = (z > -w * d) & (den > _EPS) & (d > _EPS)
-    den = torch.where(valid, den, torch.ones_like(den))
+    den = xp.where(valid, den, xp.ones_like(den))
     return _pixels(x / den, y / den, fx, fy, cx, cy), valid[..., 0]
 
 
-def unproject_ucm(q: Tensor, params: Tensor) -> tuple[Tensor, Tensor]:
+def unproject_ucm(q: Array, params: Array) -> tuple[Array, Array]:
     """UCM unprojection. q: (..., 2), params: (..., 5) -> v (..., 3), valid (...)."""
+    o = ops(q, params)
     xi, fx, fy, cx, cy = _split(params, 5)
     mx, my = _normalised(q, fx, fy, cx, cy)
     r2 = mx * mx + my * my
     disc = 1 + (1 - xi * xi) * r2
     valid = disc >= 0
-    factor = (xi + _safe_sqrt(disc.clamp_min(0))) / (1 + r2)
-    v = torch.cat([factor * mx, factor * my, factor - xi], dim=-1)
+    factor = (xi + _safe_sqrt(o.clamp_min(disc, 0))) / (1 + r2)
+    v = o.cat([factor * mx, factor * my, factor - xi], -1)
     # Beyond the valid domain of xi > 1 the second intersection is the wrong one.
-    w = torch.where(xi > 1, 1.0 / xi, xi)
+    w = _ucm_bound(xi)
     vu = _unit(v)
     valid = valid & (vu[..., 2:3] > -w)
     return vu, valid[..., 0]
@@ -150,29 +177,31 @@ def unproject_ucm(q: Tensor, params: Tensor) -> tuple[Tensor, Tensor]:
 # --------------------------------------------------------------------------------------------
 # Enhanced unified camera model
 # --------------------------------------------------------------------------------------------
-def project_eucm(p: Tensor, params: Tensor) -> tuple[Tensor, Tensor]:
+def project_eucm(p: Array, params: Array) -> tuple[Array, Array]:
     """EUCM projection. p: (..., 3), params (alpha, beta, fx, fy, cx, cy): (..., 6) -> q, valid."""
+    xp = ops(p, params).xp
     alpha, beta, fx, fy, cx, cy = _split(params, 6)
     x, y, z = p[..., :1], p[..., 1:2], p[..., 2:3]
     rho = _safe_sqrt(beta * (x * x + y * y) + z * z)
     den = alpha * rho + (1 - alpha) * z
-    w = torch.where(alpha > 0.5, (1 - alpha) / alpha, alpha / (1 - alpha))
+    w = _ratio(alpha)
     valid = (z > -w * rho) & (den > _EPS)
-    den = torch.where(valid, den, torch.ones_like(den))
+    den = xp.where(valid, den, xp.ones_like(den))
     return _pixels(x / den, y / den, fx, fy, cx, cy), valid[..., 0]
 
 
-def unproject_eucm(q: Tensor, params: Tensor) -> tuple[Tensor, Tensor]:
+def unproject_eucm(q: Array, params: Array) -> tuple[Array, Array]:
     """EUCM unprojection. q: (..., 2), params: (..., 6) -> v (..., 3), valid (...)."""
+    o = ops(q, params)
     alpha, beta, fx, fy, cx, cy = _split(params, 6)
     mx, my = _normalised(q, fx, fy, cx, cy)
     r2 = mx * mx + my * my
     disc = 1 - (2 * alpha - 1) * beta * r2
     valid = disc >= 0
-    mz = (1 - alpha * alpha * beta * r2) / (alpha * _safe_sqrt(disc.clamp_min(0)) + (1 - alpha))
-    v = _unit(torch.cat([mx, my, mz], dim=-1))
+    mz = (1 - alpha * alpha * beta * r2) / (alpha * _safe_sqrt(o.clamp_min(disc, 0)) + (1 - alpha))
+    v = _unit(o.cat([mx, my, mz], -1))
     # Keep only the branch that projects back (the ray must lie in the projection domain).
-    w = torch.where(alpha > 0.5, (1 - alpha) / alpha, alpha / (1 - alpha))
+    w = _ratio(alpha)
     rho = _safe_sqrt(beta * (v[..., :1] ** 2 + v[..., 1:2] ** 2) + v[..., 2:3] ** 2)
     valid = valid & (v[..., 2:3] > -w * rho)
     return v, valid[..., 0]
@@ -181,8 +210,9 @@ def unproject_eucm(q: Tensor, params: Tensor) -> tuple[Tensor, Tensor]:
 # --------------------------------------------------------------------------------------------
 # Double sphere
 # --------------------------------------------------------------------------------------------
-def project_ds(p: Tensor, params: Tensor) -> tuple[Tensor, Tensor]:
+def project_ds(p: Array, params: Array) -> tuple[Array, Array]:
     """Double-sphere projection. p: (..., 3), params (xi, alpha, fx, fy, cx, cy) -> q, valid."""
+    xp = ops(p, params).xp
     xi, alpha, fx, fy, cx, cy = _split(params, 6)
     x, y, z = p[..., :1], p[..., 1:2], p[..., 2:3]
     r2 = x * x + y * y
@@ -190,25 +220,26 @@ def project_ds(p: Tensor, params: Tensor) -> tuple[Tensor, Tensor]:
     zeta = xi * d1 + z
     d2 = _safe_sqrt(r2 + zeta * zeta)
     den = alpha * d2 + (1 - alpha) * zeta
-    w1 = torch.where(alpha > 0.5, (1 - alpha) / alpha, alpha / (1 - alpha))
-    w2 = (w1 + xi) / torch.sqrt(2 * w1 * xi + xi * xi + 1)
+    w1 = _ratio(alpha)
+    w2 = (w1 + xi) / xp.sqrt(2 * w1 * xi + xi * xi + 1)
     valid = (z > -w2 * d1) & (den > _EPS)
-    den = torch.where(valid, den, torch.ones_like(den))
+    den = xp.where(valid, den, xp.ones_like(den))
     return _pixels(x / den, y / den, fx, fy, cx, cy), valid[..., 0]
 
 
-def unproject_ds(q: Tensor, params: Tensor) -> tuple[Tensor, Tensor]:
+def unproject_ds(q: Array, params: Array) -> tuple[Array, Array]:
     """Double-sphere unprojection. q: (..., 2), params: (..., 6) -> v (..., 3), valid (...)."""
+    o = ops(q, params)
     xi, alpha, fx, fy, cx, cy = _split(params, 6)
     mx, my = _normalised(q, fx, fy, cx, cy)
     r2 = mx * mx + my * my
     disc1 = 1 - (2 * alpha - 1) * r2
-    mz = (1 - alpha * alpha * r2) / (alpha * _safe_sqrt(disc1.clamp_min(0)) + 1 - alpha)
+    mz = (1 - alpha * alpha * r2) / (alpha * _safe_sqrt(o.clamp_min(disc1, 0)) + 1 - alpha)
     disc2 = mz * mz + (1 - xi * xi) * r2
-    k = (mz * xi + _safe_sqrt(disc2.clamp_min(0))) / (mz * mz + r2)
-    v = _unit(torch.cat([k * mx, k * my, k * mz - xi], dim=-1))
-    w1 = torch.where(alpha > 0.5, (1 - alpha) / alpha, alpha / (1 - alpha))
-    w2 = (w1 + xi) / torch.sqrt(2 * w1 * xi + xi * xi + 1)
+    k = (mz * xi + _safe_sqrt(o.clamp_min(disc2, 0))) / (mz * mz + r2)
+    v = _unit(o.cat([k * mx, k * my, k * mz - xi], -1))
+    w1 = _ratio(alpha)
+    w2 = (w1 + xi) / o.xp.sqrt(2 * w1 * xi + xi * xi + 1)
     valid = (disc1 >= 0) & (disc2 >= 0) & (v[..., 2:3] > -w2)
     return v, valid[..., 0]
 
@@ -222,8 +253,8 @@ class CameraModel:
 
     name: str
     param_names: tuple[str, ...]
-    project: Callable[[Tensor, Tensor], tuple[Tensor, Tensor]]
-    unproject: Callable[[Tensor, Tensor], tuple[Tensor, Tensor]]
+    project: Callable[[Array, Array], tuple[Array, Array]]
+    unproject: Callable[[Array, Array], tuple[Array, Array]]
     shape_names: tuple[str, ...]  # the projection-shape parameters (not fx, fy, cx, cy)
     kalibr_model: str  # camera_model in Kalibr's camchain.yaml
     kalibr_distortion: str  # distortion_model in camchain.yaml
@@ -238,12 +269,13 @@ class CameraModel:
     def index(self, name: str) -> int:
         return self.param_names.index(name)
 
-    def clamp(self, params: Tensor) -> Tensor:
-        """(..., n_params) parameters clamped into :attr:`bounds` (a copy)."""
-        out = params.clone()
+    def clamp(self, params: Array) -> Array:
+        """(..., n_params) parameters (numpy or torch) clamped into :attr:`bounds` (a copy)."""
+        o = ops(params)
+        out = o.copy(params)
         for name, (lo, hi) in self.bounds.items():
             i = self.index(name)
-            out[..., i] = out[..., i].clamp(lo, hi)
+            out[..., i] = o.clamp(out[..., i], lo, hi)
         return out
 
     def sample_shape(self, uniform: Callable[[float, float], float], scale: dict[str, float] | None = None) -> dict[str, float]:
@@ -343,12 +375,12 @@ def get_model(name: str) -> CameraModel:
         raise ValueError(f"unknown camera model {name!r}; choose one of {', '.join(MODELS)}") from None
 
 
-def project(model: str, p: Tensor, params: Tensor) -> tuple[Tensor, Tensor]:
+def project(model: str, p: Array, params: Array) -> tuple[Array, Array]:
     """Project ``p`` (..., 3) with camera family ``model``; see the module docstring."""
     return get_model(model).project(p, params)
 
 
-def unproject(model: str, q: Tensor, params: Tensor) -> tuple[Tensor, Tensor]:
+def unproject(model: str, q: Array, params: Array) -> tuple[Array, Array]:
     """Unproject ``q`` (..., 2) with camera family ``model``; see the module docstring."""
     return get_model(model).unproject(q, params)
 
@@ -370,16 +402,18 @@ def make_camera(
     height: int,
     radius: float | None = None,
     principal: tuple[float, float] | None = None,
-    dtype: torch.dtype = torch.float64,
+    dtype: Any = None,
     **shape: float,
-) -> Tensor:
+) -> Array:
     """Build the parameter vector of "a ``fov_deg`` camera of family ``model``, ``width`` x ``height``".
 
     The focal length is chosen so that a ray ``fov_deg / 2`` off-axis lands ``radius`` pixels from
     the principal point (the image-circle radius; default ``min(width, height) / 2``, a circle
     touching the shorter image side). ``principal`` defaults to the image centre
     ``((width - 1) / 2, (height - 1) / 2)``. Shape parameters (k1..k4, xi, alpha, beta) default to
-    :data:`DEFAULT_SHAPE`. Returns ``(P,)`` params in Kalibr order.
+    :data:`DEFAULT_SHAPE`. Returns ``(P,)`` params in Kalibr order: a torch tensor of ``dtype``
+    (default, ``None``: torch.float64), or a numpy array where ``dtype`` is a numpy dtype
+    (``np.float64``: the calibrator's, without torch).
 
     Example: ``make_camera("kb4", 220, 1280, 720)`` is a 220-degree f-theta camera.
     """
@@ -393,16 +427,22 @@ def make_camera(
     if principal is None:
         principal = ((width - 1) / 2.0, (height - 1) / 2.0)
     half = math.radians(fov_deg) / 2.0
-    unit = torch.tensor(assemble_params(model, 1.0, 1.0, 0.0, 0.0, full_shape), dtype=torch.float64)
-    ray = torch.tensor([math.sin(half), 0.0, math.cos(half)], dtype=torch.float64)
+    unit = np.array(assemble_params(model, 1.0, 1.0, 0.0, 0.0, full_shape), dtype=np.float64)
+    ray = np.array([math.sin(half), 0.0, math.cos(half)], dtype=np.float64)
     q, valid = m.project(ray, unit)
     if not bool(valid) or float(q[0]) <= 0:
         raise ValueError(f"{model} with {full_shape} cannot see {fov_deg} degrees; change its shape parameters")
     f = radius / float(q[0])
     params = assemble_params(model, f, f, principal[0], principal[1], full_shape)
-    return torch.tensor(params, dtype=dtype)
+    if dtype is not None and type(dtype).__module__.split(".")[0] != "torch":
+        return np.array(params, dtype=dtype)
+    import torch
+
+    return torch.tensor(params, dtype=torch.float64 if dtype is None else dtype)
 
 
-def off_axis_angle(v: Tensor) -> Tensor:
-    """Angle (rad) between ray(s) ``v`` (..., 3) and the optical axis, from the 3-D ray. -> (...)."""
-    return torch.atan2(v[..., :2].norm(dim=-1), v[..., 2])
+def off_axis_angle(v: Array) -> Array:
+    """Angle (rad) between ray(s) ``v`` (..., 3) (numpy or torch) and the optical axis, from the
+    3-D ray. -> (...)."""
+    o = ops(v)
+    return o.atan2(o.norm(v[..., :2], -1), v[..., 2])

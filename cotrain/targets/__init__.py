@@ -10,7 +10,7 @@ from cotrain.targets.descriptions import (
     target_from_json,
     target_from_kalibr,
 )
-from cotrain.targets.target import KINDS, Target, TargetConfig, TargetError, same_target, sees_print, square_px
+from cotrain.targets.target import KINDS, Target, TargetConfig, TargetError, board_points, same_target, sees_print, square_px
 
 __all__ = [
     "AprilGrid",
@@ -20,6 +20,7 @@ __all__ = [
     "Target",
     "TargetConfig",
     "TargetError",
+    "board_points",
     "board_symmetries",
     "load_target",
     "make_target",

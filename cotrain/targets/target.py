@@ -61,7 +61,7 @@ class Target(Protocol):
 
     def points(self, dtype: torch.dtype | None = None) -> Tensor:
         """(N, 3) board-frame coordinates of corner ids 0 .. N - 1, metres (z = 0): :meth:`board_xy`
-        with z; ``dtype`` default torch.float64."""
+        with z; ``dtype`` default torch.float64 (numpy, without torch: :func:`board_points`)."""
 
     def extent(self) -> tuple[float, float, float, float]:
         """(x_min, y_min, x_max, y_max) of the printed sheet, metres."""
@@ -96,6 +96,13 @@ def array_module(x):
 def clip(x, lo: float | None = None, hi: float | None = None):
     """``x`` (numpy or torch) clipped to [lo, hi] (None: unbounded)."""
     return np.clip(x, lo, hi) if isinstance(x, (np.ndarray, np.generic)) else x.clamp(lo, hi)
+
+
+def board_points(target: Target) -> np.ndarray:
+    """(N, 3) float64 board-frame coordinates of corner ids 0 .. N - 1, metres (z = 0), as numpy:
+    :meth:`Target.points` without torch (the calibrator's)."""
+    xy = np.asarray(target.board_xy(), dtype=np.float64)
+    return np.concatenate([xy, np.zeros_like(xy[:, :1])], axis=-1)
 
 
 def same_target(a: Target, b: Target) -> bool:

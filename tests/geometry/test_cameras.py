@@ -165,3 +165,27 @@ def test_model_owns_bounds_and_sampling(model):
     for shape in ({}, mid):
         p = cameras.make_camera(model, 200, 1280, 720, **shape)
         assert torch.equal(m.clamp(p), p)
+
+
+@pytest.mark.parametrize("model", list(MODELS))
+def test_numpy_and_torch_share_one_model(model):
+    """The same functions on numpy arrays (the calibrator's, torch-free) and on tensors give the same
+    pixels, rays and masks, and numpy in gives numpy out."""
+    prm_t = make_camera(model, 220, 1280, 720, **SHAPES[model])
+    prm_n = make_camera(model, 220, 1280, 720, dtype=np.float64, **SHAPES[model])
+    assert isinstance(prm_n, np.ndarray) and torch.is_tensor(prm_t)
+    np.testing.assert_array_equal(prm_n, prm_t.numpy())
+    p = np.random.default_rng(0).normal(size=(400, 3))
+    p[0] = [0.0, 0.0, 0.7]  # the optical axis
+    q_n, ok_n = project(model, p, prm_n)
+    q_t, ok_t = project(model, torch.from_numpy(p), prm_t)
+    assert isinstance(q_n, np.ndarray) and isinstance(ok_n, np.ndarray) and ok_n.dtype == bool
+    np.testing.assert_allclose(q_n, q_t.numpy(), rtol=1e-13, atol=1e-9)
+    np.testing.assert_array_equal(ok_n, ok_t.numpy())
+    v_n, vok_n = unproject(model, q_n, prm_n)
+    v_t, vok_t = unproject(model, q_t, prm_t)
+    np.testing.assert_allclose(v_n, v_t.numpy(), atol=1e-12)
+    np.testing.assert_array_equal(vok_n, vok_t.numpy())
+    np.testing.assert_allclose(off_axis_angle(p), off_axis_angle(torch.from_numpy(p)).numpy(), atol=1e-15)
+    clamped = MODELS[model].clamp(prm_n * 0)
+    assert isinstance(clamped, np.ndarray) and (clamped == MODELS[model].clamp(prm_t * 0).numpy()).all()
