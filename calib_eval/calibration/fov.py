@@ -13,7 +13,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import torch
 
 from calib_eval.calibration.initialisation import focal_search, initial_guess
 from cotrain.geometry import cameras
@@ -40,8 +39,8 @@ def camera_fov(model: str, intr, width: int, height: int) -> float | None:
     point; None where the model cannot unproject it."""
     m = cameras.get_model(model)
     cx, cy = float(intr[m.index("cx")]), float(intr[m.index("cy")])
-    q = torch.tensor([[cx + min(width, height) / 2.0, cy]], dtype=torch.float64)
-    v, ok = cameras.unproject(model, q, torch.as_tensor(intr, dtype=torch.float64))
+    q = np.array([[cx + min(width, height) / 2.0, cy]])
+    v, ok = cameras.unproject(model, q, np.asarray(intr, dtype=np.float64))
     if not bool(ok[0]):
         return None
     return 2.0 * math.degrees(math.acos(float(np.clip(float(v[0, 2]), -1.0, 1.0))))

@@ -62,3 +62,22 @@ def test_progress_in_a_log_is_one_line_per_stage(capsys):
     for _ in progress_bar(range(5), desc="quiet", enabled=False):
         pass
     assert capsys.readouterr().err == ""
+
+
+def test_calibrate_image_folders_without_torch_or_fov(tmp_path):
+    """The issue's case: the real stereo head split into left/ and right/, no --fov, no torch."""
+    import shutil
+
+    for side in ("left", "right"):
+        (tmp_path / side).mkdir()
+        for f in sorted((SHARED / "real" / "ros_fisheye_stereo" / "images").glob(f"{side}-000*.png")):
+            shutil.copyfile(f, tmp_path / side / f.name)
+    board = tmp_path / "board.yaml"
+    board.write_text("target_type: checkerboard\ntargetCols: 8\ntargetRows: 6\nrowSpacingMeters: 0.1\ncolSpacingMeters: 0.1\n")
+    out = tmp_path / "calib"
+    argv = ["calibrate", "--images", "left", "right", "--target", str(board), "--models", "pinhole-equi", "pinhole-equi", "--out", str(out)]
+    r = without_extra("calib_eval.cli", argv, tmp_path)
+    assert r.returncode == 0, r.stderr[-2000:]
+    lines = r.stdout.strip().splitlines()
+    assert any(x.startswith("no --fov given: estimated ") for x in lines) and lines[-1].startswith("verdict: ")
+    assert (out / "camchain.yaml").is_file() and (out / "report.html").is_file()
