@@ -91,7 +91,7 @@ def main(argv: list[str] | None = None) -> int:
     det = make_detector(target)
     offsets, failed = {}, []
     labels = [lab for lab in meta["labels"] if lab.get("has_target", lab.get("fov") is not None) and not lab.get("condition")]
-    for lab in progress_bar(labels, desc="detect"):
+    for lab in progress_bar(labels, desc="detect", unit="img"):
         try:
             d = det.detect(load_image(Path(args.set) / "images" / lab["image"]))
         except ImageError as e:

@@ -107,7 +107,7 @@ def render_benchmark(cfg: EvalConfig, out: Path, progress: bool = True) -> dict:
             raise ValueError(f"unknown condition {c!r} (known: {', '.join(CONDITIONS)})")
         jobs += [(c, "cond", i) for i in range(cfg.per_condition)]
     labels = []
-    for fov, kind, i in progress_bar(jobs, desc="render benchmark", enabled=progress):
+    for fov, kind, i in progress_bar(jobs, desc="render benchmark", unit="img", enabled=progress):
         condition = fov if kind == "cond" else None
         if kind == "empty":
             rc = _render_cfg(200, cfg, list(cameras.MODELS), no_target=True)
@@ -166,7 +166,7 @@ def run_learned(
 ) -> dict:
     det = Detector(model, polish=polish, mode=mode, target=target)
     out = {}
-    for p in progress_bar(images, desc=f"learned ({det.mode}{' + polish' if polish else ''})", enabled=progress):
+    for p in progress_bar(images, desc=f"learned ({det.mode}{' + polish' if polish else ''})", unit="img", enabled=progress):
         t0 = time.perf_counter()
         try:
             d = det.detect(load_image(p))
@@ -184,7 +184,7 @@ def run_geometry(kind: str, images: list[Path], target: Target, progress: bool =
     ``error`` (as :func:`run_learned`), and the run goes on."""
     method = kind.removeprefix("opencv_")
     out = {}
-    for p in progress_bar(images, desc=kind, enabled=progress):
+    for p in progress_bar(images, desc=kind, unit="img", enabled=progress):
         t0 = time.perf_counter()
         grey = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
         c = find_chessboard(grey, (target.nx, target.ny), method) if grey is not None else None

@@ -425,7 +425,7 @@ def render_set(out: Path, cfg: ForeignConfig, progress: bool = True) -> list[dic
     (out / "images").mkdir(parents=True, exist_ok=True)
     labels = []
     jobs = [(fov, i) for fov in cfg.fovs for i in range(cfg.per_fov)]
-    for fov, i in progress_bar(jobs, desc=f"render {cfg.target} (independent renderer)", enabled=progress):
+    for fov, i in progress_bar(jobs, desc=f"render {cfg.target} (independent renderer)", unit="img", enabled=progress):
         fr = render_frame(fov, cfg, np.random.default_rng([cfg.seed, fov, i]), board)
         name = f"fov{fov}_{i:03d}.png"
         cv2.imwrite(str(out / "images" / name), fr.image)
@@ -470,7 +470,7 @@ def detect_set(out: Path, labels: list[dict], board: Checkerboard | AprilGrid, p
     preds: dict[str, dict] = {}
     for name, run in runs.items():  # one detector over every frame, then the next (as calib_eval.detection.tags)
         preds[name] = {}
-        for lab in progress_bar(labels, desc=name, enabled=progress):
+        for lab in progress_bar(labels, desc=name, unit="img", enabled=progress):
             grey = cv2.imread(str(out / "images" / lab["image"]), cv2.IMREAD_GRAYSCALE)
             t0 = time.perf_counter()
             if name.startswith("ours"):

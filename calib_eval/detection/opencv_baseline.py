@@ -49,7 +49,7 @@ def opencv_detect(paths: list[Path], target: Checkerboard, method: str = "sb", p
         raise ValueError(f"OpenCV's chessboard detectors find checkerboards, not {target.kind}")
     pattern = (target.nx, target.ny)
     images = []
-    for p in progress_bar(paths, desc=f"opencv {method}", enabled=progress):
+    for p in progress_bar(paths, desc=f"opencv {method}", unit="img", enabled=progress):
         e = {"path": str(p), "width": 0, "height": 0, "corners": [], "error": None}
         try:
             g = load_u8(p)

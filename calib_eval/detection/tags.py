@@ -176,7 +176,7 @@ def render_set(cfg: TagEvalConfig, board: AprilGrid, out: Path) -> list[dict]:
     jobs = [(fov, None, i) for fov in cfg.fovs for i in range(cfg.per_fov)] + [(0, None, i) for i in range(cfg.n_empty)]
     jobs += [(None, c, i) for c in cfg.conditions for i in range(cfg.per_condition)]
     labels = []
-    for fov, condition, i in progress_bar(jobs, desc="render aprilgrid set"):
+    for fov, condition, i in progress_bar(jobs, desc="render aprilgrid set", unit="img"):
         b, rc, name = render_frame(cfg, ecfg, fov, condition, i)
         cv2.imwrite(str(out / "images" / name), (b["image"][0, 0].numpy() * 255).round().astype(np.uint8))
         model = rc.models[int(b["model_index"][0])]

@@ -81,7 +81,7 @@ def margin_table(
     det = Detector(model)
     gcfg = dataclasses.replace(det.grid, **{**(grid or {}), **SWEPT})  # every placement is scored
     rows, total = [], 0
-    for n, lab in enumerate(progress_bar(meta["labels"], desc="grid pass", enabled=progress)):
+    for n, lab in enumerate(progress_bar(meta["labels"], desc="grid pass", unit="img", enabled=progress)):
         grey = degrade(load_image(set_dir / "images" / lab["image"]), how, seed=n)
         r = det.grid_result(grey, gcfg)
         if not lab["has_target"]:
