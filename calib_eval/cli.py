@@ -363,72 +363,53 @@ def cmd_opencv_detect(a: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="calib-eval", description="Fisheye calibration: selection, calibration, evaluation.")
-    sub = p.add_subparsers(dest="cmd", required=True)
-
-    s = sub.add_parser("synth", help="write a synthetic rig sequence (detections + ground truth) in the folder layout")
-    s.add_argument("--config", default="FoV220_90", help="FoV<deg>_<yaw> or FoV<deg>_hex")
-    s.add_argument("--model", default="kb4", choices=list(MODELS))
-    s.add_argument("--frames", type=int, default=480)
-    s.add_argument("--noise", type=float, default=0.3, help="detector noise, px")
-    s.add_argument("--outliers", type=float, default=0.0, help="fraction of gross outliers")
-    s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--continuous", action="store_true", help="a board moving smoothly at 20 Hz (default: independent random views)")
+def source_args(s: argparse.ArgumentParser) -> None:
+    """Where the observations come from: a sequence folder, or a bag and its topics."""
+    s.add_argument("seq", nargs="?", help="sequence folder (cam0/, cam1/, ... with timestamps.csv and detections.json)")
+    s.add_argument("--bag", help="instead of SEQ: a ROS1 .bag or ROS2 bag folder (read with rosbags, no ROS install)")
     s.add_argument(
-        "--time-offset-ms",
-        type=float,
+        "--images",
         nargs="+",
-        metavar="MS",
-        help="per camera, cam0 first: exposed this long after the stamp (continuous)",
+        metavar="DIR",
+        help="instead of SEQ: one image folder per camera, cam0 first; images pair by identical names, by order where names differ, "
+        "by time where names are nanosecond stamps",
     )
-    s.add_argument("--bend-mm", type=float, default=0.0, help="the board bent as a cylinder: offset at its centre (mm)")
-    s.add_argument("--out", required=True)
-    s.set_defaults(func=cmd_synth)
+    s.add_argument("--topics", nargs="+", metavar="TOPIC", help="with --bag: one image topic per camera, cam0 first")
+    s.add_argument(
+        "--every",
+        type=float,
+        default=0.0,
+        metavar="SECONDS",
+        help="with --bag: at most one image per camera per this many seconds (the same time slots for every camera)",
+    )
+    s.add_argument(
+        "--cache",
+        help="with --bag or --images: the sequence folder for the detections (default: OUT/sequence, or BAG.sequence, DIR0.sequence)",
+    )
+    s.add_argument("--detector", help="with --bag or --images: ONNX model for the corners (default: the shipped model)")
+    s.add_argument(
+        "--target", help="target file (our target config, a Kalibr or a BoofCV target yaml); only where the detections name none"
+    )
+    s.add_argument("--tolerance-ms", type=float, default=10.0, help="time matching tolerance between cameras")
 
-    def source_args(s: argparse.ArgumentParser) -> None:
-        """Where the observations come from: a sequence folder, or a bag and its topics."""
-        s.add_argument("seq", nargs="?", help="sequence folder (cam0/, cam1/, ... with timestamps.csv and detections.json)")
-        s.add_argument("--bag", help="instead of SEQ: a ROS1 .bag or ROS2 bag folder (read with rosbags, no ROS install)")
-        s.add_argument(
-            "--images",
-            nargs="+",
-            metavar="DIR",
-            help="instead of SEQ: one image folder per camera, cam0 first; images pair by identical names, by order where names differ, "
-            "by time where names are nanosecond stamps",
-        )
-        s.add_argument("--topics", nargs="+", metavar="TOPIC", help="with --bag: one image topic per camera, cam0 first")
-        s.add_argument(
-            "--every",
-            type=float,
-            default=0.0,
-            metavar="SECONDS",
-            help="with --bag: at most one image per camera per this many seconds (the same time slots for every camera)",
-        )
-        s.add_argument(
-            "--cache",
-            help="with --bag or --images: the sequence folder for the detections (default: OUT/sequence, or BAG.sequence, DIR0.sequence)",
-        )
-        s.add_argument("--detector", help="with --bag or --images: ONNX model for the corners (default: the shipped model)")
-        s.add_argument(
-            "--target", help="target file (our target config, a Kalibr or a BoofCV target yaml); only where the detections name none"
-        )
-        s.add_argument("--tolerance-ms", type=float, default=10.0, help="time matching tolerance between cameras")
 
-    def seq_args(s: argparse.ArgumentParser) -> None:
-        source_args(s)
-        s.add_argument(
-            "--fov",
-            type=float,
-            help="rough FoV in degrees across the image circle (lens data sheet; default: estimated from the views, and said so)",
-        )
-        s.add_argument("--iso-gate", type=float, default=0.3)
-        s.add_argument("--drs-numerator", type=float, default=110.0, help="s_drs gate = this / FoV")
-        s.add_argument("--min-corners", type=int, default=8)
-        s.add_argument("--max-anchors", type=int, default=0)
-        s.add_argument("--max-covisible", type=int, default=0)
-        s.add_argument("--max-monofill", type=int, default=0)
+def seq_args(s: argparse.ArgumentParser) -> None:
+    source_args(s)
+    s.add_argument(
+        "--fov",
+        type=float,
+        help="rough FoV in degrees across the image circle (lens data sheet; default: estimated from the views, and said so)",
+    )
+    s.add_argument("--iso-gate", type=float, default=0.3)
+    s.add_argument("--drs-numerator", type=float, default=110.0, help="s_drs gate = this / FoV")
+    s.add_argument("--min-corners", type=int, default=8)
+    s.add_argument("--max-anchors", type=int, default=0)
+    s.add_argument("--max-covisible", type=int, default=0)
+    s.add_argument("--max-monofill", type=int, default=0)
 
+
+def _add_calibration_commands(sub) -> None:
+    """coverage, select, calibrate and compare: the commands that read a recording."""
     s = sub.add_parser("coverage", help="what a recording shows of each image circle, and what to capture next")
     source_args(s)
     s.set_defaults(func=cmd_coverage)
@@ -473,6 +454,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", required=True, help="folder for compare.md, compare.json and mrcal's files")
     s.set_defaults(func=cmd_compare)
 
+
+def _add_evaluation_commands(sub) -> None:
+    """detection, benchmark, robustness, opencv-detect and analysis."""
     s = sub.add_parser("detection", help="per-FoV detection evaluation against geometry-based detectors")
     s.add_argument("--model", help="ONNX model (default: the shipped model)")
     s.add_argument("--fov", type=int, nargs="+", default=[180, 200, 220, 240])
@@ -546,6 +530,33 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--fov", type=float, default=220.0, help="FoV of the coupling-index analysis")
     s.add_argument("--out", default="report/analysis")
     s.set_defaults(func=cmd_analysis)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="calib-eval", description="Fisheye calibration: selection, calibration, evaluation.")
+    sub = p.add_subparsers(dest="cmd", required=True)
+
+    s = sub.add_parser("synth", help="write a synthetic rig sequence (detections + ground truth) in the folder layout")
+    s.add_argument("--config", default="FoV220_90", help="FoV<deg>_<yaw> or FoV<deg>_hex")
+    s.add_argument("--model", default="kb4", choices=list(MODELS))
+    s.add_argument("--frames", type=int, default=480)
+    s.add_argument("--noise", type=float, default=0.3, help="detector noise, px")
+    s.add_argument("--outliers", type=float, default=0.0, help="fraction of gross outliers")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--continuous", action="store_true", help="a board moving smoothly at 20 Hz (default: independent random views)")
+    s.add_argument(
+        "--time-offset-ms",
+        type=float,
+        nargs="+",
+        metavar="MS",
+        help="per camera, cam0 first: exposed this long after the stamp (continuous)",
+    )
+    s.add_argument("--bend-mm", type=float, default=0.0, help="the board bent as a cylinder: offset at its centre (mm)")
+    s.add_argument("--out", required=True)
+    s.set_defaults(func=cmd_synth)
+
+    _add_calibration_commands(sub)
+    _add_evaluation_commands(sub)
     return p
 
 

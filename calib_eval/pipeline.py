@@ -68,13 +68,18 @@ def _stage(name: str) -> None:
     print(f"\n=== {name} ===", flush=True)
 
 
-def run_pipeline(cfg: PipelineConfig, from_scratch: bool = False) -> int:
-    t_start = time.time()
-    out = Path(cfg.out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    status: dict[str, str] = {}
-    seconds: dict[str, float] = {}  # run time per stage
-    figures: dict[str, object] = {}
+@dataclass
+class _Run:
+    """What the stages record, by stage name: the result line, the run time and the figures."""
+
+    out: Path  # the report folder
+    status: dict[str, str] = field(default_factory=dict)
+    seconds: dict[str, float] = field(default_factory=dict)
+    figures: dict[str, object] = field(default_factory=dict)
+
+
+def _initial_checkpoint(cfg: PipelineConfig, from_scratch: bool) -> str:
+    """The checkpoint the short run fine-tunes ("" from scratch); a missing one is an error."""
     init = "" if from_scratch else cfg.init_checkpoint
     if init == "export/default.pt" and not Path(init).is_file():  # an installed package: the shipped file
         init = str(default_model_path().with_suffix(".pt"))
@@ -82,60 +87,75 @@ def run_pipeline(cfg: PipelineConfig, from_scratch: bool = False) -> int:
         raise FileNotFoundError(f"{init}: shipped checkpoint not found (use --from-scratch to train without it)")
     if not Path(cfg.train_config).is_file():
         raise ConfigError(f"{cfg.train_config}: training config not found")
+    return init
 
-    # 1. Train.
+
+def _train_stage(cfg: PipelineConfig, run: _Run, init: str) -> Path:
+    """1. The short training run; returns its folder (best.pt inside)."""
     _stage(f"1/4 train ({cfg.train_steps} steps, {'from scratch' if not init else 'fine-tuning ' + init})")
     t0 = time.time()
-    run_dir = out / "train"
+    run_dir = run.out / "train"
     if run_dir.exists():
         shutil.rmtree(run_dir)
     overrides = [f"train.steps={cfg.train_steps}", f"train.out_dir={run_dir}", f"train.init_from={init}", *cfg.train_overrides]
-    tcfg = finalize_config(load_config(TrainConfig, cfg.train_config, overrides))
-    tr = train(tcfg)
-    seconds["train"] = time.time() - t0
-    figures["train"] = {"steps": tr["step"], "last_loss": tr["last_loss"], "best_val_recall": tr["best_score"], "seconds": seconds["train"]}
-    status["train"] = "ok"
+    tr = train(finalize_config(load_config(TrainConfig, cfg.train_config, overrides)))
+    run.seconds["train"] = time.time() - t0
+    run.figures["train"] = {
+        "steps": tr["step"],
+        "last_loss": tr["last_loss"],
+        "best_val_recall": tr["best_score"],
+        "seconds": run.seconds["train"],
+    }
+    run.status["train"] = "ok"
+    return run_dir
 
-    # 2. Export.
+
+def _export_stage(run: _Run, run_dir: Path) -> Path:
+    """2. ONNX export with the parity check; returns the graph's path."""
     _stage("2/4 export to ONNX (parity check)")
     t0 = time.time()
-    onnx_path = out / "model.onnx"
+    onnx_path = run.out / "model.onnx"
     ex = export_onnx(run_dir / "best.pt", onnx_path)
-    figures["export"] = ex
-    status["export"] = f"ok (max corner difference {ex['max_corner_diff_px']:.1e} px)"
-    seconds["export"] = time.time() - t0
-    print(status["export"])
+    run.figures["export"] = ex
+    run.status["export"] = f"ok (max corner difference {ex['max_corner_diff_px']:.1e} px)"
+    run.seconds["export"] = time.time() - t0
+    print(run.status["export"])
+    return onnx_path
 
-    # 3. Detection evaluation.
+
+def _detection_stage(cfg: PipelineConfig, run: _Run, onnx_path: Path) -> tuple[dict, Detector]:
+    """3. Per-FoV detection evaluation and a few overlays; returns the evaluation and the detector."""
     _stage("3/4 detection evaluation per FoV")
     t0 = time.time()
     ecfg = EvalConfig(fovs=cfg.eval_fovs, per_fov=cfg.eval_per_fov, n_empty=cfg.eval_empty, conditions=[])  # FoV rows only
-    ev = evaluate_detection(str(onnx_path), ecfg, out / "detection")
-    figures["detection"] = ev["results"]
+    ev = evaluate_detection(str(onnx_path), ecfg, run.out / "detection")
+    run.figures["detection"] = ev["results"]
     learned = ev["results"]["learned"]["per_fov"]
     mean_recall = float(np.mean([r["recall"] for r in learned.values()]))
-    status["detection"] = f"learned mean recall {mean_recall:.3f} over FoVs {cfg.eval_fovs}"
+    run.status["detection"] = f"learned mean recall {mean_recall:.3f} over FoVs {cfg.eval_fovs}"
     det = Detector(onnx_path)
-    ov_dir = out / "overlays"
+    ov_dir = run.out / "overlays"
     ov_dir.mkdir(exist_ok=True)
-    for p in sorted((out / "detection" / "images").glob("fov*.png"))[:: max(1, (cfg.eval_per_fov * len(cfg.eval_fovs)) // cfg.overlays)][
-        : cfg.overlays
-    ]:
+    every = max(1, (cfg.eval_per_fov * len(cfg.eval_fovs)) // cfg.overlays)
+    for p in sorted((run.out / "detection" / "images").glob("fov*.png"))[::every][: cfg.overlays]:
         g = load_image(p)
         cv2.imwrite(str(ov_dir / p.name), draw_detection(g, det.detect(g)))
-    seconds["detection"] = time.time() - t0
+    run.seconds["detection"] = time.time() - t0
+    return ev, det
 
-    # 4. Calibration through the exported detector.
+
+def _calibration_stage(cfg: PipelineConfig, run: _Run, det: Detector) -> dict:
+    """4. A rendered rig through the exported detector, the selector and the calibrator, against
+    its ground truth; returns those figures."""
     _stage(f"4/4 calibration check: {cfg.calib_rig}, {cfg.calib_frames} rendered frames -> detect -> select -> calibrate")
     t0 = time.time()
-    seq_dir = out / "calibration" / "sequence"
+    seq_dir = run.out / "calibration" / "sequence"
     if seq_dir.exists():
         shutil.rmtree(seq_dir)
     rig = paper_config(cfg.calib_rig)
     _, gt = render_rig_sequence(rig, cfg.calib_frames, seq_dir, seed=11)
     for cam_dir in sorted(seq_dir.glob("cam*")):
-        paths = sorted((cam_dir / "images").glob("*.png"))
-        data = detect_files(paths, det, workers=0)
+        data = detect_files(sorted((cam_dir / "images").glob("*.png")), det, workers=0)
         for e in data["images"]:
             e["path"] = str(Path(e["path"]).relative_to(seq_dir))
         write_json_atomic(data, cam_dir / "detections.json")
@@ -144,23 +164,25 @@ def run_pipeline(cfg: PipelineConfig, from_scratch: bool = False) -> int:
     ccfg = CalibConfig(model=cfg.calib_model, fov=rig.fov)
     res = calibrate(seq.subset(sel.keep), ccfg, order=sel.order)
     ev_c = evaluate_result(res, gt, rig.fov)
-    pub = publish(res, seq.subset(sel.keep), ccfg, out / "calibration", {"selection": sel.summary(), "against_ground_truth": ev_c})
-    figures["calibration"] = ev_c
+    pub = publish(res, seq.subset(sel.keep), ccfg, run.out / "calibration", {"selection": sel.summary(), "against_ground_truth": ev_c})
+    run.figures["calibration"] = ev_c
     if res.success:
-        status["calibration"] = (
+        run.status["calibration"] = (
             f"{'strict success' if ev_c['strict'] else 'success (not strict)'}: extrinsic error "
             f"{ev_c['ext_mm']:.2f} mm / {ev_c['ext_deg']:.3f} deg, intrinsics {ev_c['intr_px']:.2f} px RMS from truth"
         )
     else:
-        status["calibration"] = f"failed: {res.reason}"
-    status["calibration"] += f"; {pub.trust.verdict.line()} (calibration/report.html)"
-    seconds["calibration"] = time.time() - t0
-    print(status["calibration"])
+        run.status["calibration"] = f"failed: {res.reason}"
+    run.status["calibration"] += f"; {pub.trust.verdict.line()} (calibration/report.html)"
+    run.seconds["calibration"] = time.time() - t0
+    print(run.status["calibration"])
+    return ev_c
 
-    # Summary.
-    total = time.time() - t_start
+
+def _write_summary(run: _Run, ev: dict, ev_c: dict, total: float) -> None:
+    """summary.md (for terminals) and summary.json."""
     lines = ["# cotrain pipeline report", "", f"Total time {total / 60:.1f} min.", "", "| stage | result |", "|---|---|"]
-    lines += [f"| {k} | {v} |" for k, v in status.items()]
+    lines += [f"| {k} | {v} |" for k, v in run.status.items()]
     lines += [
         "",
         "## Detection per FoV",
@@ -178,10 +200,23 @@ def run_pipeline(cfg: PipelineConfig, from_scratch: bool = False) -> int:
         "Training logs: `tensorboard --logdir train/tb`.",
         "",
     ]
-    (out / "summary.md").write_text("\n".join(lines))
-    (out / "summary.json").write_text(
-        json.dumps({"status": status, "seconds": seconds, "figures": figures, "total_s": total}, indent=1, default=str)
-    )
-    index = write_index(out, status, seconds, ev["results"], cfg.eval_fovs, ev_c, total)
+    (run.out / "summary.md").write_text("\n".join(lines))
+    summary = {"status": run.status, "seconds": run.seconds, "figures": run.figures, "total_s": total}
+    (run.out / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
+
+
+def run_pipeline(cfg: PipelineConfig, from_scratch: bool = False) -> int:
+    """The four stages in turn; the report folder gets summary.md, summary.json and index.html."""
+    t_start = time.time()
+    run = _Run(Path(cfg.out_dir))
+    run.out.mkdir(parents=True, exist_ok=True)
+    init = _initial_checkpoint(cfg, from_scratch)
+    run_dir = _train_stage(cfg, run, init)
+    onnx_path = _export_stage(run, run_dir)
+    ev, det = _detection_stage(cfg, run, onnx_path)
+    ev_c = _calibration_stage(cfg, run, det)
+    total = time.time() - t_start
+    _write_summary(run, ev, ev_c, total)
+    index = write_index(run.out, run.status, run.seconds, ev["results"], cfg.eval_fovs, ev_c, total)
     print(f"\npipeline finished in {total / 60:.1f} min -> {index}")
     return 0

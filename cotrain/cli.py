@@ -152,44 +152,8 @@ def cmd_pipeline(args: argparse.Namespace) -> int:
     return run_pipeline(cfg, from_scratch=args.from_scratch)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="cotrain", description="Learned fisheye calibration-target detection.")
-    sub = p.add_subparsers(dest="cmd", required=True)
-
-    s = sub.add_parser("render-preview", help="draw a grid of rendered training samples with their labels")
-    s.add_argument("--config", help="YAML with renderer settings (or a training config with a render: section)")
-    s.add_argument("--n", type=int, default=16, help="number of samples")
-    s.add_argument("--out", default="preview.png", help="output image")
-    s.add_argument("--seed", type=int, default=0)
-    s.add_argument("overrides", nargs="*", help="key=value overrides of the render config")
-    s.set_defaults(func=cmd_render_preview)
-
-    s = sub.add_parser("bench-render", help="benchmark: rendered samples per second")
-    s.add_argument("--config")
-    s.add_argument("--batch", type=int, default=8)
-    s.add_argument("--repeats", type=int, default=5)
-    s.add_argument("overrides", nargs="*")
-    s.set_defaults(func=cmd_bench_render)
-
-    s = sub.add_parser("train", help="train the corner network on online rendered data")
-    s.add_argument("--config", required=True, help="training config, e.g. configs/tiny.yaml")
-    s.add_argument("--resume", action="store_true", help="continue from the run's last checkpoint")
-    s.add_argument("--device", help="train and render on this torch device (cpu, cuda, cuda:1; default: the config's train.device, cpu)")
-    s.add_argument("overrides", nargs="*", help="key=value overrides, e.g. train.steps=100 train.stop_after_minutes=9")
-    s.set_defaults(func=cmd_train)
-
-    s = sub.add_parser("export", help="export a checkpoint to ONNX (with the onnxruntime parity check)")
-    s.add_argument("--checkpoint", required=True)
-    s.add_argument("--out", required=True)
-    s.add_argument("--tol-px", type=float, default=0.01, help="fail if onnxruntime and PyTorch corners differ by more")
-    s.add_argument("--input-size", metavar="WxH", help="processing size of the graph (default: the size it was trained at)")
-    s.add_argument(
-        "--int8",
-        action="store_true",
-        help="also write OUT.int8.onnx: the grid pass's maps with int8 convolutions (as export.ship ships them)",
-    )
-    s.set_defaults(func=cmd_export)
-
+def _add_detect(sub) -> None:
+    """``cotrain detect``: images, folders of images, image folders per camera or a bag."""
     s = sub.add_parser("detect", help="detect corners in images with the ONNX model (onnxruntime, CPU)")
     s.add_argument("inputs", nargs="*", metavar="IMAGES_OR_FOLDERS")
     s.add_argument("--bag", help="instead of images: a ROS1 .bag or ROS2 bag folder; writes a sequence folder with detections")
@@ -234,6 +198,47 @@ def build_parser() -> argparse.ArgumentParser:
         "~40 ms more for each such frame; the AprilGrid's tag pass always does this)",
     )
     s.set_defaults(func=cmd_detect)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="cotrain", description="Learned fisheye calibration-target detection.")
+    sub = p.add_subparsers(dest="cmd", required=True)
+
+    s = sub.add_parser("render-preview", help="draw a grid of rendered training samples with their labels")
+    s.add_argument("--config", help="YAML with renderer settings (or a training config with a render: section)")
+    s.add_argument("--n", type=int, default=16, help="number of samples")
+    s.add_argument("--out", default="preview.png", help="output image")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("overrides", nargs="*", help="key=value overrides of the render config")
+    s.set_defaults(func=cmd_render_preview)
+
+    s = sub.add_parser("bench-render", help="benchmark: rendered samples per second")
+    s.add_argument("--config")
+    s.add_argument("--batch", type=int, default=8)
+    s.add_argument("--repeats", type=int, default=5)
+    s.add_argument("overrides", nargs="*")
+    s.set_defaults(func=cmd_bench_render)
+
+    s = sub.add_parser("train", help="train the corner network on online rendered data")
+    s.add_argument("--config", required=True, help="training config, e.g. configs/tiny.yaml")
+    s.add_argument("--resume", action="store_true", help="continue from the run's last checkpoint")
+    s.add_argument("--device", help="train and render on this torch device (cpu, cuda, cuda:1; default: the config's train.device, cpu)")
+    s.add_argument("overrides", nargs="*", help="key=value overrides, e.g. train.steps=100 train.stop_after_minutes=9")
+    s.set_defaults(func=cmd_train)
+
+    s = sub.add_parser("export", help="export a checkpoint to ONNX (with the onnxruntime parity check)")
+    s.add_argument("--checkpoint", required=True)
+    s.add_argument("--out", required=True)
+    s.add_argument("--tol-px", type=float, default=0.01, help="fail if onnxruntime and PyTorch corners differ by more")
+    s.add_argument("--input-size", metavar="WxH", help="processing size of the graph (default: the size it was trained at)")
+    s.add_argument(
+        "--int8",
+        action="store_true",
+        help="also write OUT.int8.onnx: the grid pass's maps with int8 convolutions (as export.ship ships them)",
+    )
+    s.set_defaults(func=cmd_export)
+
+    _add_detect(sub)
 
     s = sub.add_parser("pipeline", help="the main job: train, export, evaluate, calibrate; writes a report folder")
     s.add_argument("--config", default=None, help="pipeline YAML (default: the embedded defaults = configs/pipeline.yaml)")
