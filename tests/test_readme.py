@@ -70,7 +70,7 @@ def test_quick_start_bag(tmp_path):
     for f in ("camchain.yaml", "report.html", "report.json"):
         assert (tmp_path / "calib" / f).is_file()
     assert "cam1:" in (tmp_path / "calib" / "camchain.yaml").read_text()
-    assert (tmp_path / "stereo.bag.sequence" / "cam1" / "detections.json").is_file()
+    assert (tmp_path / "calib" / "sequence" / "cam1" / "detections.json").is_file()
 
 
 def test_quick_start_image_folders(tmp_path):
