@@ -92,7 +92,10 @@ def _sequence(a: argparse.Namespace, cache: Path | None):
         raise ValueError("--topics goes with --bag")
     if getattr(a, "fov", None) is not None and not 30 <= a.fov <= 360:  # checked before anything is detected
         raise ValueError(f"--fov {a.fov:g}: give the lens's rough field of view in degrees (30-360), or leave it out to estimate it")
+    if a.images is not None and a.every:
+        raise ValueError("--every goes with --bag; with --images, keep the images you want in the folders")
     if a.seq is not None:
+        a.sequence_folder = a.seq
         return load_sequence(a.seq, a.tolerance_ms, target=_target(a.target))
     from cotrain.detect.detector import make_detector
     from cotrain.io.folders import check_sequence_folder
@@ -104,6 +107,7 @@ def _sequence(a: argparse.Namespace, cache: Path | None):
 
         folder = check_sequence_folder(cache or Path(str(a.images[0]).rstrip("/") + ".sequence"), "--cache")
         folder, read = sequence_from_folders(a.images, folder, det, workers=0)
+        a.sequence_folder = folder
         counts = ", ".join(f"{d} {n} images" for d, n in zip(a.images, read["images"]))
         how = "cached detections" if read["cached"] else "detected"
         print(f"{counts} (paired by {read['pairing']}; {how}) -> {folder}")
@@ -116,6 +120,7 @@ def _sequence(a: argparse.Namespace, cache: Path | None):
         raise ValueError("--every must be 0 (every image) or a positive number of seconds")
     folder = check_sequence_folder(cache or Path(str(a.bag).rstrip("/") + ".sequence"), "--cache")
     folder, read = sequence_from_bag(a.bag, a.topics, folder, det, interval_s=a.every, workers=0)
+    a.sequence_folder = folder
     skipped = sum(read["skipped"])
     how = "cached detections" if read["cached"] else "detected"
     counts = ", ".join(f"{t} {n} images" for t, n in zip(a.topics, read["images"]))
@@ -157,7 +162,7 @@ def cmd_select(a: argparse.Namespace) -> int:
         }
         for s in sorted(sel.scores, key=lambda s: (s.cam, s.order if s.order >= 0 else 10**9, s.view))
     ]
-    out = Path(a.out) if a.out else Path(a.seq or ".") / "selection.json"
+    out = Path(a.out) if a.out else Path(a.sequence_folder) / "selection.json"
     out.write_text(json.dumps({"summary": sel.summary(), "frames": rows}, indent=1))
     print(f"selected {len(sel.keep)} of {len(sel.scores)} observations: {sel.summary()} -> {out}")
     return 0
@@ -416,7 +421,7 @@ def _add_calibration_commands(sub) -> None:
 
     s = sub.add_parser("select", help="score and select frames (anchors, co-visible, mono-fill)")
     seq_args(s)
-    s.add_argument("--out", help="selection JSON (default SEQ/selection.json)")
+    s.add_argument("--out", help="selection JSON (default: in the sequence folder, SEQ/selection.json)")
     s.set_defaults(func=cmd_select)
 
     s = sub.add_parser("calibrate", help="calibrate a multi-fisheye rig; writes camchain.yaml and report.json")

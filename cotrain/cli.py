@@ -90,6 +90,10 @@ def cmd_detect(args: argparse.Namespace) -> int:
         raise ValueError("--bag and --topics go together")
     if (args.bag or args.images) and args.out:
         check_sequence_folder(args.out)
+    if (args.bag or args.images) and args.draw:
+        raise ValueError("--draw goes with images or folders; with --bag or --images, calib-eval calibrate draws the report")
+    if args.images and args.every:
+        raise ValueError("--every goes with --bag; with --images, keep the images you want in the folders")
     paths = expand_inputs(args.inputs) if args.inputs else []
     if args.inputs and not paths:
         below = [f for d in args.inputs if Path(d).is_dir() for f in image_folders_below(Path(d))]

@@ -18,7 +18,7 @@ from calib_eval.calibration.initialisation import focal_search, initial_guess
 from cotrain.geometry import cameras
 from cotrain.io.sequence import Sequence
 
-GUESS_FOV_DEG = 180.0  # the seed of the search (deg); the search covers roughly 75 to 450 deg around it
+GUESS_FOV_DEG = 180.0  # the seed of the search (deg); the search scales its focal length 0.4 to 2.5 times
 
 
 @dataclass
@@ -55,8 +55,11 @@ def estimate_fov(seq: Sequence, models: list[str]) -> FovEstimate:
             per_camera.append(None)
             continue
         guess = initial_guess(models[c], GUESS_FOV_DEG, info.width, info.height)
-        per_camera.append(camera_fov(models[c], focal_search(models[c], guess, obs, seq.target), info.width, info.height))
+        fov = camera_fov(models[c], focal_search(models[c], guess, obs, seq.target), info.width, info.height)
+        # The searched model cannot see the circle's rim (a focal length too short for the family's
+        # domain): keep the seed, from which the calibrator searches again.
+        per_camera.append(GUESS_FOV_DEG if fov is None else fov)
     found = [f for f in per_camera if f is not None]
     if not found:
-        raise ValueError("no camera has views to estimate the FoV from; give --fov DEGREES")
+        raise ValueError("no camera sees the board in any view, so no FoV can be estimated; give --fov DEGREES")
     return FovEstimate(float(np.median(found)), per_camera)

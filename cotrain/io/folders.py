@@ -11,15 +11,17 @@ Pairing and times (:func:`pair_folders`):
 - Names that are whole numbers of nanoseconds (16 digits or more, as ``rosbag`` exporters and
   Kalibr's ``bagcreater`` save them) are the capture times; cameras are then matched by time as
   for a bag, and the folders may hold different counts.
-- Otherwise images pair across folders by identical file names where every folder has the same
-  names, and by sorted order where the names differ (``left-0001.png`` / ``right-0001.png``);
-  pairs are then one second apart (snapshots: no board motion to estimate a time offset from).
+- Otherwise images pair across folders by identical file names (where only some names are shared,
+  those pair and the others stay single views of their camera), and by sorted order where no name
+  is shared (``left-0001.png`` / ``right-0001.png``); views are then one second apart (snapshots:
+  no board motion to estimate a time offset from).
 - A folder without images, or folders with different counts that can only pair by order, is a
   :class:`FolderError` that says what was found.
 """
 
 from __future__ import annotations
 
+import csv
 import json
 import shutil
 from dataclasses import dataclass
@@ -88,16 +90,43 @@ def pair_folders(folders: list[str | Path]) -> FolderPairing:
 
 
 def _link_images(cam: Path, folder: Path) -> None:
-    """``cam/images`` pointing at ``folder``: a symbolic link, or a copy where links are not allowed."""
-    link = cam / "images"
-    if link.is_symlink() or link.is_file():
-        link.unlink()
-    elif link.is_dir():
-        shutil.rmtree(link)
+    """``cam/images`` pointing at ``folder``: a symbolic link, or a copy where links are not allowed
+    (then ``cam/images.copied`` says so, and only then may :func:`_clear_camera` remove it)."""
     try:
-        link.symlink_to(folder.resolve(), target_is_directory=True)
+        (cam / "images").symlink_to(folder.resolve(), target_is_directory=True)
     except OSError:
-        shutil.copytree(folder, link)
+        shutil.copytree(folder, cam / "images")
+        (cam / "images.copied").write_text("")
+
+
+OURS = ("timestamps.csv", "source", "detections.json", "detections.json.tmp")  # the files a camera folder gets here
+
+
+def _clear_camera(cam: Path) -> None:
+    """Remove what :func:`sequence_from_folders` wrote in ``cam`` and nothing else: our files, the
+    ``images`` link (never what it points at), an images copy we made, then the folder if empty."""
+    if cam.is_symlink() or not cam.is_dir():
+        raise FolderError(f"{cam}: not a camera folder this command made (a link or a file); choose another --out / --cache folder")
+    for name in OURS:
+        (cam / name).unlink(missing_ok=True)
+    images = cam / "images"
+    if images.is_symlink():
+        images.unlink()
+    elif (cam / "images.copied").is_file():
+        shutil.rmtree(images)
+        (cam / "images.copied").unlink()
+    if not any(cam.iterdir()):
+        cam.rmdir()
+
+
+def _read_marker(marker: Path) -> dict | None:
+    """The marker a previous run left ({"key", "read", "complete"}), or None where it is missing or
+    not one of ours (then the folder is not touched)."""
+    try:
+        data = json.loads(marker.read_text())
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) and isinstance(data.get("key"), dict) and "complete" in data else None
 
 
 def _folder_stamp(files: list[Path]) -> list:
@@ -125,29 +154,39 @@ def sequence_from_folders(
     }
     read = {"images": [len(fs) for fs in pairing.files], "pairing": pairing.how}
     marker = out / "folders.json"
-    if marker.is_file():
-        try:
-            cached = json.loads(marker.read_text())
-        except (OSError, json.JSONDecodeError):
-            cached = {}  # an unreadable marker is a cache miss
-        if cached.get("key") == key and all((out / f"cam{i}" / "detections.json").is_file() for i in range(len(folders))):
+    previous = _read_marker(marker) if marker.is_file() else None
+    if previous and previous["complete"] and previous["key"] == key:
+        if all((out / f"cam{i}" / "detections.json").is_file() for i in range(len(folders))):
             return out, {**read, "cached": True}
-    elif out.is_dir() and any(out.iterdir()):
+    if previous is None and out.is_dir() and any(out.iterdir()):
         raise FolderError(f"{out}: not empty and not made from image folders; choose another --out / --cache folder")
-    marker.unlink(missing_ok=True)
-    for old in out.glob("cam*"):  # a previous run with other folders
-        if old.is_dir() and not old.is_symlink() and old.name[3:].isdigit():
-            shutil.rmtree(old)
+    _check_apart(folders, out)
+    for old in sorted(out.glob("cam*")):  # what a previous run (other folders, or interrupted) wrote
+        if old.name[3:].isdigit():
+            _clear_camera(old)
+    out.mkdir(parents=True, exist_ok=True)
+    write_json_atomic({"key": key, "read": read, "complete": False}, marker)  # ours from now on, even if interrupted
     for i, (folder, files, stamps) in enumerate(zip(folders, pairing.files, pairing.stamps_ns)):
         cam = out / f"cam{i}"
-        cam.mkdir(parents=True, exist_ok=True)
+        cam.mkdir()
         _link_images(cam, Path(folder))
-        rows = ["frame_id,timestamp_ns,filename", *(f"{k},{t},{p.name}" for k, (p, t) in enumerate(zip(files, stamps)))]
-        (cam / "timestamps.csv").write_text("\n".join(rows) + "\n")
+        with (cam / "timestamps.csv").open("w", newline="") as f:
+            rows = csv.writer(f, lineterminator="\n")
+            rows.writerow(["frame_id", "timestamp_ns", "filename"])
+            rows.writerows([k, t, p.name] for k, (p, t) in enumerate(zip(files, stamps)))
         (cam / "source").write_text(str(Path(folder).resolve()) + "\n")
         write_camera_detections(cam, lambda paths: detect_files(paths, detector, progress=progress, workers=workers))
-    write_json_atomic({"key": key, "read": read}, marker)
+    write_json_atomic({"key": key, "read": read, "complete": True}, marker)
     return out, {**read, "cached": False}
+
+
+def _check_apart(folders: list[str | Path], out: Path) -> None:
+    """The sequence folder must not be, or hold, an image folder (its camN folders are rewritten)."""
+    o = out.resolve()
+    for f in folders:
+        r = Path(f).resolve()
+        if r == o or o in r.parents:
+            raise FolderError(f"{out}: holds the image folder {f}; the sequence folder must be another one (--out / --cache)")
 
 
 def check_sequence_folder(out: str | Path, flag: str = "--out") -> Path:

@@ -141,14 +141,67 @@ def test_newcomer_errors_are_one_line(stereo_folders, tmp_path, capsys):
         assert len(err) == 1 and msg in err[0], (argv, err)
     assert cotrain_cli(["detect", *images, "--out", str(tmp_path / "det.json")]) == 2
     assert "not a .json file" in capsys.readouterr().err
+    assert cotrain_cli(["detect", *images, "--draw", str(tmp_path / "overlays")]) == 2
+    assert "--draw goes with images or folders" in capsys.readouterr().err
+    assert calib_cli(["coverage", *images, "--every", "0.5"]) == 2
+    assert "--every goes with --bag" in capsys.readouterr().err
 
 
 def test_fov_is_estimated_where_not_given(stereo_folders, capsys):
     """Across the circle touching the shorter side (251.5 px from the centre of 800 x 503), the ROS
     reference calibration (kb4, reference/left.yaml) sees 103 deg."""
     root = stereo_folders
-    argv = ["select", "--images", str(root / "left"), str(root / "right"), "--target", str(root / "board.yaml"), "--out"]
-    assert calib_cli([*argv, str(root / "sel.json")]) == 0
+    argv = ["select", "--images", str(root / "left"), str(root / "right"), "--target", str(root / "board.yaml")]
+    assert calib_cli([*argv, "--cache", str(root / "sel_seq")]) == 0
+    assert (root / "sel_seq" / "selection.json").is_file()  # in the sequence folder, not the working folder
     line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("no --fov given"))
     est = float(line.split("estimated ")[1].split(" deg")[0])
     assert 85 < est < 125, line
+
+
+def _detector(root):
+    from cotrain.detect.detector import make_detector
+    from cotrain.targets import load_target
+
+    return make_detector(load_target(root / "board.yaml"), None)
+
+
+def test_a_users_image_folders_are_never_removed(stereo_folders, tmp_path):
+    """Image folders laid out as rig/cam0, rig/cam1 with --cache rig: refused, every image kept,
+    whether rig holds a stray folders.json or a marker that looks like ours."""
+    det = _detector(stereo_folders)
+    rig = tmp_path / "rig"
+    for c, side in enumerate(("left", "right")):
+        shutil.copytree(stereo_folders / side, rig / f"cam{c}")
+    before = sorted(p.relative_to(rig) for p in rig.rglob("*"))
+    for marker in ("not json", '{"key": {}, "complete": true}'):
+        (rig / "folders.json").write_text(marker)
+        with pytest.raises(FolderError):
+            sequence_from_folders([rig / "cam0", rig / "cam1"], rig, det, progress=False)
+        (rig / "folders.json").unlink()
+        assert sorted(p.relative_to(rig) for p in rig.rglob("*")) == before
+    # A camera folder that is a link to the user's folder: refused, the folder untouched.
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    (seq / "folders.json").write_text('{"key": {}, "complete": false}')
+    (seq / "cam0").symlink_to(rig / "cam0", target_is_directory=True)
+    with pytest.raises(FolderError, match="a link or a file"):
+        sequence_from_folders([stereo_folders / "left"], seq, det, progress=False)
+    assert sorted(p.relative_to(rig) for p in rig.rglob("*")) == before
+
+
+def test_an_interrupted_run_is_made_again_and_names_with_commas_survive(stereo_folders, tmp_path):
+    det = _detector(stereo_folders)
+    left = tmp_path / "left"
+    left.mkdir()
+    for k, f in enumerate(sorted((stereo_folders / "left").glob("*.png"))[:3]):
+        shutil.copyfile(f, left / f"shot,{k}.png")
+    seq = tmp_path / "seq"
+    (seq / "cam0").mkdir(parents=True)
+    (seq / "cam0" / "timestamps.csv").write_text("frame_id,timestamp_ns,filename\n")  # what an interrupted run left
+    (seq / "folders.json").write_text('{"key": {"format": 1}, "read": null, "complete": false}')
+    out, read = sequence_from_folders([left], seq, det, progress=False)
+    assert not read["cached"]
+    loaded = load_sequence(out)
+    assert sorted({o.frame for o in loaded.observations}) == ["shot,0.png", "shot,1.png", "shot,2.png"]
+    assert sequence_from_folders([left], seq, det, progress=False)[1]["cached"]
