@@ -216,19 +216,27 @@ def sequence_from_bag(
         "target": detector.target.to_json(),
     }
     marker = out / "bag.json"
-    if marker.is_file():
-        try:
-            cached = json.loads(marker.read_text())
-        except (OSError, json.JSONDecodeError):
-            cached = {}  # an unreadable marker is a cache miss
-        if cached.get("key") == key and all((out / f"cam{i}" / "detections.json").is_file() for i in range(len(topics))):
-            return out, {**cached["read"], "cached": True}
-    elif out.is_dir() and any(out.iterdir()):
+    try:
+        cached = json.loads(marker.read_text()) if marker.is_file() else None
+    except (OSError, ValueError):
+        cached = None
+    ours = isinstance(cached, dict) and isinstance(cached.get("key"), dict)  # else the folder is not touched
+    if (
+        ours
+        and cached["key"] == key
+        and cached.get("read")
+        and all((out / f"cam{i}" / "detections.json").is_file() for i in range(len(topics)))
+    ):
+        return out, {**cached["read"], "cached": True}
+    if not ours and out.is_dir() and any(out.iterdir()):
         raise BagError(f"{out}: not empty and not made from a bag; choose another --cache / --out folder")
-    marker.unlink(missing_ok=True)
-    for old in out.glob("cam*"):  # a previous extraction (other topics, another detector)
-        if old.is_dir() and old.name[3:].isdigit():
+    for old in out.glob("cam*"):  # a previous extraction (other topics, another detector, or interrupted)
+        if old.is_symlink() or (old.name[3:].isdigit() and not old.is_dir()):
+            raise BagError(f"{old}: not a camera folder this command made (a link or a file); choose another --cache / --out folder")
+        if old.name[3:].isdigit():
             shutil.rmtree(old)
+    out.mkdir(parents=True, exist_ok=True)
+    write_json_atomic({"key": key, "read": None}, marker)  # ours from now on, even if interrupted
     summary = bag_to_sequence(path, topics, out, progress, interval_s)
     for i in range(len(topics)):
         write_camera_detections(out / f"cam{i}", lambda paths: detect_files(paths, detector, progress=progress, workers=workers))

@@ -142,8 +142,9 @@ def test_cotrain_detect_from_a_bag(rig, tmp_path, capsys):
 
 
 def test_cache_follows_topics_and_refuses_foreign_folders(tmp_path):
-    """Another set of topics re-extracts (no stale camera folder survives); an unreadable marker is
-    a cache miss; a folder that was not made from a bag is not overwritten."""
+    """Another set of topics re-extracts (no stale camera folder survives); a folder whose marker is
+    unreadable (markers are written atomically: not ours), or that was not made from a bag, is
+    refused and nothing in it removed; an interrupted extraction is made again."""
     from cotrain.detect.detector import Detector
     from cotrain.io.bags import sequence_from_bag
 
@@ -157,7 +158,12 @@ def test_cache_follows_topics_and_refuses_foreign_folders(tmp_path):
     assert not sequence_from_bag(bag, three[:2], out, det, progress=False)[1]["cached"]
     assert sorted(p.name for p in out.glob("cam*")) == ["cam0", "cam1"]
     (out / "bag.json").write_text("{not json")
+    with pytest.raises(BagError, match="not made from a bag"):
+        sequence_from_bag(bag, three[:2], out, det, progress=False)
+    assert sorted(p.name for p in out.glob("cam*")) == ["cam0", "cam1"]
+    (out / "bag.json").write_text('{"key": {"format": 1}, "read": null}')  # what an interrupted extraction leaves
     assert not sequence_from_bag(bag, three[:2], out, det, progress=False)[1]["cached"]
+    assert sequence_from_bag(bag, three[:2], out, det, progress=False)[1]["cached"]
     mine = tmp_path / "mine"
     mine.mkdir()
     (mine / "notes.txt").write_text("keep")
