@@ -168,7 +168,7 @@ def sequence_from_folders(
     write_json_atomic({"key": key, "read": read, "complete": False}, marker)  # ours from now on, even if interrupted
     for i, (folder, files, stamps) in enumerate(zip(folders, pairing.files, pairing.stamps_ns)):
         cam = out / f"cam{i}"
-        cam.mkdir()
+        cam.mkdir(exist_ok=True)  # kept where it holds files of the user's own
         _link_images(cam, Path(folder))
         with (cam / "timestamps.csv").open("w", newline="") as f:
             rows = csv.writer(f, lineterminator="\n")
