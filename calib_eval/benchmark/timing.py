@@ -430,6 +430,14 @@ def bench_calibration(config: str = "FoV220_90", frames: int = 480, repeats: int
     return out
 
 
+def _write_report(name: str, results: dict) -> None:
+    """``report/NAME`` with the figures as JSON, and a line that says so."""
+    out = Path("report") / name
+    out.parent.mkdir(exist_ok=True)
+    out.write_text(json.dumps(results, indent=1, default=str))
+    print(f"wrote {out}")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m calib_eval.benchmark.timing", description=__doc__.splitlines()[0])
     ap.add_argument(
@@ -456,29 +464,17 @@ def main(argv: list[str] | None = None) -> int:
             results = bench_train_parts(args.config, tuple(args.set), repeats=args.runs, profile=args.profile)
         except (ConfigError, FileNotFoundError) as e:
             ap.error(str(e))
-        out = Path("report") / "bench_train.json"
-        out.parent.mkdir(exist_ok=True)
-        out.write_text(json.dumps(results, indent=1, default=str))
-        print(f"wrote {out}")
+        _write_report("bench_train.json", results)
         return 0
     if args.what == "tags":
-        out = Path("report") / "bench_tags.json"
-        out.parent.mkdir(exist_ok=True)
-        out.write_text(json.dumps(bench_tags(runs=args.runs), indent=1, default=str))
-        print(f"wrote {out}")
+        _write_report("bench_tags.json", bench_tags(runs=args.runs))
         return 0
     if args.what == "calibration":
-        out = Path("report") / "bench_calibration.json"
-        out.parent.mkdir(exist_ok=True)
-        out.write_text(json.dumps(bench_calibration(repeats=args.runs), indent=1, default=str))
-        print(f"wrote {out}")
+        _write_report("bench_calibration.json", bench_calibration(repeats=args.runs))
         return 0
     if args.what == "detect":
         results = {"detect": bench_detect(args.model, runs=args.runs), "model": args.model or str(default_grid_model_path())}
-        out = Path("report") / ("bench_detect.json" if not args.model else f"bench_detect_{Path(args.model).stem}.json")
-        out.parent.mkdir(exist_ok=True)
-        out.write_text(json.dumps(results, indent=1, default=str))
-        print(f"wrote {out}")
+        _write_report("bench_detect.json" if not args.model else f"bench_detect_{Path(args.model).stem}.json", results)
         return 0
     results = {
         "render_384x216": bench_render(RenderConfig(), batch=8, repeats=5),
@@ -488,10 +484,7 @@ def main(argv: list[str] | None = None) -> int:
         "tags": bench_tags(runs=args.runs),
         "calibration": bench_calibration(),
     }
-    out = Path("report") / "bench.json"
-    out.parent.mkdir(exist_ok=True)
-    out.write_text(json.dumps(results, indent=1, default=str))
-    print(f"wrote {out}")
+    _write_report("bench.json", results)
     return 0
 
 

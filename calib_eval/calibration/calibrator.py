@@ -23,7 +23,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from calib_eval.calibration.initialisation import average_pose, focal_search, initial_guess, view_pose
-from calib_eval.calibration.solver import Free, Params, Problem, SolveResult, covariance, residuals, solve
+from calib_eval.calibration.solver import Free, Params, Problem, SolveResult, covariance, residuals, solve, solve_params
 from calib_eval.calibration.time_offset import OffsetEstimate, TimeOffsetConfig, board_velocities, estimable_cameras
 from cotrain.geometry import cameras
 from cotrain.io.sequence import Observation, Sequence
@@ -415,22 +415,7 @@ class _JointStage:
 
     def solve(self, prob: Problem, p: Params, free: Free) -> tuple[Params, SolveResult]:
         iters = self.cfg.refine_iters * (2 if self.cfg.no_init else 1)
-        intr, Tcr, Tb, res = solve(
-            prob,
-            self.models,
-            p.intr,
-            p.T_cam_rig,
-            p.T_rig_board,
-            opt_extr=free.extr,
-            opt_warp=free.warp,
-            opt_time=free.time,
-            time_cameras=free.time_cameras,
-            warp=p.warp,
-            time_offsets=p.time_offsets,
-            iters=iters,
-            huber=self.cfg.huber_px,
-        )
-        return Params(list(intr), Tcr, Tb, res.warp, res.time_offsets), res
+        return solve_params(prob, self.models, p, free, iters, self.cfg.huber_px)
 
     def run(self, obs_by_cam, T_rig_board, start: Params, dropped: list[dict], stages: list[dict]):
         """Solve, drop the views a board placed with the wrong identity spoils, solve again.

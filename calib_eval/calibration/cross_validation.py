@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from calib_eval.calibration.solver import Covariance, Params, covariance, solve
+from calib_eval.calibration.solver import Covariance, Params, covariance, solve_params
 from calib_eval.calibration.uncertainty import covered, grid_pixels, pair_uncertainty, projection_sigma
 from cotrain.geometry import cameras
 
@@ -95,24 +95,9 @@ def fit_half(final, models: list[str], keep: set[int], cfg: CrossValidationConfi
             return None
     view_ids = np.asarray(final.views)[final.problem.view]  # (O,) each corner's view id
     sub, rows = final.problem.select(np.isin(view_ids, sorted(keep)))
-    p = final.params
-    f = final.free
-    intr, Tcr, Tb, res = solve(
-        sub,
-        models,
-        p.intr,
-        p.T_cam_rig,
-        p.T_rig_board[rows],
-        opt_extr=f.extr,
-        opt_warp=f.warp,
-        opt_time=f.time,
-        time_cameras=f.time_cameras,
-        warp=p.warp,
-        time_offsets=p.time_offsets,
-        iters=cfg.iters,
-        huber=final.huber,
-    )
-    half = Params(list(intr), Tcr, Tb, res.warp, res.time_offsets)
+    p, f = final.params, final.free
+    start = Params(p.intr, p.T_cam_rig, p.T_rig_board[rows], p.warp, p.time_offsets)
+    half, _ = solve_params(sub, models, start, f, cfg.iters, final.huber)
     return half, covariance(sub, models, half, free=f, huber=final.huber)
 
 

@@ -459,6 +459,28 @@ def solve(
     return p.intr, p.T_cam_rig, p.T_rig_board, _result(converged, cost, r, prob, C, it, reason, gamma, p)
 
 
+def solve_params(prob: Problem, models: list[str], p: Params, free: Free, iters: int, huber: float) -> tuple[Params, SolveResult]:
+    """:func:`solve` from the named parameters ``p``, freeing the groups ``free`` names (the board
+    poses always); returns the solved parameters and the result."""
+    intr, Tcr, Tb, res = solve(
+        prob,
+        models,
+        p.intr,
+        p.T_cam_rig,
+        p.T_rig_board,
+        opt_intr=free.intr,
+        opt_extr=free.extr,
+        opt_warp=free.warp,
+        opt_time=free.time,
+        time_cameras=free.time_cameras,
+        warp=p.warp,
+        time_offsets=p.time_offsets,
+        iters=iters,
+        huber=huber,
+    )
+    return Params(list(intr), Tcr, Tb, res.warp, res.time_offsets), res
+
+
 def _result(converged, cost, r, prob, C, it, reason, gamma, p: Params) -> SolveResult:
     e = np.linalg.norm(r, axis=-1)
     rms = [float(np.sqrt((e[prob.cam == c] ** 2).mean())) if bool((prob.cam == c).any()) else float("nan") for c in range(C)]

@@ -27,7 +27,7 @@ import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
-from cotrain.detect.images import IMAGE_SUFFIXES, image_folders_below
+from cotrain.detect.images import IMAGE_SUFFIXES, expand_inputs, image_folders_below
 
 NS_DIGITS = 16  # a file name of at least this many digits is a time in nanoseconds (1e15 ns = 11.6 days after 1970)
 SNAPSHOT_PERIOD_NS = 1_000_000_000  # spacing of views that have no times of their own (one second)
@@ -52,7 +52,7 @@ def folder_images(folder: str | Path) -> list[Path]:
     d = Path(folder)
     if not d.is_dir():
         raise FolderError(f"{folder}: no such folder (--images takes one folder of images per camera)")
-    files = sorted(q for q in d.iterdir() if q.suffix.lower() in IMAGE_SUFFIXES and q.is_file())
+    files = expand_inputs([str(d)])
     if not files:
         below = image_folders_below(d)
         hint = f"; folders below it hold images: {', '.join(map(str, below[:4]))}" if below else ""

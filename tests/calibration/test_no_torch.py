@@ -3,28 +3,14 @@ stereo sequence written here (with torch) is calibrated by ``calib-eval calibrat
 process whose imports of those packages fail, and agrees with the same calibration in this one."""
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 
 from calib_eval.benchmark.rigs import SynthSpec, make_sequence, paper_config
 from calib_eval.calibration.calibrator import CalibConfig, calibrate
 from cotrain.io.sequence import write_sequence
+from tests.blocked_imports import TRAIN_EXTRA, run_without
 from tests.paths import ROOT
-
-BLOCK = """
-import sys, importlib.abc
-class Block(importlib.abc.MetaPathFinder):
-    def find_spec(self, name, path, target=None):
-        if name.split('.')[0] in ('torch', 'kornia', 'tensorboard', 'onnx', 'onnxscript'):
-            raise ImportError(f"No module named '{name.split('.')[0]}' (blocked)")
-sys.meta_path.insert(0, Block())
-from calib_eval.cli import run
-rc = run(sys.argv[1:])
-assert not any(m.split('.')[0] == 'torch' for m in sys.modules), 'torch was imported'
-sys.exit(rc)
-"""
 
 
 def test_calibrate_without_torch(tmp_path):
@@ -32,7 +18,7 @@ def test_calibrate_without_torch(tmp_path):
     root = write_sequence(seq, tmp_path / "seq")
     out = tmp_path / "out"
     args = ["calibrate", str(root), "--fov", "200", "--models", "pinhole-equi", "ds-none", "--out", str(out)]
-    done = subprocess.run([sys.executable, "-c", BLOCK, *args], cwd=ROOT, capture_output=True, text=True, timeout=600)
+    done = run_without((*TRAIN_EXTRA, "onnx"), "calib_eval.cli", args, ROOT, check_torch=True)
     assert done.returncode == 0, done.stderr[-2000:]
     assert "verdict:" in done.stdout
     assert all((out / f).is_file() for f in ("camchain.yaml", "report.json", "report.html"))

@@ -6,26 +6,15 @@ The base install is simulated in a fresh interpreter whose imports of the extra'
 as they do where they are not installed (``ModuleNotFoundError``)."""
 
 import subprocess
-import sys
 
 from cotrain.progress import progress_bar
+from tests.blocked_imports import TRAIN_EXTRA, run_without
 from tests.paths import ROOT, SHARED, TINY
-
-BLOCK = """
-import importlib.abc, sys
-class NotInstalled(importlib.abc.MetaPathFinder):
-    def find_spec(self, name, path, target=None):
-        top = name.split('.')[0]
-        if top in {'torch', 'kornia', 'tensorboard', 'onnxscript'}:
-            raise ModuleNotFoundError(f"No module named {top!r}", name=top)
-sys.meta_path.insert(0, NotInstalled())
-"""
 
 
 def without_extra(entry: str, argv: list[str], cwd) -> subprocess.CompletedProcess:
     """Run ``entry``'s ``run(argv)`` (``cotrain.cli`` or ``calib_eval.cli``) without the extra."""
-    code = f"{BLOCK}\nfrom {entry} import run\nsys.exit(run({argv!r}))"
-    return subprocess.run([sys.executable, "-c", code], cwd=cwd, capture_output=True, text=True, timeout=600)
+    return run_without(TRAIN_EXTRA, entry, argv, cwd)
 
 
 def test_a_training_command_names_the_install(tmp_path):
