@@ -10,6 +10,8 @@ cv2.aruco on the same frames, and splits the tag pass's time into its stages.
 ``python -m calib_eval.benchmark.timing train [--config C] [--set train.device=cuda ...] [--profile]``
 splits one training step into its parts on the training device (a GPU session's first command:
 where the time of a step goes, before a run is planned).
+``python -m calib_eval.benchmark.timing render [--config C]`` counts rendering's operator calls at
+batch 8 and 64 and times rendering at batch 64 (how the renderer scales with the batch).
 """
 
 from __future__ import annotations
@@ -68,6 +70,30 @@ def bench_render(cfg: RenderConfig, batch: int = 8, repeats: int = 5, seed: int 
         f"render {cfg.width}x{cfg.height} batch {batch}: median {med * 1000:.1f} ms/batch "
         f"({batch / med:.1f} samples/s) over {repeats} runs, {torch.get_num_threads()} threads"
     )
+    return out
+
+
+def count_render_ops(cfg: RenderConfig, batch: int, seed: int = 321) -> int:
+    """Operator calls (every ``torch.profiler`` CPU event, nested ones included) of rendering one
+    batch of ``batch`` samples on the CPU, after a warm-up batch."""
+    from torch.profiler import ProfilerActivity, profile
+
+    render_batch(cfg, list(range(batch)), seed)
+    with profile(activities=[ProfilerActivity.CPU]) as prof:
+        render_batch(cfg, list(range(batch, 2 * batch)), seed)
+    return sum(e.count for e in prof.key_averages())
+
+
+def bench_render_batching(config: str = "configs/grid.yaml", batches: tuple[int, int] = (8, 64), runs: int = 5) -> dict:
+    """How rendering grows with the batch, on ``config``'s renderer: operator calls at each of
+    ``batches`` (:func:`count_render_ops`; their ratio is what batching saves) and samples/s at
+    the larger batch (median of ``runs``)."""
+    cfg = load_config(TrainConfig, config, []).render
+    ops = {b: count_render_ops(cfg, b) for b in batches}
+    small, large = batches
+    speed = bench_render(cfg, batch=large, repeats=runs)
+    out = {"config": config, "op_calls": ops, "op_ratio": ops[large] / ops[small], "render": speed}
+    print(f"render op calls on {config}: {ops[small]} at batch {small}, {ops[large]} at batch {large} ({out['op_ratio']:.2f}x)")
     return out
 
 
@@ -443,13 +469,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "what",
         nargs="?",
-        choices=("all", "detect", "tags", "train", "calibration"),
+        choices=("all", "detect", "tags", "train", "render", "calibration"),
         default="all",
-        help="all figures (make bench), the detector's, the AprilGrid tag pass's, a training step's parts, or the calibration's",
+        help="all figures (make bench), the detector's, the AprilGrid tag pass's, a training step's parts, "
+        "rendering's operator calls and speed by batch size, or the calibration's",
     )
     ap.add_argument("--model", help="ONNX model for the detector figures (default: the shipped model)")
     ap.add_argument("--runs", type=int, default=5, help="runs per figure (the median is quoted)")
-    ap.add_argument("--config", default="configs/default.yaml", help="train: the training config")
+    ap.add_argument("--config", help="train, render: the training config (default: configs/default.yaml, configs/grid.yaml)")
     ap.add_argument(
         "--set", action="append", default=[], metavar="KEY=VALUE", help="train: a config override (train.device=cuda, train.batch_size=64)"
     )
@@ -461,10 +488,17 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--runs must be at least 1, not {args.runs}")
     if args.what == "train":
         try:
-            results = bench_train_parts(args.config, tuple(args.set), repeats=args.runs, profile=args.profile)
+            results = bench_train_parts(args.config or "configs/default.yaml", tuple(args.set), repeats=args.runs, profile=args.profile)
         except (ConfigError, FileNotFoundError) as e:
             ap.error(str(e))
         _write_report("bench_train.json", results)
+        return 0
+    if args.what == "render":
+        try:
+            results = bench_render_batching(args.config or "configs/grid.yaml", runs=args.runs)
+        except (ConfigError, FileNotFoundError) as e:
+            ap.error(str(e))
+        _write_report("bench_render.json", results)
         return 0
     if args.what == "tags":
         _write_report("bench_tags.json", bench_tags(runs=args.runs))
