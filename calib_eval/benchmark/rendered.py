@@ -19,7 +19,7 @@ import torch
 from calib_eval.benchmark.rigs import GroundTruth, RigSpec, SynthSpec, make_sequence, rig_radius
 from cotrain.io.sequence import Sequence
 from cotrain.progress import progress_bar
-from cotrain.render.renderer import RenderConfig, Scene, render_scene, sample_generator
+from cotrain.render.renderer import RenderConfig, Scene, render_scene, sample_draws
 from cotrain.targets import TargetConfig, make_target
 
 
@@ -64,7 +64,7 @@ def render_rig_sequence(
                 continue
             T = torch.from_numpy(gt.T_cam_rig[c] @ gt.T_rig_board[k])
             scene = Scene([gt.model[c]], [torch.from_numpy(gt.params[c])], torch.tensor([rig.fov]), torch.tensor([radius]), T[None])
-            out = render_scene(rc, board, scene, [sample_generator(5000 + c, k)])
+            out = render_scene(rc, board, scene, [sample_draws(5000 + c, k)])
             tmp = d / "images" / f".{name}"
             cv2.imwrite(str(tmp), (out["image"][0, 0].numpy() * 255).round().astype(np.uint8))
             tmp.replace(d / "images" / name)

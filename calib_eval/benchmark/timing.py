@@ -44,7 +44,7 @@ from cotrain.model.train import (
     load_checkpoint,
     train_device,
 )
-from cotrain.render.renderer import RenderConfig, render_batch, render_scene, sample_generator, sample_scene
+from cotrain.render.renderer import RenderConfig, render_batch, render_scene, sample_draws, sample_scene
 from cotrain.targets import make_target
 
 
@@ -142,10 +142,10 @@ def bench_train_parts(
 
     def step(r: int) -> list[float]:
         t = [sync()]
-        gens = [sample_generator(77, i) for i in range(r * B, (r + 1) * B)]
-        scene = sample_scene(cfg.render, board, gens)
+        draws = [sample_draws(77, i) for i in range(r * B, (r + 1) * B)]
+        scene = sample_scene(cfg.render, board, draws)
         t.append(sync())
-        batch = render_scene(cfg.render, board, scene, gens, dev)
+        batch = render_scene(cfg.render, board, scene, draws, dev)
         t.append(sync())
         if teacher is not None:
             with torch.no_grad():

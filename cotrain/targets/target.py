@@ -126,23 +126,29 @@ def sees_print(front: int, n_cam: Tensor | np.ndarray, t_cam: Tensor | np.ndarra
     return -front * (n_cam * t_cam).sum(-1) > 0
 
 
-def square_px(model: str, params: Tensor, T_cam_board: Tensor, target: Target) -> Tensor:
+def square_px(model: str, params, T_cam_board, target: Target):
     """Local size of the target's square in pixels at every corner: the smaller singular value of
     the board -> image map over one ``target.spacing`` (central differences). 0 where any of the
     four sample points does not project. The one definition of "local square size" (renderer
-    labels, synthetic rigs). (N,) float64."""
-    import torch
-
+    labels, synthetic rigs). ``params`` (..., P) and ``T_cam_board`` (..., 4, 4), numpy or torch
+    (batched alike) -> (..., N) float64 of the same kind."""
     from cotrain.geometry import cameras, poses
+    from cotrain.geometry._ops import is_tensor
 
-    P = target.points(torch.float64)
     s = target.spacing
-    dx = torch.tensor([s / 2, 0, 0], dtype=torch.float64)
-    dy = torch.tensor([0, s / 2, 0], dtype=torch.float64)
-    qx1, ok1 = cameras.project(model, poses.transform_points(T_cam_board, P + dx), params)
-    qx0, ok2 = cameras.project(model, poses.transform_points(T_cam_board, P - dx), params)
-    qy1, ok3 = cameras.project(model, poses.transform_points(T_cam_board, P + dy), params)
-    qy0, ok4 = cameras.project(model, poses.transform_points(T_cam_board, P - dy), params)
-    J = torch.stack([qx1 - qx0, qy1 - qy0], dim=-1)  # (N, 2, 2), pixels per square
-    sv = torch.linalg.svdvals(J)
-    return torch.where(ok1 & ok2 & ok3 & ok4, sv[:, -1], torch.zeros_like(sv[:, -1]))
+    P = board_points(target)
+    steps = np.array([[s / 2, 0, 0], [-s / 2, 0, 0], [0, s / 2, 0], [0, -s / 2, 0]])
+    if is_tensor(T_cam_board):
+        import torch
+
+        P, steps = (torch.from_numpy(a).to(T_cam_board.device) for a in (P, steps))
+    q, ok = [], True
+    for d in steps:
+        qi, oki = cameras.project(model, poses.transform_points(T_cam_board, P + d), params[..., None, :])
+        q.append(qi)
+        ok = ok & oki
+    if is_tensor(T_cam_board):
+        smallest = torch.linalg.svdvals(torch.stack([q[0] - q[1], q[2] - q[3]], -1))[..., -1]  # J: (..., N, 2, 2) px per square
+        return torch.where(ok, smallest, torch.zeros_like(smallest))
+    smallest = np.linalg.svd(np.stack([q[0] - q[1], q[2] - q[3]], -1), compute_uv=False)[..., -1]
+    return np.where(ok, smallest, 0.0)

@@ -53,7 +53,7 @@ from cotrain.detect.tag_pass import (
     verified_corners,
 )
 from cotrain.geometry import cameras, poses
-from cotrain.render.renderer import RenderConfig, Scene, render_scene, sample_generator
+from cotrain.render.renderer import RenderConfig, Scene, render_scene, sample_draws
 from cotrain.targets import TargetConfig, make_target
 from cotrain.targets.aprilgrid import BORDER_BITS, CELLS, N_CODES, printed_bits
 
@@ -71,7 +71,7 @@ def render(board, model: str, fov: float, eye, look, size=(1280, 720), seed: int
     up = torch.tensor([0.0, 1.0, 0.0], dtype=torch.float64)
     T = torch.linalg.inv(poses.look_at(torch.tensor(eye, dtype=torch.float64), torch.tensor(look, dtype=torch.float64), up))
     scene = Scene([model], [params], torch.tensor([float(fov)]), torch.tensor([radius]), T[None])
-    out = render_scene(rc, board, scene, [sample_generator(seed, 0)])
+    out = render_scene(rc, board, scene, [sample_draws(seed, 0)])
     img = (out["image"][0, 0].numpy() * 255).round().astype(np.uint8)
     p_cam = poses.transform_points(T, board.points(torch.float64))
     angle = torch.rad2deg(torch.atan2(p_cam[:, :2].norm(dim=-1), p_cam[:, 2])).numpy()

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from cotrain.geometry import cameras, poses
-from cotrain.render.renderer import RenderConfig, Scene, render_scene, sample_generator
+from cotrain.render.renderer import RenderConfig, Scene, render_scene, sample_draws
 from cotrain.targets import TargetConfig, make_target
 
 
@@ -24,7 +24,7 @@ def test_rendered_aprilgrid_decodes_at_its_labels(model):
     eye = c + torch.tensor([0.04, -0.03, 0.3], dtype=torch.float64)  # on the printed (+z) side
     T = torch.linalg.inv(poses.look_at(eye, c, torch.tensor([0.0, 1.0, 0.0], dtype=torch.float64)))
     scene = lambda T: Scene([model], [params], torch.tensor([200.0]), torch.tensor([380.0]), T[None])  # noqa: E731
-    out = render_scene(rc, g, scene(T), [sample_generator(1, 0)])
+    out = render_scene(rc, g, scene(T), [sample_draws(1, 0)])
     img = (out["image"][0, 0].numpy() * 255).round().astype(np.uint8)
     q, vis = out["corners"][0].numpy(), out["visible"][0].numpy()
     assert vis.all()
@@ -38,5 +38,5 @@ def test_rendered_aprilgrid_decodes_at_its_labels(model):
     # Seen from behind, the print is not drawn and no corner is labelled visible.
     eye_back = c + torch.tensor([0.04, -0.03, -0.3], dtype=torch.float64)
     T_back = torch.linalg.inv(poses.look_at(eye_back, c, torch.tensor([0.0, 1.0, 0.0], dtype=torch.float64)))
-    back = render_scene(rc, g, scene(T_back), [sample_generator(1, 0)])
+    back = render_scene(rc, g, scene(T_back), [sample_draws(1, 0)])
     assert not back["visible"][0].any()
