@@ -7,11 +7,15 @@ CPU). Checkpoints are written atomically, carry their config, and ``--resume`` c
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import math
 import os
 import time
+from collections import deque
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -25,6 +29,7 @@ from cotrain.geometry.letterbox import CELLS
 from cotrain.model.losses import LossConfig, compute_losses
 from cotrain.model.network import CornerNet, ModelConfig
 from cotrain.progress import progress_bar
+from cotrain.render.draws import to_device
 from cotrain.render.renderer import RenderConfig, render_batch
 from cotrain.targets import Target, make_target
 
@@ -303,25 +308,71 @@ class TrainingBatches(torch.utils.data.Dataset):
         return batch
 
 
-def _one_thread(_: int) -> None:
+def _one_thread() -> None:
     torch.set_num_threads(1)  # a render worker: one core each, the training process keeps its own
 
 
-def batches_ahead(jobs: TrainingBatches, steps: range, workers: int, dev: torch.device):
+class BatchesAhead:
     """The batches of ``steps`` in order, rendered ahead by ``workers`` processes on the CPU (one
-    thread each) and moved to ``dev``; two batches per worker are kept waiting."""
-    loader = torch.utils.data.DataLoader(
-        jobs,
-        batch_size=None,
-        sampler=steps,
-        num_workers=workers,
-        prefetch_factor=2,
-        worker_init_fn=_one_thread,
-        multiprocessing_context="spawn",  # no worker inherits the parent's CUDA context or threads
-        pin_memory=dev.type == "cuda",
-    )
-    for batch in loader:
-        yield {k: v.to(dev, non_blocking=True) for k, v in batch.items()}
+    thread each, spawned: none inherits the parent's CUDA context or threads) and moved to
+    ``dev`` (on a GPU through pinned memory, without a host sync); two batches per worker are
+    kept waiting.
+
+    A context manager: leaving it (the run's end, a chunk's time up, an error) cancels the
+    batches not started, lets the running ones finish and waits for every worker to exit, so no
+    worker is killed in the middle of a batch. A worker that dies is a one-line error."""
+
+    def __init__(self, jobs: TrainingBatches, steps: range, workers: int, dev: torch.device):
+        self.jobs, self.steps, self.dev = jobs, iter(steps), dev
+        ctx = torch.multiprocessing.get_context("spawn")
+        self.pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_one_thread)
+        self.waiting: deque = deque()
+        self.depth = 2 * workers
+        self._fill()
+
+    def _fill(self) -> None:
+        while len(self.waiting) < self.depth:
+            step = next(self.steps, None)
+            if step is None:
+                return
+            self.waiting.append(self.pool.submit(self.jobs.__getitem__, step))
+
+    def __iter__(self) -> BatchesAhead:
+        return self
+
+    def __next__(self) -> dict[str, Tensor]:
+        if not self.waiting:
+            raise StopIteration
+        try:
+            batch = self.waiting.popleft().result()
+        except BrokenProcessPool:
+            raise RuntimeError(
+                "train.render_workers: a render worker died (out of memory?); --resume goes on from the last checkpoint"
+            ) from None
+        self._fill()
+        return {k: to_device(v, self.dev) for k, v in batch.items()}
+
+    def close(self) -> None:
+        """Stop: the batches not started are dropped, the workers finish and exit."""
+        self.waiting.clear()
+        self.pool.shutdown(wait=True, cancel_futures=True)
+
+    def __enter__(self) -> BatchesAhead:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _chunk_over(s: TrainSettings, t_process: float, world: int, dev: torch.device) -> bool:
+    """Whether this process's chunk (``train.stop_after_minutes``) is up: a host check, and with
+    several processes an all-reduce so that every rank stops at the same step."""
+    up = time.time() - t_process > s.stop_after_minutes * 60
+    if world == 1:
+        return up
+    flag = torch.tensor([float(up)], device=dev)
+    dist.all_reduce(flag, op=dist.ReduceOp.MAX)
+    return flag.item() > 0
 
 
 def train(cfg: TrainConfig, resume: bool = False) -> dict:
@@ -420,86 +471,82 @@ def train(cfg: TrainConfig, resume: bool = False) -> dict:
 
     end = min(s.steps, s.stop_after) if s.stop_after > 0 else s.steps
     jobs = TrainingBatches(cfg.render, easy, s, board, world, rank, dev if s.render_workers == 0 else torch.device("cpu"))
-    ahead = None if s.render_workers == 0 else batches_ahead(jobs, range(step, end), s.render_workers, dev)
-    last_loss = float("nan")
+    ahead = BatchesAhead(jobs, range(step, end), s.render_workers, dev) if s.render_workers else contextlib.nullcontext()
+    last_loss = torch.tensor(float("nan"))
     first_step, saved_at = step, -1
-    while step < end:
-        if s.stop_after_minutes > 0 and step > first_step:  # a chunk's time is up: checkpoint and stop (--resume goes on)
-            up = torch.tensor([float(time.time() - t_process > s.stop_after_minutes * 60)], device=dev)
-            if world > 1:
-                dist.all_reduce(up, op=dist.ReduceOp.MAX)  # every rank stops at the same step
-            if up.item() > 0:
+    with ahead:  # render workers, where there are any, stop cleanly however the loop ends
+        while step < end:
+            chunk_over = s.stop_after_minutes > 0 and step > first_step and _chunk_over(s, t_process, world, dev)
+            if chunk_over:  # checkpoint and stop; --resume goes on
                 if rank == 0 and saved_at != step:
                     save(last)
                 break
-        batch = next(ahead) if ahead is not None else jobs[step]
-        if teacher is not None:
-            with torch.no_grad():
-                batch["teacher"] = teacher(batch["image"])
-        out = ddp(batch["image"])
-        losses = compute_losses(out, batch, cfg.loss)
-        opt.zero_grad(set_to_none=True)
-        losses["total"].backward()
-        if s.grad_clip > 0:
-            torch.nn.utils.clip_grad_norm_(model.parameters(), s.grad_clip)
-        opt.step()
-        sched.step()
-        step += 1
-        last_loss = float(losses["total"].detach())
-        n_log += s.batch_size * world
-        bar.update(1)
+            batch = next(ahead) if s.render_workers else jobs[step]
+            if teacher is not None:
+                with torch.no_grad():
+                    batch["teacher"] = teacher(batch["image"])
+            out = ddp(batch["image"])
+            losses = compute_losses(out, batch, cfg.loss)
+            opt.zero_grad(set_to_none=True)
+            losses["total"].backward()
+            if s.grad_clip > 0:
+                torch.nn.utils.clip_grad_norm_(model.parameters(), s.grad_clip)
+            opt.step()
+            sched.step()
+            step += 1
+            last_loss = losses["total"].detach()  # a tensor: read (a host sync on a GPU) only where logged
+            n_log += s.batch_size * world
+            bar.update(1)
 
-        if rank != 0:
-            continue
-        if step % s.log_every == 0 or step == s.steps:
-            dt = time.time() - t_log
-            for k, v in losses.items():
-                if v.dim() == 0:
-                    writer.add_scalar(f"loss/{k}", float(v.detach()), step)
-            writer.add_scalar("train/lr", sched.get_last_lr()[0], step)
-            writer.add_scalar("train/samples_per_s", n_log / max(dt, 1e-9), step)
-            bar.set_postfix(loss=f"{float(losses['total'].detach()):.3f}", sps=f"{n_log / max(dt, 1e-9):.1f}")
-            t_log, n_log = time.time(), 0
-        if step % s.val_every == 0 or step == s.steps:
-            m = evaluate(model, val)
-            train_mode()
-            for k, v in m.items():
-                writer.add_scalar(f"val/{k}", v, step)
-            wall = time.time() - t_start
-            writer.add_scalar("val/recall_vs_wall_s", m["recall"], int(wall))
-            with curve_path.open("a") as f:
-                csv.writer(f).writerow(
-                    [
-                        step,
-                        f"{wall:.1f}",
-                        f"{m['recall']:.4f}",
-                        f"{m['error_px']:.4f}",
-                        f"{m['id_acc']:.4f}",
-                        f"{m['outlier_rate']:.4f}",
-                        f"{m['board_id_acc']:.4f}",
-                    ]
-                )
-            plot_curve(curve_path, out_dir / "curve.png")
-            bar.write(
-                f"step {step}: recall {m['recall']:.3f} err {m['error_px']:.3f}px id_acc {m['id_acc']:.3f} "
-                f"outliers {m['outlier_rate']:.3f} board_id_acc {m['board_id_acc']:.3f}"
-            )
-            score = m[s.select_by]
-            if score > best:
-                best = score
-                save(out_dir / "best.pt")
-        if step % s.image_every == 0 or step == s.steps:
-            with torch.no_grad():
-                model.eval()
-                o = model(val["image"][:4])
+            if rank != 0:
+                continue
+            if step % s.log_every == 0 or step == s.steps:
+                dt = time.time() - t_log
+                for k, v in losses.items():
+                    if v.dim() == 0:
+                        writer.add_scalar(f"loss/{k}", float(v.detach()), step)
+                writer.add_scalar("train/lr", sched.get_last_lr()[0], step)
+                writer.add_scalar("train/samples_per_s", n_log / max(dt, 1e-9), step)
+                bar.set_postfix(loss=f"{float(losses['total'].detach()):.3f}", sps=f"{n_log / max(dt, 1e-9):.1f}")
+                t_log, n_log = time.time(), 0
+            if step % s.val_every == 0 or step == s.steps:
+                m = evaluate(model, val)
                 train_mode()
-            writer.add_image("val/predictions", _panel(o, val["image"][:4]), step)
-        if time.time() - t_ckpt > s.ckpt_minutes * 60 or step == end:
-            save(last)
-            t_ckpt, saved_at = time.time(), step
+                for k, v in m.items():
+                    writer.add_scalar(f"val/{k}", v, step)
+                wall = time.time() - t_start
+                writer.add_scalar("val/recall_vs_wall_s", m["recall"], int(wall))
+                with curve_path.open("a") as f:
+                    csv.writer(f).writerow(
+                        [
+                            step,
+                            f"{wall:.1f}",
+                            f"{m['recall']:.4f}",
+                            f"{m['error_px']:.4f}",
+                            f"{m['id_acc']:.4f}",
+                            f"{m['outlier_rate']:.4f}",
+                            f"{m['board_id_acc']:.4f}",
+                        ]
+                    )
+                plot_curve(curve_path, out_dir / "curve.png")
+                bar.write(
+                    f"step {step}: recall {m['recall']:.3f} err {m['error_px']:.3f}px id_acc {m['id_acc']:.3f} "
+                    f"outliers {m['outlier_rate']:.3f} board_id_acc {m['board_id_acc']:.3f}"
+                )
+                score = m[s.select_by]
+                if score > best:
+                    best = score
+                    save(out_dir / "best.pt")
+            if step % s.image_every == 0 or step == s.steps:
+                with torch.no_grad():
+                    model.eval()
+                    o = model(val["image"][:4])
+                    train_mode()
+                writer.add_image("val/predictions", _panel(o, val["image"][:4]), step)
+            if time.time() - t_ckpt > s.ckpt_minutes * 60 or step == end:
+                save(last)
+                t_ckpt, saved_at = time.time(), step
     bar.close()
-    if ahead is not None:
-        ahead.close()  # the render workers stop
     if world > 1:  # BatchNorm statistics of the last step are per rank: take rank 0's, as DDP does
         for buf in model.buffers():
             dist.broadcast(buf, 0)
@@ -510,4 +557,4 @@ def train(cfg: TrainConfig, resume: bool = False) -> dict:
     if world > 1:
         dist.barrier()
         dist.destroy_process_group()
-    return {"step": step, "last_loss": last_loss, "best_score": best}
+    return {"step": step, "last_loss": float(last_loss), "best_score": best}

@@ -17,7 +17,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from cotrain.render.config import RenderConfig
-from cotrain.render.draws import SampleDraws
+from cotrain.render.draws import SampleDraws, to_device
 
 GLARE_STREAM = 104_729  # offset of a sample's glare stream's seed from its own
 
@@ -136,7 +136,7 @@ def coords(h: int, w: int, device: torch.device) -> tuple[Tensor, Tensor]:
 
 def scalars(values, device: torch.device) -> Tensor:
     """(G, 1, 1) float32 from Python numbers, each rounded as a Python scalar in a float32 op is."""
-    return torch.tensor(values, dtype=torch.float32, device=device)[:, None, None]
+    return to_device(np.asarray(values, np.float64), device, torch.float32)[:, None, None]
 
 
 def _paint_distractors(img: Tensor, tables: list[Appearance], xx: Tensor, yy: Tensor) -> Tensor:
@@ -145,6 +145,7 @@ def _paint_distractors(img: Tensor, tables: list[Appearance], xx: Tensor, yy: Te
     h, w = img.shape[-2:]
     for j in range(max((len(t.distractors) for t in tables), default=0)):
         idx = [b for b, t in enumerate(tables) if len(t.distractors) > j]
+        at = to_device(np.array(idx), img.device)
         cx, cy, a0, sq, nx, ny = zip(*(tables[b].distractors[j] for b in idx))
         cos, sin, sq, nx, ny = (scalars(v, img.device) for v in ([math.cos(a) for a in a0], [math.sin(a) for a in a0], sq, nx, ny))
         cx, cy = scalars(cx, img.device) * 1.6 - 0.8, scalars(cy, img.device) * 1.6 - 0.8
@@ -153,7 +154,7 @@ def _paint_distractors(img: Tensor, tables: list[Appearance], xx: Tensor, yy: Te
         v = (-sin * dx + cos * dy) / sq + ny / 2
         inside = (u > 0) & (u < nx) & (v > 0) & (v < ny)
         pattern = ((torch.floor(u) + torch.floor(v)) % 2 == 0).float() * 0.8 + 0.1
-        img[idx] = torch.where(inside, pattern, img[idx])
+        img[at] = torch.where(inside, pattern, img[at])
     return img
 
 
@@ -162,7 +163,7 @@ def paint_background(cfg: RenderConfig, tables: list[Appearance], h: int, w: int
     xx, yy = coords(h, w, device)
 
     def stacked(key: str) -> Tensor:
-        return torch.from_numpy(np.stack([t.background[key] for t in tables])).to(device)
+        return to_device(np.stack([t.background[key] for t in tables]), device)
 
     def per_sample(key: str) -> Tensor:  # (B, 1, 1) from (1,) draws
         return stacked(key)[:, :, None]
@@ -197,6 +198,7 @@ def paint_occluders(img: Tensor, tables: list[Appearance]) -> tuple[Tensor, Tens
     xx, yy = coords(*img.shape[-2:], img.device)
     for j in range(max((len(t.occluders) for t in tables), default=0)):
         idx = [b for b, t in enumerate(tables) if len(t.occluders) > j]
+        at = to_device(np.array(idx), img.device)
         cx, cy, ax, ay, a, val = zip(*(tables[b].occluders[j] for b in idx))
         cx, cy, ax, ay, val = (scalars(v, img.device) for v in (cx, cy, ax, ay, val))
         cos, sin = scalars([math.cos(t) for t in a], img.device), scalars([math.sin(t) for t in a], img.device)
@@ -204,6 +206,6 @@ def paint_occluders(img: Tensor, tables: list[Appearance]) -> tuple[Tensor, Tens
         uu = (cos * dx + sin * dy) / ax
         vv = (-sin * dx + cos * dy) / ay
         m = ((uu * uu + vv * vv) < 1).float()
-        img[idx] = img[idx] * (1 - m) + val * m
-        occ[idx] = torch.maximum(occ[idx], m)
+        img[at] = img[at] * (1 - m) + val * m
+        occ[at] = torch.maximum(occ[at], m)
     return img, occ

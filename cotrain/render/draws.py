@@ -99,3 +99,12 @@ def box_muller(blocks: Tensor, n: int) -> Tensor:
 def sample_draws(seed: int, index: int) -> SampleDraws:
     """The stream of sample ``index`` under ``seed`` (independent of the batch it is rendered in)."""
     return SampleDraws((seed * 1_000_003 + index * 7_919 + 12_345) % (2**63 - 1))
+
+
+def to_device(values, device: torch.device, dtype: torch.dtype | None = None) -> Tensor:
+    """Host numbers (a numpy array, a list or a CPU tensor) as a tensor on ``device``. On a GPU
+    they go through pinned memory without waiting (the copy queues behind the GPU's work: no host
+    sync); on the CPU the tensor may share the array's memory."""
+    t = values if isinstance(values, Tensor) else torch.from_numpy(np.ascontiguousarray(values))
+    t = t if dtype is None else t.to(dtype)
+    return t.pin_memory().to(device, non_blocking=True) if device.type == "cuda" else t

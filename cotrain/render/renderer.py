@@ -39,7 +39,7 @@ from torch import Tensor
 from cotrain.geometry import cameras
 from cotrain.render.appearance import GLARE_STREAM, Appearance, column, draw_appearance, paint_background, paint_occluders, scalars
 from cotrain.render.config import RenderConfig
-from cotrain.render.draws import SampleDraws, box_muller, sample_draws
+from cotrain.render.draws import SampleDraws, box_muller, sample_draws, to_device
 from cotrain.render.scene import Scene, corner_geometry, sample_scene
 from cotrain.targets import Target, make_target, sees_print
 
@@ -85,11 +85,12 @@ def _rays(scene: Scene, grid: Tensor) -> tuple[Tensor, Tensor]:
     v_all = grid.new_empty(B, H, W, 3)
     ok_all = torch.empty(B, H, W, dtype=torch.bool, device=grid.device)
     for model, idx in scene.families().items():
-        p = torch.from_numpy(scene.family_params(idx)).to(grid.device, torch.float32)[:, None, None, :]  # (G, 1, 1, P)
+        p = to_device(scene.family_params(idx), grid.device, torch.float32)[:, None, None, :]  # (G, 1, 1, P)
         v, ok = cameras.unproject(model, grid[None], p)
-        half = torch.from_numpy(np.radians(scene.fov[idx]) / 2).to(grid.device, v.dtype)
-        v_all[idx] = v
-        ok_all[idx] = ok & (cameras.off_axis_angle(v) <= half[:, None, None])
+        half = to_device(np.radians(scene.fov[idx]) / 2, grid.device, v.dtype)
+        at = to_device(np.array(idx), grid.device)
+        v_all[at] = v
+        ok_all[at] = ok & (cameras.off_axis_angle(v) <= half[:, None, None])
     return v_all, ok_all
 
 
@@ -164,7 +165,7 @@ def _board_layer(cfg: RenderConfig, board: Target, scene: Scene, light: _Print, 
     (B, H, W), coverage (B, H, W), the checker squares' region ``in_squares`` and the board's
     corner-grid coordinates ``u``, ``v``."""
     v, in_circle = _rays(scene, grid)
-    xy, hit = _board_hit(v, torch.from_numpy(scene.T_cam_board).to(grid.device), board.front)
+    xy, hit = _board_hit(v, to_device(scene.T_cam_board, grid.device), board.front)
     # Footprint of a sample in board metres, from finite differences across neighbouring samples.
     gx = torch.zeros_like(xy)
     gy = torch.zeros_like(xy)
@@ -193,9 +194,9 @@ def _board_layer(cfg: RenderConfig, board: Target, scene: Scene, light: _Print, 
 def _image_circle(scene: Scene, tables: list[Appearance], img: Tensor, grid: Tensor) -> Tensor:
     """Black outside the image circle, with a soft, anti-aliased rim and vignetting."""
     dev = img.device
-    centres = torch.from_numpy(scene.principal_points()).to(dev, torch.float32)
+    centres = to_device(scene.principal_points(), dev, torch.float32)
     r_px = (grid[None] - centres[:, None, None, :]).norm(dim=-1)
-    rad = torch.from_numpy(scene.radius).to(dev, torch.float32)[:, None, None]
+    rad = to_device(scene.radius, dev, torch.float32)[:, None, None]
     rim = (rad - r_px + 0.5).clamp(0, 1)
     vignette = 1 - column(tables, "vignette", dev) * (r_px / rad).clamp(0, 1) ** 3
     return img * vignette * rim
@@ -230,9 +231,10 @@ def _motion_blur(img: Tensor, tables: list[Appearance]) -> tuple[Tensor, Tensor]
     for k, idx in lengths.items():
         _, angles, directions = zip(*(tables[b].motion for b in idx))
         shift[idx] = motion_blur_shifts(k, list(angles), list(directions))
-        angle, direction = (torch.tensor(a, dtype=torch.float32, device=img.device) for a in (angles, directions))
-        img[idx] = kornia.filters.motion_blur(img[idx], k, angle, direction)
-    return img, shift.to(img.device)
+        angle, direction = (to_device(np.float32(a), img.device) for a in (angles, directions))
+        at = to_device(np.array(idx), img.device)
+        img[at] = kornia.filters.motion_blur(img[at], k, angle, direction)
+    return img, to_device(shift, img.device)
 
 
 def _jpeg(img: Tensor, qualities: list[int]) -> Tensor:
@@ -251,7 +253,7 @@ def _jpeg(img: Tensor, qualities: list[int]) -> Tensor:
         decoded = list(pool.map(round_trip, range(len(idx))))
     done = [i for i, d in enumerate(decoded) if d is not None]
     if done:
-        img[[idx[i] for i in done], 0] = torch.from_numpy(np.stack([decoded[i] for i in done])).to(img.device)
+        img[to_device(np.array([idx[i] for i in done]), img.device), 0] = to_device(np.stack([decoded[i] for i in done]), img.device)
     return img
 
 
@@ -263,12 +265,12 @@ def _optics(img: Tensor, tables: list[Appearance]) -> tuple[Tensor, Tensor, Tens
     exposure, gamma = column(tables, "exposure", dev)[..., None], column(tables, "gamma", dev)[..., None]
     img = (img * exposure).clamp(0, 1) ** gamma
     sigma = np.float32([t.blur_sigma for t in tables])
-    sig = torch.from_numpy(sigma).to(dev)
+    sig = to_device(sigma, dev)
     if (sigma > 0).any():
         blurred = kornia.filters.gaussian_blur2d(img, (7, 7), torch.stack([sig.clamp_min(0.05)] * 2, -1))
         img = torch.where(sig[:, None, None, None] > 0, blurred, img)
     img, shift = _motion_blur(img, tables)
-    fields = box_muller(torch.from_numpy(np.stack([t.noise_uniforms for t in tables])).to(dev), H * W).reshape(B, 1, H, W)
+    fields = box_muller(to_device(np.stack([t.noise_uniforms for t in tables]), dev), H * W).reshape(B, 1, H, W)
     img = (img + column(tables, "noise", dev)[..., None] * fields * (0.5 + img)).clamp(0, 1)
     return _jpeg(img, [t.jpeg_quality for t in tables]), shift, sig
 
@@ -281,8 +283,8 @@ def _washed_out(board: Target, scene: Scene, tables: list[Appearance], light: _P
     p_board = board.points(torch.float32)[:, :2].to(dev)
     cx, cy = (c[None].expand(B, -1) for c in light.on_sheet(p_board[:, 0], p_board[:, 1]))
     lit = light.shading(cx[..., None], cy[..., None])[..., 0]  # (B, N)
-    centres = torch.from_numpy(scene.principal_points()).to(dev, torch.float32)
-    rad = torch.from_numpy(scene.radius).to(dev, torch.float32)
+    centres = to_device(scene.principal_points(), dev, torch.float32)
+    rad = to_device(scene.radius, dev, torch.float32)
     r_rel = ((corners_raw.float() - centres[:, None, :]).norm(dim=-1) / rad[:, None]).clamp(0, 1)
     e = column(tables, "exposure", dev)[:, 0] * (1 - column(tables, "vignette", dev)[:, 0] * r_rel**3)  # the vignetting before the exposure
     gm = column(tables, "gamma", dev)[:, 0]
@@ -336,9 +338,9 @@ def render_scene(
     (one stream per sample). Returns the dict of :func:`render_batch`, every tensor on ``device``."""
     dev = torch.device(device)
     H, W, ss = cfg.height, cfg.width, cfg.supersample
-    labels = {k: v.to(dev) for k, v in corner_labels(cfg, board, scene).items()}  # a few points: computed on the CPU
+    labels = {k: to_device(v, dev) for k, v in corner_labels(cfg, board, scene).items()}  # a few points: computed on the CPU
     tables = [draw_appearance(cfg, d) for d in draws]
-    no_target = torch.tensor([t.no_target for t in tables], dtype=torch.bool, device=dev)
+    no_target = to_device(np.array([t.no_target for t in tables], bool), dev)
     light = _Print(board, tables, dev)
     grid = _pixel_grid(H, W, ss, dev)
     layer = _board_layer(cfg, board, scene, light, no_target, grid)
@@ -367,11 +369,11 @@ def render_scene(
         "board_mask": squares.clamp(0, 1),
         "board_uv": torch.stack([u, v], 1) * (squares > 0.5),
         "blur_sigma": sig,
-        "fov": torch.from_numpy(scene.fov).to(dev, torch.float32),
+        "fov": to_device(scene.fov, dev, torch.float32),
         "has_target": ~no_target,
-        "radius": torch.from_numpy(scene.radius).to(dev, torch.float32),
-        "model_index": torch.tensor([cfg.models.index(m) if m in cfg.models else -1 for m in scene.model], device=dev),
-        "T_cam_board": torch.from_numpy(scene.T_cam_board).to(dev),
+        "radius": to_device(scene.radius, dev, torch.float32),
+        "model_index": to_device(np.array([cfg.models.index(m) if m in cfg.models else -1 for m in scene.model], np.int64), dev),
+        "T_cam_board": to_device(scene.T_cam_board, dev),
         "params": [torch.from_numpy(p) for p in scene.params],
     }
 
