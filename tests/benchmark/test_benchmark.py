@@ -206,3 +206,19 @@ def test_rig_frames_with_glare_differ_from_the_clean_ones_by_a_bright_spot(tmp_p
     render_rig_sequence(rig, 2, tmp_path / "clean", seed=11, progress=False, target=target, glare=1.0)  # asked again with glare
     again = cv2.imread(str(next((tmp_path / "clean").glob("cam0/images/*.png"))), cv2.IMREAD_GRAYSCALE)
     assert np.array_equal(again, cv2.imread(str(next((tmp_path / "glare").glob("cam0/images/*.png"))), cv2.IMREAD_GRAYSCALE))
+
+
+def test_training_throughput_script_measures_every_run_through_the_real_loop(tmp_path, capsys):
+    """The GPU session's prepared script, on the CPU: one entry per (batch, workers) pair with the
+    samples/s of its logged windows, written as it goes; a missing config is one line."""
+    from calib_eval.benchmark.train_throughput import main
+
+    out = tmp_path / "tt.json"
+    args = ["--config", "configs/tiny.yaml", "--init", "", "--device", "cpu", "--batch", "2", "--workers", "0", "1"]
+    assert main([*args, "--steps", "8", "--log-every", "2", "--threads", "1", "--out", str(out)]) == 0
+    runs = json.loads(out.read_text())["runs"]
+    assert [(r["batch"], r["workers"]) for r in runs] == [(2, 0), (2, 1)]
+    assert all(len(r["windows"]) == 4 and r["samples_per_s"] > 0 for r in runs)
+    with pytest.raises(SystemExit):
+        main(["--config", str(tmp_path / "none.yaml"), "--device", "cpu"])
+    assert "none.yaml" in capsys.readouterr().err
