@@ -3,8 +3,8 @@ busy the device is during a step. One prepared script for a GPU session (a few m
 
     python -m calib_eval.benchmark.train_throughput --device cuda --batch 64 128 --workers 0 12
 
-Each (batch, workers) pair trains ``--steps`` steps of ``--config`` from ``--init`` (the shipped
-model by default) with the real loop (:func:`cotrain.model.train.train`), and its samples/s is the
+Each (batch, workers, what the workers do: ``--workers-render``) trains ``--steps`` steps of
+``--config`` from ``--init`` (the shipped model by default) with the real loop (:func:`cotrain.model.train.train`), and its samples/s is the
 median of its logged windows after the first two (start-up, the workers' spawn). On a GPU the
 profiler then times ``--profile-steps`` whole steps at the first batch size, rendering on the
 device included and not: the device's busy share is its kernels' time over the steps' wall time.
@@ -43,10 +43,12 @@ def logged_samples_per_s(tb_dir: Path) -> list[float]:
     return [e.value for e in acc.Scalars("train/samples_per_s")]
 
 
-def measure_run(config: str, base: list[str], batch: int, workers: int, steps: int, log_every: int) -> dict:
-    """Train ``steps`` steps at ``batch`` with ``workers`` render workers; samples/s by window."""
+def measure_run(config: str, base: list[str], batch: int, workers: int, mode: str, steps: int, log_every: int) -> dict:
+    """Train ``steps`` steps at ``batch`` with ``workers`` render workers doing ``mode``
+    (``train.workers_render``); samples/s by window."""
     with tempfile.TemporaryDirectory() as tmp:
-        overrides = [*base, f"train.batch_size={batch}", f"train.render_workers={workers}", f"train.steps={steps}"]
+        overrides = [*base, f"train.batch_size={batch}", f"train.render_workers={workers}", f"train.workers_render={mode}"]
+        overrides += [f"train.steps={steps}"]
         overrides += [f"train.log_every={log_every}", f"train.val_every={10 * steps}", "train.val_size=8", "train.image_every=1000000"]
         overrides += ["train.ckpt_minutes=1000", "train.curriculum_steps=0", f"train.out_dir={tmp}"]
         t0 = time.perf_counter()
@@ -54,15 +56,10 @@ def measure_run(config: str, base: list[str], batch: int, workers: int, steps: i
         wall = time.perf_counter() - t0
         windows = logged_samples_per_s(Path(tmp) / "tb")
     steady = windows[2:] or windows
-    out = {
-        "batch": batch,
-        "workers": workers,
-        "steps": steps,
-        "samples_per_s": statistics.median(steady),
-        "windows": windows,
-        "wall_s": wall,
-    }
-    print(f"batch {batch:4d}, render workers {workers:2d}: {out['samples_per_s']:7.1f} samples/s (median of {len(steady)} windows)")
+    out = {"batch": batch, "workers": workers, "workers_render": mode if workers else "", "steps": steps}
+    out |= {"samples_per_s": statistics.median(steady), "windows": windows, "wall_s": wall}
+    what = f"render workers {workers:2d} ({mode})" if workers else "rendering in the training process"
+    print(f"batch {batch:4d}, {what}: {out['samples_per_s']:7.1f} samples/s (median of {len(steady)} windows)")
     return out
 
 
@@ -116,6 +113,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--device", default="cuda", help="train.device (cpu: the same figures on the CPU, no busy share)")
     ap.add_argument("--batch", type=int, nargs="+", default=[64, 128], help="batch sizes")
     ap.add_argument("--workers", type=int, nargs="+", default=[0, 12], help="train.render_workers values")
+    ap.add_argument(
+        "--workers-render",
+        nargs="+",
+        default=["pixels", "tables"],
+        choices=("pixels", "tables"),
+        help="train.workers_render values (with workers)",
+    )
     ap.add_argument("--threads", type=int, default=4, help="train.threads of the training process")
     ap.add_argument("--steps", type=int, default=60, help="steps per run")
     ap.add_argument("--log-every", type=int, default=5, help="steps per samples/s window")
@@ -129,8 +133,8 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(str(e))
     results = {"config": args.config, "device": args.device, "runs": []}
     for batch in args.batch:
-        for workers in args.workers:
-            results["runs"].append(measure_run(args.config, base, batch, workers, args.steps, args.log_every))
+        for workers, mode in [(w, m) for w in args.workers for m in (args.workers_render if w else ["pixels"])]:
+            results["runs"].append(measure_run(args.config, base, batch, workers, mode, args.steps, args.log_every))
             Path(args.out).parent.mkdir(parents=True, exist_ok=True)
             Path(args.out).write_text(json.dumps(results, indent=1))  # what is measured is kept, run by run
     if args.device.startswith("cuda"):

@@ -30,7 +30,7 @@ from cotrain.model.losses import LossConfig, compute_losses
 from cotrain.model.network import CornerNet, ModelConfig
 from cotrain.progress import progress_bar
 from cotrain.render.draws import to_device
-from cotrain.render.renderer import RenderConfig, render_batch
+from cotrain.render.renderer import Prepared, RenderConfig, prepare_batch, render_batch, render_prepared
 from cotrain.targets import Target, make_target
 
 
@@ -62,6 +62,9 @@ class TrainSettings:
     stop_after_minutes: float = 0.0  # stop with a checkpoint after this many minutes of this process (0 = no limit)
     device: str = "cpu"  # where the model trains and the batches are rendered: "cpu", "cuda", "cuda:1", ...
     render_workers: int = 0  # processes rendering batches ahead on the CPU (0: the training process renders them, on train.device)
+    workers_render: str = (
+        "pixels"  # what render workers do: "pixels" (whole batches, on the CPU) or "tables" (draws and labels; the pixels on train.device)
+    )
     curriculum_steps: int = 0  # before this step, train on closer, less cropped boards (identity is learned there first)
     curriculum_distance: tuple[float, float] = (0.1, 0.45)  # render.distance_range during the curriculum
     curriculum_offaxis_margin_deg: float = -10.0  # render.offaxis_margin_deg during the curriculum (negative: inside the FoV)
@@ -87,6 +90,8 @@ def finalize_config(cfg: TrainConfig) -> TrainConfig:
         raise ConfigError("train.batch_size and train.steps must be positive")
     if cfg.train.render_workers < 0:
         raise ConfigError(f"train.render_workers must be 0 or more, not {cfg.train.render_workers}")
+    if cfg.train.workers_render not in ("pixels", "tables"):
+        raise ConfigError(f"train.workers_render must be 'pixels' or 'tables', not {cfg.train.workers_render!r}")
     if cfg.train.select_by not in ("recall", "board_id_acc"):
         raise ConfigError(f"train.select_by must be 'recall' or 'board_id_acc', not {cfg.train.select_by!r}")
     train_device(cfg.train)
@@ -289,7 +294,9 @@ class TrainingBatches(torch.utils.data.Dataset):
     """The training stream by step: item ``step`` is that step's batch for this rank, rendered on
     ``device`` (the curriculum's scenes before ``train.curriculum_steps``). A pure function of the
     step, so worker processes rendering on the CPU give the batches the training process renders
-    on the CPU exactly; a GPU renders the same scenes to within float rounding."""
+    on the CPU exactly; a GPU renders the same scenes to within float rounding. The two halves of
+    an item can run in two processes: :meth:`prepare` (the draws and labels, CPU) and
+    :meth:`render` (the pixels, on ``device``)."""
 
     def __init__(
         self, full: RenderConfig, easy: RenderConfig, s: TrainSettings, board: Target, world: int, rank: int, device: torch.device
@@ -300,12 +307,23 @@ class TrainingBatches(torch.utils.data.Dataset):
     def __len__(self) -> int:
         return self.s.steps
 
-    def __getitem__(self, step: int) -> dict[str, torch.Tensor]:
+    def _render_config(self, step: int) -> RenderConfig:
+        return self.easy if step < self.s.curriculum_steps else self.full  # validation always uses the full one
+
+    def prepare(self, step: int) -> tuple[int, Prepared]:
+        """The CPU half of the step's batch: (step, its scenes, tables and labels)."""
         first = (step * self.world + self.rank) * self.s.batch_size
-        rcfg = self.easy if step < self.s.curriculum_steps else self.full  # validation always uses the full one
-        batch = render_batch(rcfg, list(range(first, first + self.s.batch_size)), seed=self.s.seed, board=self.board, device=self.device)
+        return step, prepare_batch(self._render_config(step), list(range(first, first + self.s.batch_size)), self.s.seed, self.board)
+
+    def render(self, prepared: tuple[int, Prepared]) -> dict[str, torch.Tensor]:
+        """The pixels of a prepared batch on ``device``."""
+        step, half = prepared
+        batch = render_prepared(self._render_config(step), self.board, half, self.device)
         batch.pop("params")  # per-sample camera parameters (a list): not trained on
         return batch
+
+    def __getitem__(self, step: int) -> dict[str, torch.Tensor]:
+        return self.render(self.prepare(step))
 
 
 def _one_thread() -> None:
@@ -313,17 +331,18 @@ def _one_thread() -> None:
 
 
 class BatchesAhead:
-    """The batches of ``steps`` in order, rendered ahead by ``workers`` processes on the CPU (one
-    thread each, spawned: none inherits the parent's CUDA context or threads) and moved to
-    ``dev`` (on a GPU through pinned memory, without a host sync); two batches per worker are
-    kept waiting.
+    """The batches of ``steps`` in order, prepared ahead by ``workers`` processes on the CPU (one
+    thread each, spawned: none inherits the parent's CUDA context or threads). ``pixels``: the
+    workers render whole batches, moved to ``dev`` through pinned memory without a host sync;
+    otherwise they do the draws and labels (:meth:`TrainingBatches.prepare`) and this process
+    renders the pixels on ``jobs.device``. Two batches per worker are kept waiting.
 
     A context manager: leaving it (the run's end, a chunk's time up, an error) cancels the
     batches not started, lets the running ones finish and waits for every worker to exit, so no
     worker is killed in the middle of a batch. A worker that dies is a one-line error."""
 
-    def __init__(self, jobs: TrainingBatches, steps: range, workers: int, dev: torch.device):
-        self.jobs, self.steps, self.dev = jobs, iter(steps), dev
+    def __init__(self, jobs: TrainingBatches, steps: range, workers: int, dev: torch.device, pixels: bool = True):
+        self.jobs, self.steps, self.dev, self.pixels = jobs, iter(steps), dev, pixels
         ctx = torch.multiprocessing.get_context("spawn")
         self.pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_one_thread)
         self.waiting: deque = deque()
@@ -335,7 +354,7 @@ class BatchesAhead:
             step = next(self.steps, None)
             if step is None:
                 return
-            self.waiting.append(self.pool.submit(self.jobs.__getitem__, step))
+            self.waiting.append(self.pool.submit(self.jobs.__getitem__ if self.pixels else self.jobs.prepare, step))
 
     def __iter__(self) -> BatchesAhead:
         return self
@@ -344,13 +363,15 @@ class BatchesAhead:
         if not self.waiting:
             raise StopIteration
         try:
-            batch = self.waiting.popleft().result()
+            done = self.waiting.popleft().result()
         except BrokenProcessPool:
             raise RuntimeError(
                 "train.render_workers: a render worker died (out of memory?); --resume goes on from the last checkpoint"
             ) from None
         self._fill()
-        return {k: to_device(v, self.dev) for k, v in batch.items()}
+        if not self.pixels:
+            return self.jobs.render(done)
+        return {k: to_device(v, self.dev) for k, v in done.items()}
 
     def close(self) -> None:
         """Stop: the batches not started are dropped, the workers finish and exit."""
@@ -470,8 +491,9 @@ def train(cfg: TrainConfig, resume: bool = False) -> dict:
         _atomic_save(ck, path)
 
     end = min(s.steps, s.stop_after) if s.stop_after > 0 else s.steps
-    jobs = TrainingBatches(cfg.render, easy, s, board, world, rank, dev if s.render_workers == 0 else torch.device("cpu"))
-    ahead = BatchesAhead(jobs, range(step, end), s.render_workers, dev) if s.render_workers else contextlib.nullcontext()
+    pixels_on_workers = s.render_workers > 0 and s.workers_render == "pixels"
+    jobs = TrainingBatches(cfg.render, easy, s, board, world, rank, torch.device("cpu") if pixels_on_workers else dev)
+    ahead = BatchesAhead(jobs, range(step, end), s.render_workers, dev, pixels_on_workers) if s.render_workers else contextlib.nullcontext()
     last_loss = torch.tensor(float("nan"))
     first_step, saved_at = step, -1
     with ahead:  # render workers, where there are any, stop cleanly however the loop ends

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import functools
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 
 import cv2
 import kornia
@@ -46,10 +47,13 @@ from cotrain.targets import Target, make_target, sees_print
 __all__ = [
     "GLARE_STREAM",
     "LABEL_VERSION",
+    "Prepared",
     "RenderConfig",
     "RenderedDataset",
     "Scene",
+    "prepare_batch",
     "render_batch",
+    "render_prepared",
     "render_scene",
     "sample_draws",
     "sample_scene",
@@ -327,8 +331,30 @@ def render_batch(
         T_cam_board: (B, 4, 4); params: list of per-sample camera parameter tensors
     """
     board = board or make_target(cfg.target)
+    return render_prepared(cfg, board, prepare_batch(cfg, indices, seed, board), device)
+
+
+@dataclass
+class Prepared:
+    """A batch's CPU half (steps 1-3 of the module docstring): its scenes, appearance tables and
+    corner labels, all the random draws done. Picklable: a render worker can prepare batches and
+    the training process render their pixels on its device (:func:`render_prepared`)."""
+
+    scene: Scene
+    tables: list[Appearance]
+    labels: dict[str, Tensor]  # corner_labels, on the CPU
+
+
+def prepare_scene(cfg: RenderConfig, board: Target, scene: Scene, draws: list[SampleDraws]) -> Prepared:
+    """The CPU half of rendering ``scene``, the appearance drawn from ``draws`` (one per sample)."""
+    return Prepared(scene, [draw_appearance(cfg, d) for d in draws], corner_labels(cfg, board, scene))
+
+
+def prepare_batch(cfg: RenderConfig, indices: list[int], seed: int = 0, board: Target | None = None) -> Prepared:
+    """The CPU half of :func:`render_batch`."""
+    board = board or make_target(cfg.target)
     draws = [sample_draws(seed, i) for i in indices]
-    return render_scene(cfg, board, sample_scene(cfg, board, draws), draws, device)
+    return prepare_scene(cfg, board, sample_scene(cfg, board, draws), draws)
 
 
 def render_scene(
@@ -336,10 +362,15 @@ def render_scene(
 ) -> dict[str, Tensor]:
     """Render given cameras and poses (``scene``) on ``device``; appearance is drawn from ``draws``
     (one stream per sample). Returns the dict of :func:`render_batch`, every tensor on ``device``."""
+    return render_prepared(cfg, board, prepare_scene(cfg, board, scene, draws), device)
+
+
+def render_prepared(cfg: RenderConfig, board: Target, prepared: Prepared, device: str | torch.device = CPU) -> dict[str, Tensor]:
+    """The pixels of a prepared batch on ``device`` (steps 4-5): the dict of :func:`render_batch`."""
     dev = torch.device(device)
     H, W, ss = cfg.height, cfg.width, cfg.supersample
-    labels = {k: to_device(v, dev) for k, v in corner_labels(cfg, board, scene).items()}  # a few points: computed on the CPU
-    tables = [draw_appearance(cfg, d) for d in draws]
+    scene, tables = prepared.scene, prepared.tables
+    labels = {k: to_device(v, dev) for k, v in prepared.labels.items()}
     no_target = to_device(np.array([t.no_target for t in tables], bool), dev)
     light = _Print(board, tables, dev)
     grid = _pixel_grid(H, W, ss, dev)

@@ -209,15 +209,15 @@ def test_rig_frames_with_glare_differ_from_the_clean_ones_by_a_bright_spot(tmp_p
 
 
 def test_training_throughput_script_measures_every_run_through_the_real_loop(tmp_path, capsys):
-    """The GPU session's prepared script, on the CPU: one entry per (batch, workers) pair with the
-    samples/s of its logged windows, written as it goes; a missing config is one line."""
+    """The GPU session's prepared script, on the CPU: one entry per (batch, workers, what they do)
+    with the samples/s of its logged windows, written as it goes; a missing config is one line."""
     from calib_eval.benchmark.train_throughput import main
 
     out = tmp_path / "tt.json"
     args = ["--config", "configs/tiny.yaml", "--init", "", "--device", "cpu", "--batch", "2", "--workers", "0", "1"]
     assert main([*args, "--steps", "8", "--log-every", "2", "--threads", "1", "--out", str(out)]) == 0
     runs = json.loads(out.read_text())["runs"]
-    assert [(r["batch"], r["workers"]) for r in runs] == [(2, 0), (2, 1)]
+    assert [(r["batch"], r["workers"], r["workers_render"]) for r in runs] == [(2, 0, ""), (2, 1, "pixels"), (2, 1, "tables")]
     assert all(len(r["windows"]) == 4 and r["samples_per_s"] > 0 for r in runs)
     with pytest.raises(SystemExit):
         main(["--config", str(tmp_path / "none.yaml"), "--device", "cpu"])

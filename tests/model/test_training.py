@@ -100,8 +100,14 @@ def test_render_workers_train_like_the_training_process(tmp_path):
     )
     assert b["step"] == 3
     assert abs(a["last_loss"] - b["last_loss"]) < 1e-5 * max(1.0, abs(a["last_loss"]))
+    # Workers that only draw (the pixels rendered here, as on a GPU) train the same run too.
+    tables = ("train.render_workers=2", "train.workers_render=tables")
+    c = train(tiny(tmp_path / "t", "train.steps=3", "train.ckpt_minutes=0", "train.curriculum_steps=1", *tables))
+    assert c["step"] == 3 and abs(a["last_loss"] - c["last_loss"]) < 1e-5 * max(1.0, abs(a["last_loss"]))
     with pytest.raises(ConfigError, match="render_workers"):
         tiny(tmp_path / "c", "train.render_workers=-1")
+    with pytest.raises(ConfigError, match="workers_render"):
+        tiny(tmp_path / "c", "train.workers_render=gpu")
 
 
 def test_render_workers_stop_cleanly_when_a_chunk_ends(tmp_path):
@@ -141,6 +147,10 @@ def test_render_workers_stop_when_the_loop_fails(tmp_path):
         raise KeyboardInterrupt
     assert set(multiprocessing.active_children()) <= before
     assert torch.equal(first["image"], jobs[3]["image"]) and torch.equal(first["corners"], jobs[3]["corners"])
+    with BatchesAhead(jobs, range(3, 1000), 1, cpu, pixels=False) as ahead:  # workers draw, this process renders
+        drawn = next(ahead)
+    assert set(multiprocessing.active_children()) <= before
+    assert all(torch.equal(drawn[k], first[k]) for k in first)
 
 
 def test_device_names_are_checked_before_training(tmp_path):
