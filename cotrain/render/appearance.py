@@ -2,8 +2,8 @@
 occluders painted from the tables.
 
 :func:`draw_appearance` takes every appearance number of one sample from its stream, in one fixed
-order (numpy, no tensor operation); :func:`stack_tables` turns a batch's tables into arrays; the
-painters then work on the whole batch at once, a few kernels per shape, whatever the batch size.
+order (numpy, no tensor operation); the painters stack a batch's tables into arrays and paint the
+whole batch at once, a few kernels per shape, whatever the batch size.
 """
 
 from __future__ import annotations
@@ -31,11 +31,11 @@ class Appearance:
     white: float  # ... and white
     light: tuple[float, float]  # the light's gradient over the sheet, x and y
     background: dict[str, np.ndarray]  # float32 draws of the procedural background (see paint_background)
-    distractors: list[tuple[float, ...]]  # (cx, cy, angle rad, square, nx, ny) of checker-like distractors
+    distractors: list[tuple[float, ...]]  # (cx, cy in [0, 1), angle rad, square, nx, ny) of checker-like distractors
     occluders: list[tuple[float, ...]]  # (cx, cy, ax, ay, angle, value) ellipses in front of everything
     vignette: float  # darkening at the image circle's rim
-    exposure: float
-    gamma: float
+    exposure: float  # gain before clipping (over 1 clips the whites)
+    gamma: float  # applied after the exposure
     blur_sigma: float  # defocus sigma, px (0: none)
     motion: tuple[int, float, float] | None  # motion blur (kernel length px, angle deg, direction) or none
     noise: float  # read-noise sigma

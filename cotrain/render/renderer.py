@@ -49,7 +49,6 @@ __all__ = [
     "LABEL_VERSION",
     "Prepared",
     "RenderConfig",
-    "RenderedDataset",
     "Scene",
     "prepare_batch",
     "render_batch",
@@ -407,23 +406,3 @@ def render_prepared(cfg: RenderConfig, board: Target, prepared: Prepared, device
         "T_cam_board": to_device(scene.T_cam_board, dev),
         "params": [torch.from_numpy(p) for p in scene.params],
     }
-
-
-class RenderedDataset(torch.utils.data.Dataset):
-    """Map-style dataset over an endless stream: item ``idxs`` (a list) renders that batch.
-
-    Use with ``DataLoader(ds, batch_size=None, sampler=BatchSampler(...))`` so that a batch is
-    rendered with tensor ops in one call; works in DataLoader workers.
-    """
-
-    def __init__(self, cfg: RenderConfig, seed: int = 0, length: int = 10**9):
-        self.cfg, self.seed, self.length = cfg, seed, length
-        self.board = make_target(cfg.target)
-
-    def __len__(self) -> int:
-        return self.length
-
-    def __getitem__(self, idxs: list[int]) -> dict[str, Tensor]:
-        out = render_batch(self.cfg, list(idxs), self.seed, self.board)
-        out.pop("params")
-        return out
