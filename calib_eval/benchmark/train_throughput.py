@@ -67,6 +67,7 @@ def device_busy_share(config: str, base: list[str], batch: int, steps: int) -> d
     """The device's kernel time over the wall time of ``steps`` training steps at ``batch``: with
     the batch rendered in the step (no workers), and on batches already rendered (what workers
     that keep up would give)."""
+    from torch.autograd import DeviceType
     from torch.profiler import ProfilerActivity, profile
 
     cfg = run_config(config, [*base, f"train.batch_size={batch}"])
@@ -97,7 +98,8 @@ def device_busy_share(config: str, base: list[str], batch: int, steps: int) -> d
                 step(jobs[i + 1] if render else ready)
             sync()
             wall_us = (time.perf_counter() - t0) * 1e6
-        busy_us = sum(e.self_device_time_total for e in prof.key_averages() if e.self_device_time_total > 0)
+        # The kernels' own events only (a launching CPU operator carries its kernels' time too).
+        busy_us = sum(e.self_device_time_total for e in prof.key_averages() if e.device_type == DeviceType.CUDA)
         return busy_us / wall_us
 
     out = {"batch": batch, "steps": steps, "busy_rendering_in_step": share(True), "busy_batches_ready": share(False)}
@@ -126,6 +128,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--profile-steps", type=int, default=5, help="steps under the profiler (GPU only)")
     ap.add_argument("--out", default="report/train_throughput.json", help="JSON of the figures")
     args = ap.parse_args(sys.argv[1:] if argv is None else argv)
+    if args.steps < 3 * args.log_every:
+        ap.error(f"--steps {args.steps}: at least three --log-every windows ({3 * args.log_every} steps), the first two are start-up")
     base = [f"train.device={args.device}", f"train.init_from={args.init}", f"train.threads={args.threads}"]
     try:
         run_config(args.config, base)

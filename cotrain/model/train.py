@@ -337,9 +337,10 @@ class BatchesAhead:
     otherwise they do the draws and labels (:meth:`TrainingBatches.prepare`) and this process
     renders the pixels on ``jobs.device``. Two batches per worker are kept waiting.
 
-    A context manager: leaving it (the run's end, a chunk's time up, an error) cancels the
-    batches not started, lets the running ones finish and waits for every worker to exit, so no
-    worker is killed in the middle of a batch. A worker that dies is a one-line error."""
+    A context manager: leaving it (the run's end, a chunk's time up, an error) lets the batches
+    already handed to the workers finish (about two per worker), drops the rest and waits for
+    every worker to exit, so no worker is killed in the middle of a batch. A worker that dies is a
+    one-line error."""
 
     def __init__(self, jobs: TrainingBatches, steps: range, workers: int, dev: torch.device, pixels: bool = True):
         self.jobs, self.steps, self.dev, self.pixels = jobs, iter(steps), dev, pixels
@@ -374,7 +375,7 @@ class BatchesAhead:
         return {k: to_device(v, self.dev) for k, v in done.items()}
 
     def close(self) -> None:
-        """Stop: the batches not started are dropped, the workers finish and exit."""
+        """Stop: the workers finish the batches they hold, the rest are dropped, and they exit."""
         self.waiting.clear()
         self.pool.shutdown(wait=True, cancel_futures=True)
 

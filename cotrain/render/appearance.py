@@ -39,7 +39,7 @@ class Appearance:
     blur_sigma: float  # defocus sigma, px (0: none)
     motion: tuple[int, float, float] | None  # motion blur (kernel length px, angle deg, direction) or none
     noise: float  # read-noise sigma
-    noise_uniforms: np.ndarray  # (M, 16) float32 uniforms of the noise field (draws.box_muller)
+    noise_uniforms: np.ndarray | None  # (M, 16) float32 uniforms of the noise field (draws.box_muller); None once stacked for the batch
     jpeg_quality: int  # 0: no JPEG round trip
     glare: tuple[float, float, float, float] = field(default=(0.0, 0.0, 0.0, 1.0))  # (peak, x, y, size) of the spot on the sheet
 

@@ -26,9 +26,9 @@ So sample ``i`` of stream ``seed`` is the same scene whatever the batch, on what
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
 
 import cv2
 import kornia
@@ -205,14 +205,20 @@ def _image_circle(scene: Scene, tables: list[Appearance], img: Tensor, grid: Ten
     return img * vignette * rim
 
 
+def motion_blur_kernels(kernel_size: int, angles: list[float], directions: list[float]) -> Tensor:
+    """(G, k, k) kornia's motion-blur kernels (``get_motion_kernel2d``, the kernels of
+    ``kornia.filters.motion_blur``), made on the CPU."""
+    return kornia.filters.get_motion_kernel2d(
+        kernel_size, torch.tensor(angles, dtype=torch.float32), torch.tensor(directions, dtype=torch.float32)
+    )
+
+
 def motion_blur_shifts(kernel_size: int, angles: list[float], directions: list[float]) -> Tensor:
     """(G, 2) px: how far kornia's ``motion_blur(img, kernel_size, angle, direction)`` moves each
     image's content, the exposure-weighted mean position along the blur. A ``direction`` other
     than 0 weights one end of the blur more (kornia filters by correlation, so the content moves
     against the kernel's centroid): up to (length + 1) / 6 px (1 px for a 5 px blur)."""
-    k = kornia.filters.get_motion_kernel2d(
-        kernel_size, torch.tensor(angles, dtype=torch.float32), torch.tensor(directions, dtype=torch.float32)
-    )
+    k = motion_blur_kernels(kernel_size, angles, directions)
     k = k / k.sum((-2, -1), keepdim=True)
     c = torch.arange(k.shape[-1], dtype=k.dtype) - (k.shape[-1] - 1) / 2
     return -torch.stack([(k.sum(-2) * c).sum(-1), (k.sum(-1) * c).sum(-1)], -1).float()
@@ -224,8 +230,9 @@ def motion_blur_shift(kernel_size: int, angle: float, direction: float) -> Tenso
 
 
 def _motion_blur(img: Tensor, tables: list[Appearance]) -> tuple[Tensor, Tensor]:
-    """Motion blur, the samples of one kernel length together: the image and (B, 2) how far it
-    moved each sample's content (the labels follow)."""
+    """Motion blur, the samples of one kernel length together (``kornia.filters.motion_blur``, its
+    kernels made on the CPU and copied without a host sync): the image and (B, 2) how far it moved
+    each sample's content (the labels follow)."""
     shift = torch.zeros(img.shape[0], 2)
     lengths: dict[int, list[int]] = {}
     for b, t in enumerate(tables):
@@ -234,9 +241,9 @@ def _motion_blur(img: Tensor, tables: list[Appearance]) -> tuple[Tensor, Tensor]
     for k, idx in lengths.items():
         _, angles, directions = zip(*(tables[b].motion for b in idx))
         shift[idx] = motion_blur_shifts(k, list(angles), list(directions))
-        angle, direction = (to_device(np.float32(a), img.device) for a in (angles, directions))
         at = to_device(np.array(idx), img.device)
-        img[at] = kornia.filters.motion_blur(img[at], k, angle, direction)
+        kernels = to_device(motion_blur_kernels(k, list(angles), list(directions)), img.device)
+        img[at] = kornia.filters.filter2d(img[at], kernels, "reflect")
     return img, to_device(shift, img.device)
 
 
@@ -246,7 +253,8 @@ def _jpeg(img: Tensor, qualities: list[int]) -> Tensor:
     idx = [b for b, q in enumerate(qualities) if q > 0]
     if not idx:
         return img
-    q8 = (img[idx, 0] * 255).round().to(torch.uint8).cpu().numpy()
+    at = to_device(np.array(idx), img.device)
+    q8 = (img[at, 0] * 255).round().to(torch.uint8).cpu().numpy()  # on a GPU: the one wait of a rendered batch
 
     def round_trip(i: int) -> np.ndarray | None:
         ok, buf = cv2.imencode(".jpg", q8[i], [cv2.IMWRITE_JPEG_QUALITY, qualities[idx[i]]])
@@ -260,20 +268,21 @@ def _jpeg(img: Tensor, qualities: list[int]) -> Tensor:
     return img
 
 
-def _optics(img: Tensor, tables: list[Appearance]) -> tuple[Tensor, Tensor, Tensor]:
-    """Exposure and gamma, defocus, motion blur, read noise and JPEG on (B, 1, H, W): the image,
-    (B, 2) the motion blur's shift of each sample's content and (B,) the defocus sigma."""
+def _optics(img: Tensor, tables: list[Appearance], noise_uniforms: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Exposure and gamma, defocus, motion blur, read noise (``noise_uniforms`` (B, M, 16), see
+    :func:`box_muller`) and JPEG on (B, 1, H, W): the image, (B, 2) the motion blur's shift of each
+    sample's content and (B,) the defocus sigma."""
     B, _, H, W = img.shape
     dev = img.device
     exposure, gamma = column(tables, "exposure", dev)[..., None], column(tables, "gamma", dev)[..., None]
     img = (img * exposure).clamp(0, 1) ** gamma
     sigma = np.float32([t.blur_sigma for t in tables])
     sig = to_device(sigma, dev)
-    if (sigma > 0).any():
-        blurred = kornia.filters.gaussian_blur2d(img, (7, 7), torch.stack([sig.clamp_min(0.05)] * 2, -1))
+    if (sigma > 0).any():  # sigma given on the CPU: kornia checks it there, not on the device
+        blurred = kornia.filters.gaussian_blur2d(img, (7, 7), torch.from_numpy(np.stack([np.maximum(sigma, 0.05)] * 2, -1)))
         img = torch.where(sig[:, None, None, None] > 0, blurred, img)
     img, shift = _motion_blur(img, tables)
-    fields = box_muller(to_device(np.stack([t.noise_uniforms for t in tables]), dev), H * W).reshape(B, 1, H, W)
+    fields = box_muller(to_device(noise_uniforms, dev), H * W).reshape(B, 1, H, W)
     img = (img + column(tables, "noise", dev)[..., None] * fields * (0.5 + img)).clamp(0, 1)
     return _jpeg(img, [t.jpeg_quality for t in tables]), shift, sig
 
@@ -283,7 +292,7 @@ def _washed_out(board: Target, scene: Scene, tables: list[Appearance], light: _P
     vignetting and clipping, under 2 % of the range (5 grey levels) with the spot and not without."""
     dev = corners_raw.device
     B = len(tables)
-    p_board = board.points(torch.float32)[:, :2].to(dev)
+    p_board = to_device(board.points(torch.float32)[:, :2].contiguous(), dev)
     cx, cy = (c[None].expand(B, -1) for c in light.on_sheet(p_board[:, 0], p_board[:, 1]))
     lit = light.shading(cx[..., None], cy[..., None])[..., 0]  # (B, N)
     centres = to_device(scene.principal_points(), dev, torch.float32)
@@ -333,20 +342,24 @@ def render_batch(
     return render_prepared(cfg, board, prepare_batch(cfg, indices, seed, board), device)
 
 
-@dataclass
+@dataclasses.dataclass
 class Prepared:
     """A batch's CPU half (steps 1-3 of the module docstring): its scenes, appearance tables and
     corner labels, all the random draws done. Picklable: a render worker can prepare batches and
     the training process render their pixels on its device (:func:`render_prepared`)."""
 
     scene: Scene
-    tables: list[Appearance]
+    tables: list[Appearance]  # their noise_uniforms moved into ``noise``
     labels: dict[str, Tensor]  # corner_labels, on the CPU
+    noise: Tensor  # (B, M, 16) float32 uniforms of the noise fields (a tensor: it crosses processes in shared memory)
 
 
 def prepare_scene(cfg: RenderConfig, board: Target, scene: Scene, draws: list[SampleDraws]) -> Prepared:
     """The CPU half of rendering ``scene``, the appearance drawn from ``draws`` (one per sample)."""
-    return Prepared(scene, [draw_appearance(cfg, d) for d in draws], corner_labels(cfg, board, scene))
+    tables = [draw_appearance(cfg, d) for d in draws]
+    noise = torch.from_numpy(np.stack([t.noise_uniforms for t in tables]))
+    tables = [dataclasses.replace(t, noise_uniforms=None) for t in tables]
+    return Prepared(scene, tables, corner_labels(cfg, board, scene), noise)
 
 
 def prepare_batch(cfg: RenderConfig, indices: list[int], seed: int = 0, board: Target | None = None) -> Prepared:
@@ -360,7 +373,8 @@ def render_scene(
     cfg: RenderConfig, board: Target, scene: Scene, draws: list[SampleDraws], device: str | torch.device = CPU
 ) -> dict[str, Tensor]:
     """Render given cameras and poses (``scene``) on ``device``; appearance is drawn from ``draws``
-    (one stream per sample). Returns the dict of :func:`render_batch`, every tensor on ``device``."""
+    (one stream per sample). Returns the dict of :func:`render_batch`, every tensor on ``device``
+    (but ``params``, per-sample CPU tensors)."""
     return render_prepared(cfg, board, prepare_scene(cfg, board, scene, draws), device)
 
 
@@ -381,7 +395,7 @@ def render_prepared(cfg: RenderConfig, board: Target, prepared: Prepared, device
     if ss > 1:
         img, squares = F.avg_pool2d(img, ss), F.avg_pool2d(squares, ss)
         occ, u, v = (F.avg_pool2d(x[:, None], ss)[:, 0] for x in (occ, u, v))
-    img, shift, sig = _optics(img, tables)
+    img, shift, sig = _optics(img, tables, prepared.noise)
 
     # Occlusion and blur enter the labels; a corner's label is where the exposure puts its image.
     q = labels["corners_raw"] + shift[:, None, :].to(labels["corners_raw"].dtype)

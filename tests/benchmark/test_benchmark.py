@@ -222,3 +222,6 @@ def test_training_throughput_script_measures_every_run_through_the_real_loop(tmp
     with pytest.raises(SystemExit):
         main(["--config", str(tmp_path / "none.yaml"), "--device", "cpu"])
     assert "none.yaml" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main([*args, "--steps", "4", "--log-every", "2"])
+    assert "--log-every windows" in capsys.readouterr().err
