@@ -134,8 +134,8 @@ def test_render_workers_stop_cleanly_when_a_chunk_ends(tmp_path):
 
 
 def test_render_workers_stop_when_the_loop_fails(tmp_path):
-    """Leaving the workers on an error (here an interrupt after the first batch) cancels the
-    batches not started and waits for every worker to exit; the batches they rendered are the
+    """Leaving the workers on an error (here an interrupt after the first batch) lets the
+    workers finish the batches they hold, drops the rest and waits for every worker to exit; the batches they rendered are the
     training process's own."""
     cfg = tiny(tmp_path)
     cpu = torch.device("cpu")
