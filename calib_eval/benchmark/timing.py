@@ -514,6 +514,7 @@ def main(argv: list[str] | None = None) -> int:
         "render_384x216": bench_render(RenderConfig(), batch=8, repeats=5),
         "render_1280x720": bench_render(RenderConfig(height=720, width=1280), batch=4, repeats=3),
         "render_vs_train_step": bench_render_vs_step(),
+        "render_batching": bench_render_batching(),
         "detect": bench_detect(args.model, runs=args.runs),
         "tags": bench_tags(runs=args.runs),
         "calibration": bench_calibration(),
