@@ -8,6 +8,7 @@ whole batch at once, a few kernels per shape, whatever the batch size.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -128,8 +129,9 @@ def column(tables: list[Appearance], name: str, device: torch.device) -> Tensor:
     return scalars([getattr(t, name) for t in tables], device)
 
 
+@functools.lru_cache(maxsize=8)
 def coords(h: int, w: int, device: torch.device) -> tuple[Tensor, Tensor]:
-    """(h, w) x and y from -1 to 1 across the image."""
+    """(h, w) x and y from -1 to 1 across the image on ``device``; cached, never modified in place."""
     yy, xx = torch.meshgrid(torch.linspace(-1, 1, h, device=device), torch.linspace(-1, 1, w, device=device), indexing="ij")
     return xx, yy
 

@@ -194,14 +194,13 @@ def _board_layer(cfg: RenderConfig, board: Target, scene: Scene, light: _Print, 
     }
 
 
-def _image_circle(scene: Scene, tables: list[Appearance], img: Tensor, grid: Tensor) -> Tensor:
-    """Black outside the image circle, with a soft, anti-aliased rim and vignetting."""
-    dev = img.device
-    centres = to_device(scene.principal_points(), dev, torch.float32)
+def _image_circle(tables: list[Appearance], img: Tensor, grid: Tensor, centres: Tensor, radius: Tensor) -> Tensor:
+    """Black outside the image circles (``centres`` (B, 2), ``radius`` (B,) px), with a soft,
+    anti-aliased rim and vignetting."""
     r_px = (grid[None] - centres[:, None, None, :]).norm(dim=-1)
-    rad = to_device(scene.radius, dev, torch.float32)[:, None, None]
+    rad = radius[:, None, None]
     rim = (rad - r_px + 0.5).clamp(0, 1)
-    vignette = 1 - column(tables, "vignette", dev) * (r_px / rad).clamp(0, 1) ** 3
+    vignette = 1 - column(tables, "vignette", img.device) * (r_px / rad).clamp(0, 1) ** 3
     return img * vignette * rim
 
 
@@ -218,8 +217,12 @@ def motion_blur_shifts(kernel_size: int, angles: list[float], directions: list[f
     image's content, the exposure-weighted mean position along the blur. A ``direction`` other
     than 0 weights one end of the blur more (kornia filters by correlation, so the content moves
     against the kernel's centroid): up to (length + 1) / 6 px (1 px for a 5 px blur)."""
-    k = motion_blur_kernels(kernel_size, angles, directions)
-    k = k / k.sum((-2, -1), keepdim=True)
+    return _kernel_shifts(motion_blur_kernels(kernel_size, angles, directions))
+
+
+def _kernel_shifts(kernels: Tensor) -> Tensor:
+    """(G, 2) px how far correlating with ``kernels`` (G, k, k) moves an image's content."""
+    k = kernels / kernels.sum((-2, -1), keepdim=True)
     c = torch.arange(k.shape[-1], dtype=k.dtype) - (k.shape[-1] - 1) / 2
     return -torch.stack([(k.sum(-2) * c).sum(-1), (k.sum(-1) * c).sum(-1)], -1).float()
 
@@ -240,10 +243,10 @@ def _motion_blur(img: Tensor, tables: list[Appearance]) -> tuple[Tensor, Tensor]
             lengths.setdefault(t.motion[0], []).append(b)
     for k, idx in lengths.items():
         _, angles, directions = zip(*(tables[b].motion for b in idx))
-        shift[idx] = motion_blur_shifts(k, list(angles), list(directions))
+        kernels = motion_blur_kernels(k, list(angles), list(directions))
+        shift[idx] = _kernel_shifts(kernels)
         at = to_device(np.array(idx), img.device)
-        kernels = to_device(motion_blur_kernels(k, list(angles), list(directions)), img.device)
-        img[at] = kornia.filters.filter2d(img[at], kernels, "reflect")
+        img[at] = kornia.filters.filter2d(img[at], to_device(kernels, img.device), "reflect")
     return img, to_device(shift, img.device)
 
 
@@ -287,17 +290,16 @@ def _optics(img: Tensor, tables: list[Appearance], noise_uniforms: Tensor) -> tu
     return _jpeg(img, [t.jpeg_quality for t in tables]), shift, sig
 
 
-def _washed_out(board: Target, scene: Scene, tables: list[Appearance], light: _Print, corners_raw: Tensor) -> Tensor:
+def _washed_out(board: Target, tables: list[Appearance], light: _Print, corners_raw: Tensor, centres: Tensor, radius: Tensor) -> Tensor:
     """(B, N) corners a glare spot washes out: the print's contrast there, after exposure,
-    vignetting and clipping, under 2 % of the range (5 grey levels) with the spot and not without."""
+    vignetting (image circles ``centres``, ``radius``) and clipping, under 2 % of the range (5 grey
+    levels) with the spot and not without."""
     dev = corners_raw.device
     B = len(tables)
     p_board = to_device(board.points(torch.float32)[:, :2].contiguous(), dev)
     cx, cy = (c[None].expand(B, -1) for c in light.on_sheet(p_board[:, 0], p_board[:, 1]))
     lit = light.shading(cx[..., None], cy[..., None])[..., 0]  # (B, N)
-    centres = to_device(scene.principal_points(), dev, torch.float32)
-    rad = to_device(scene.radius, dev, torch.float32)
-    r_rel = ((corners_raw.float() - centres[:, None, :]).norm(dim=-1) / rad[:, None]).clamp(0, 1)
+    r_rel = ((corners_raw.float() - centres[:, None, :]).norm(dim=-1) / radius[:, None]).clamp(0, 1)
     e = column(tables, "exposure", dev)[:, 0] * (1 - column(tables, "vignette", dev)[:, 0] * r_rel**3)  # the vignetting before the exposure
     gm = column(tables, "gamma", dev)[:, 0]
 
@@ -387,10 +389,11 @@ def render_prepared(cfg: RenderConfig, board: Target, prepared: Prepared, device
     no_target = to_device(np.array([t.no_target for t in tables], bool), dev)
     light = _Print(board, tables, dev)
     grid = _pixel_grid(H, W, ss, dev)
+    centres, radius = to_device(scene.principal_points(), dev, torch.float32), to_device(scene.radius, dev, torch.float32)
     layer = _board_layer(cfg, board, scene, light, no_target, grid)
     img = paint_background(cfg, tables, H * ss, W * ss, dev) * (1 - layer["cover"]) + layer["image"] * layer["cover"]
     img, occ = paint_occluders(img, tables)
-    img = _image_circle(scene, tables, img, grid)[:, None]
+    img = _image_circle(tables, img, grid, centres, radius)[:, None]
     squares, u, v = (layer["in_squares"].float() * layer["cover"])[:, None], layer["u"], layer["v"]
     if ss > 1:
         img, squares = F.avg_pool2d(img, ss), F.avg_pool2d(squares, ss)
@@ -401,7 +404,7 @@ def render_prepared(cfg: RenderConfig, board: Target, prepared: Prepared, device
     q = labels["corners_raw"] + shift[:, None, :].to(labels["corners_raw"].dtype)
     visible = labels["visible"] & ~_occluded(occ, q) & ~no_target[:, None]
     if cfg.p_glare > 0:  # only corners the spot washes out: the labels of a sample without one stay as they were
-        visible = visible & ~_washed_out(board, scene, tables, light, labels["corners_raw"])
+        visible = visible & ~_washed_out(board, tables, light, labels["corners_raw"], centres, radius)
     blur_term = (1 - ((sig - 0.8) / 1.5).clamp(0, 1))[:, None]
     return {
         "image": img.float(),
@@ -415,7 +418,7 @@ def render_prepared(cfg: RenderConfig, board: Target, prepared: Prepared, device
         "blur_sigma": sig,
         "fov": to_device(scene.fov, dev, torch.float32),
         "has_target": ~no_target,
-        "radius": to_device(scene.radius, dev, torch.float32),
+        "radius": radius,
         "model_index": to_device(np.array([cfg.models.index(m) if m in cfg.models else -1 for m in scene.model], np.int64), dev),
         "T_cam_board": to_device(scene.T_cam_board, dev),
         "params": [torch.from_numpy(p) for p in scene.params],
