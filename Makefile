@@ -24,6 +24,7 @@ run: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python -m calib_eval.benchmark.timing
+	$(BIN)/python -m calib_eval.benchmark.detector_shape --json docs/results/detector_shape.json
 
 # Optional AprilGrid evaluation peers (python -m calib_eval.detection.tags). --no-deps: aprilgrid
 # asks for opencv-python, which would overwrite opencv-python-headless's cv2.

@@ -2,7 +2,7 @@
 
 A stereo rig (the paper's configurations, :func:`calib_eval.benchmark.rigs.paper_config`) looks at
 Kalibr's 6 x 6 AprilGrid: the frames are rendered, the tag pass detects them
-(:class:`cotrain.detect.detector.AprilGridDetector`; ``--glare``: a spot of light on the print in
+(:class:`cotrain.detect.detector.Detector`; ``--glare``: a spot of light on the print in
 that share of the frames), the selector picks the observations and the
 calibrator solves, unchanged: the target comes from the detections. Scored against the ground truth
 with the checkerboard's tolerances (:mod:`calib_eval.benchmark.robustness`), and every detected
@@ -28,7 +28,7 @@ from calib_eval.calibration.calibrator import CalibConfig, calibrate
 from calib_eval.calibration.camchain import write_outputs
 from calib_eval.calibration.report_html import write_report_html
 from calib_eval.calibration.selector import SelectorConfig, select
-from cotrain.detect.detector import AprilGridDetector
+from cotrain.detect.detector import Detector
 from cotrain.geometry import cameras, poses
 from cotrain.io.detections import detect_files, json_safe
 from cotrain.io.sequence import Sequence, load_sequence, write_camera_detections
@@ -50,7 +50,7 @@ def corner_errors(seq: Sequence, gt: GroundTruth, board: Target) -> np.ndarray:
     return np.concatenate(out)
 
 
-def run(rig_name: str, frames: int, out: Path, seed: int = 11, glare: float = 0.0, detector: AprilGridDetector | None = None) -> dict:
+def run(rig_name: str, frames: int, out: Path, seed: int = 11, glare: float = 0.0, detector: Detector | None = None) -> dict:
     """Render, detect (``detector``, default the tag pass as shipped), select, calibrate and score;
     the summary as ``aprilgrid_rig.json`` holds it."""
     out.mkdir(parents=True, exist_ok=True)
@@ -60,7 +60,7 @@ def run(rig_name: str, frames: int, out: Path, seed: int = 11, glare: float = 0.
     t0 = time.time()
     _, gt = render_rig_sequence(rig, frames, seq_dir, seed=seed, target=target, glare=glare)
     t_render = time.time() - t0
-    det = detector or AprilGridDetector(make_target(target))
+    det = detector or Detector(target=make_target(target))
     for c in range(len(gt.params)):
         write_camera_detections(seq_dir / f"cam{c}", lambda paths: detect_files(paths, det, workers=0))
     t_detect = time.time() - t0 - t_render

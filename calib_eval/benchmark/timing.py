@@ -315,7 +315,7 @@ TAG_STAGES = (
 
 
 def bench_tags(runs: int = 3, per_fov: int = 50, every: int = 2, root: Path = Path("report")) -> dict:
-    """Milliseconds per image of the AprilGrid tag pass (``AprilGridDetector.detect``) and of
+    """Milliseconds per image of the AprilGrid tag pass (``Detector(target=AprilGrid).detect``) and of
     cv2.aruco (``DICT_APRILTAG_36h11``, Kalibr's 2-bit border, the evaluation's settings) on the
     same frames in the same run, one image after another, decoding excluded: every ``every``-th
     frame of the FoV rows of the AprilGrid evaluation set (``python -m calib_eval.detection.tags``,
@@ -335,7 +335,7 @@ def bench_tags(runs: int = 3, per_fov: int = 50, every: int = 2, root: Path = Pa
 
     from calib_eval.detection.tags import PEERS, TagEvalConfig, render_set
     from cotrain.detect.buffers import keep_image_buffers
-    from cotrain.detect.detector import AprilGridDetector
+    from cotrain.detect.detector import Detector
     from cotrain.io.detections import detect_files
     from cotrain.targets import TargetConfig, make_target
 
@@ -346,7 +346,7 @@ def bench_tags(runs: int = 3, per_fov: int = 50, every: int = 2, root: Path = Pa
     labels = [lab for lab in render_set(cfg, board, out) if lab["fov"]][::every]
     paths = [out / "images" / lab["image"] for lab in labels]
     images = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in paths]
-    ours = AprilGridDetector(board)
+    ours = Detector(target=board)
     aruco = PEERS["aruco"]()  # as the AprilGrid evaluation runs it
     ours.detect(images[0])
     n = len(images)

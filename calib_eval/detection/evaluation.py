@@ -35,6 +35,7 @@ import numpy as np
 from calib_eval.detection import DEFAULT_DETECTORS, DETECTORS
 from calib_eval.detection.conditions import CONDITIONS
 from calib_eval.detection.opencv_baseline import find_chessboard
+from calib_eval.detection.sets import cache_key, describe, set_seed
 from cotrain.detect.buffers import keep_image_buffers
 from cotrain.detect.detector import Detector
 from cotrain.detect.images import ImageError, load_image
@@ -107,18 +108,19 @@ def render_benchmark(cfg: EvalConfig, out: Path, progress: bool = True) -> dict:
             raise ValueError(f"unknown condition {c!r} (known: {', '.join(CONDITIONS)})")
         jobs += [(c, "cond", i) for i in range(cfg.per_condition)]
     labels = []
+    base = set_seed(cfg.seed, cfg.width, cfg.height)  # the seed at 1280x720; mixed with the size elsewhere (sets.py)
     for fov, kind, i in progress_bar(jobs, desc="render benchmark", unit="img", enabled=progress):
         condition = fov if kind == "cond" else None
         if kind == "empty":
             rc = _render_cfg(200, cfg, list(cameras.MODELS), no_target=True)
-            seed = cfg.seed * 1000 + BENCH_VERSION * 100
+            seed = base * 1000 + BENCH_VERSION * 100
         elif condition:
             models = ["kb4"] if i % 2 == 0 else [m for m in cameras.MODELS if m != "kb4"]
             rc = _render_cfg((180.0, 240.0), cfg, models, condition=condition)
-            seed = cfg.seed * 1000 + BENCH_VERSION * 100 + 50 + list(CONDITIONS).index(condition)
+            seed = base * 1000 + BENCH_VERSION * 100 + 50 + list(CONDITIONS).index(condition)
         else:
             rc = _render_cfg(fov, cfg, ["kb4"] if kind == "kb4" else [m for m in cameras.MODELS if m != "kb4"])
-            seed = cfg.seed * 1000 + BENCH_VERSION * 100 + (fov // 10)
+            seed = base * 1000 + BENCH_VERSION * 100 + (fov // 10)
         b = render_batch(rc, [i], seed=seed)
         if kind == "empty":
             name = f"empty_{i:03d}.png"
@@ -149,6 +151,7 @@ def render_benchmark(cfg: EvalConfig, out: Path, progress: bool = True) -> dict:
     meta = {
         "version": BENCH_VERSION,
         "label_version": LABEL_VERSION,
+        **cache_key(cfg.width, cfg.height),  # the seed scheme, off 1280x720 (sets.py)
         "config": dataclasses.asdict(cfg),
         "conditions": _condition_settings(cfg),
         "target": make_target(cfg.target).to_json(),
@@ -432,14 +435,16 @@ def read_set(set_dir: str | Path, target: str | None = None, default: Target | N
 
 
 def load_or_render(cfg: EvalConfig, out: Path, progress: bool = True) -> dict:
-    """The set's labels from ``out/labels.json`` when they were rendered with this version and
-    config; otherwise the set is rendered again and predictions saved for another set are removed."""
+    """The set's labels from ``out/labels.json`` when they were rendered with this version,
+    config and (off 1280x720) seed scheme (:func:`calib_eval.detection.sets.cache_key`); otherwise
+    the set is rendered again and predictions saved for another set are removed."""
     out.mkdir(parents=True, exist_ok=True)
     labels_path = out / "labels.json"
     if labels_path.is_file():
         meta = json.loads(labels_path.read_text())
         same = meta.get("version") == BENCH_VERSION and meta.get("config") == dataclasses.asdict(cfg)
         same &= meta.get("label_version", 1) == LABEL_VERSION
+        same &= all(meta.get(k) == v for k, v in cache_key(cfg.width, cfg.height).items())
         if same and meta.get("conditions", {}) == _condition_settings(cfg):
             return meta
     for stale in out.glob("predictions_*.json"):
@@ -477,8 +482,11 @@ def evaluate_detection(model: str | None, cfg: EvalConfig, out: Path, progress: 
     table = _table(found, cfg.fovs)
     elapsed = time.time() - t0
     plots = _plots(found, cfg.fovs, out)
+    kind = describe("checkerboard", cfg.seed, cfg.width, cfg.height)
     md = [
         f"# Detection evaluation (benchmark v{BENCH_VERSION}, seed {cfg.seed})",
+        "",
+        f"The set: {kind}.",
         "",
         f"{cfg.per_fov} images per FoV at {cfg.width}x{cfg.height} (half f-theta, half ucm/eucm/ds), {cfg.n_empty} without a target. "
         f"Model: {model or 'shipped default'}. Run this time: {', '.join(detectors)} ({elapsed:.0f} s)"
@@ -512,12 +520,14 @@ def evaluate_detection(model: str | None, cfg: EvalConfig, out: Path, progress: 
                 "version": BENCH_VERSION,
                 "elapsed_s": elapsed,
                 "model": model,
+                "set": kind,
                 "results": slim,
                 "paper": {str(k): v for k, v in PAPER.items()},
             },
             indent=1,
         )
     )
+    print(kind)
     print(table)
     print(f"evaluation took {elapsed:.0f} s -> {out}/results.md")
     return {"results": slim, "elapsed_s": elapsed, "table": table}

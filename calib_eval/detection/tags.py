@@ -3,7 +3,7 @@
 1. Render a seeded AprilGrid set (Kalibr's 6 x 6 default, 1280x720 or ``--size``, half f-theta kb4, half the
    other families, partial views included, plus frames without a target), with the same realism
    as the checkerboard set (:mod:`calib_eval.detection.evaluation`).
-2. Run our tag pass (:class:`cotrain.detect.detector.AprilGridDetector`) and the AprilGrid
+2. Run our tag pass (:class:`cotrain.detect.detector.Detector`) and the AprilGrid
    detectors a user would otherwise pick, where installed (``make peers``): OpenCV's aruco with
    ``DICT_APRILTAG_36h11`` and Kalibr's 2-bit border, ``aprilgrid`` (PyPI, a port of Kalibr's
    detector) and ``pupil-apriltags`` (AprilTag 3), each peer in a process of its own
@@ -39,8 +39,9 @@ import torch
 
 from calib_eval.detection.conditions import CONDITIONS
 from calib_eval.detection.evaluation import TOL_PX, _render_cfg, parse_size
+from calib_eval.detection.sets import cache_key, describe, set_seed
 from cotrain.detect.buffers import keep_image_buffers
-from cotrain.detect.detector import AprilGridDetector
+from cotrain.detect.detector import Detector
 from cotrain.geometry import cameras
 from cotrain.progress import progress_bar
 from cotrain.render.renderer import LABEL_VERSION, render_batch
@@ -145,22 +146,24 @@ def render_frame(cfg: TagEvalConfig, ecfg, fov: int | None, condition: str | Non
     """Frame ``i`` of the set: of FoV ``fov`` (0: without a target) or of ``condition`` (then
     ``fov`` None), rendered for the evaluation config ``ecfg`` (its size and target). Half the
     frames per FoV through f-theta kb4, half through the other families. Returns the renderer's
-    batch of one, its render config and the frame's file name."""
+    batch of one, its render config and the frame's file name. The frames' seeds come from
+    :func:`calib_eval.detection.sets.set_seed` (the set's seed at 1280x720, mixed with the size elsewhere)."""
+    base = set_seed(cfg.seed, cfg.width, cfg.height)
     if condition:
         rc = _render_cfg((180.0, 240.0), ecfg, list(cameras.MODELS), condition=condition)
-        b = render_batch(rc, [i], seed=cfg.seed * 1000 + 50 + list(CONDITIONS).index(condition))
+        b = render_batch(rc, [i], seed=base * 1000 + 50 + list(CONDITIONS).index(condition))
         return b, rc, f"{condition.replace(' ', '_').replace('-', '_')}_{i:03d}.png"
     others = [m for m in cameras.MODELS if m != "kb4"]
     models = list(cameras.MODELS) if fov == 0 else (["kb4"] if i < cfg.per_fov // 2 else others)
     rc = _render_cfg(fov or 200, ecfg, models, no_target=fov == 0)
-    b = render_batch(rc, [i], seed=cfg.seed * 1000 + (fov // 10))
+    b = render_batch(rc, [i], seed=base * 1000 + (fov // 10))
     return b, rc, f"{'empty' if fov == 0 else f'fov{fov}'}_{i:03d}.png"
 
 
 def render_set(cfg: TagEvalConfig, board: AprilGrid, out: Path) -> list[dict]:
     """Render the set into ``out/images`` (cached with its labels in ``out/labels.json``)."""
     lab_path = out / "labels.json"
-    key = {"config": cfg.__dict__, "target": board.to_json(), "label_version": LABEL_VERSION}
+    key = {"config": cfg.__dict__, "target": board.to_json(), "label_version": LABEL_VERSION, **cache_key(cfg.width, cfg.height)}
     if lab_path.is_file():
         old = json.loads(lab_path.read_text())
         if old.get("key") == key:
@@ -242,7 +245,7 @@ def evaluate(cfg: TagEvalConfig, out: Path) -> dict:
     paths = [out / "images" / lab["image"] for lab in labels]
 
     def ours():  # the tag pass, in this process: (ids, positions) per image
-        detect = AprilGridDetector(board).detect
+        detect = Detector(target=board).detect
         return lambda img: (lambda d: (d.ids.tolist(), list(d.xy)))(detect(img))
 
     runs = {"ours": peer_tags(ours, paths), **run_peers(paths)}
@@ -326,6 +329,8 @@ def table(res: dict, cfg: TagEvalConfig) -> str:
     lines = [
         f"AprilGrid detection: {cfg.per_fov} frames per FoV at {cfg.width}x{cfg.height}, {cfg.n_empty} without a target, seed {cfg.seed}; "
         f"detectable = visible and the tag >= {cfg.min_tag_px:g} px across; recall within {TOL_PX:g} px with the right id.",
+        "",
+        f"The set: {describe('aprilgrid', cfg.seed, cfg.width, cfg.height)}.",
         "",
         "| detector | recall | "
         + " | ".join(f"FoV {f}" for f in cfg.fovs)

@@ -3,13 +3,15 @@
     python -m calib_eval.detection.tuning [--model M.onnx] [--seed 7] [--set DIR] [--degrade jpeg|blur]
                                      [--size 1280x720] [--grid KEY=VALUE ...]
 
-Renders (or reuses) a detection set with its own seed (the evaluation uses 2026: tune on another
-one), runs the network once per image, runs the grid pass with no margin threshold (nor the
-geometry-backed and votes-alone ones of ``cotrain.detect.grid_pass.placement_is_sure``), and prints,
-per threshold, the recall of detectable corners and the share of reported corners that are wrong
-(wrong id or over 3 px off), plus the margins of the placements that were wrong. ``--grid``
-overrides fields of the grid pass's ``GridConfig`` (``--grid offboard_penalty=20``) to try a
-change before making it; ``--size`` renders frames of another size (another rig).
+Renders (or reuses) a detection set with its own seed (tune on a tuning set of
+``calib_eval/detection/sets.py``, seed 7 or 11; a set tuned on joins that list; the first line
+printed says which kind of set it is), runs the network once per image, runs the grid pass with
+no margin threshold (nor the geometry-backed and votes-alone ones of
+``cotrain.detect.grid_pass.placement_is_sure``), and prints, per threshold, the recall of
+detectable corners and the share of reported corners that are wrong (wrong id or over 3 px off),
+plus the margins of the placements that were wrong. ``--grid`` overrides fields of the grid
+pass's ``GridConfig`` (``--grid offboard_penalty=20``) to try a change before making it;
+``--size`` renders frames of another size (another rig).
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ import cv2
 import numpy as np
 
 from calib_eval.detection.evaluation import EvalConfig, load_or_render, parse_size, score_image
+from calib_eval.detection.sets import describe
 from cotrain.detect.detector import Detector
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.images import load_image
@@ -106,7 +109,8 @@ def margin_table(
             }
         )
     wrong_margins = sorted(float(m) for m, n, w, _, _ in rows if n > 0 and w > 0.5 * n)
-    return {"seed": seed, "degradation": how, "grid": grid or {}, "table": table, "wrong_placement_margins": wrong_margins}
+    kind = describe("checkerboard", seed, *size)
+    return {"seed": seed, "set": kind, "degradation": how, "grid": grid or {}, "table": table, "wrong_placement_margins": wrong_margins}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -126,6 +130,7 @@ def main(argv: list[str] | None = None) -> int:
     res = margin_table(args.model, Path(args.set), args.seed, how=args.degrade, grid=grid, size=size)
     extra = "" if args.degrade == "none" else f", degraded ({args.degrade})"
     extra += "".join(f", {k}={v:g}" for k, v in grid.items()) + ("" if size == (1280, 720) else f", {args.size}")
+    print(res["set"])
     print(f"grid pass on the seed-{args.seed} set{extra}: margin threshold -> recall, wrong among reported")
     for r in res["table"]:
         pct = 100 * r["wrong"] / max(1, r["reported"])

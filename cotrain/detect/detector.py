@@ -1,10 +1,12 @@
-"""The onnxruntime detector: ``cotrain detect [--model M.onnx] IMAGES_OR_FOLDERS...`` and a Python API.
+"""The detector: ``cotrain detect [--model M.onnx] [--target T.yaml] IMAGES_OR_FOLDERS...`` and a Python API.
 
     det = Detector()                      # the shipped default model (its int8 dense maps for the grid pass)
+    det = Detector(target=load_target("aprilgrid.yaml"))  # any target: the same Detection comes back
     found = det.detect(image)             # image: (H, W) or (H, W, 3|4), uint8 / uint16 / float
     found.ids, found.xy, found.confidence  # arrays, input-image pixels (docs/conventions.md)
 
-Two ways to turn the network's outputs into identified corners:
+An AprilGrid is found by the tag pass (:mod:`cotrain.detect.tag_pass`, no network). A checkerboard
+by the network, with two ways to turn its outputs into identified corners:
 - ``grid`` (default): the network's corner score and dense column / row maps feed the grid pass
   of :mod:`cotrain.detect.grid_pass` (saddle points at full resolution, lattice growth, one identity decision
   per board); corners are found at the input resolution, below the network's processing size.
@@ -47,7 +49,8 @@ from cotrain.targets import AprilGrid, Checkerboard, Target
 # 8: saddle fits compiled, with exact bilinear windows (fits move by up to 1e-4 px; a few growths and frames go otherwise).
 # 9: completion's print fit in gaps under 10 px, at 0.7 of the variance through the lens, compiled; AprilGrid
 #    candidates judged again under the map through them; AprilGrid frames that give nothing read a second time.
-OUTPUT_VERSION = 9
+# 10: checkerboard frames of any size (not only a shorter side of 700 px) read at half resolution where nothing is found.
+OUTPUT_VERSION = 10
 
 
 def settings(cfg) -> dict:
@@ -97,12 +100,21 @@ def _default_grid_model(threads: int) -> OnnxModel:
 
 
 class Detector:
-    """The network (onnxruntime, CPU) and the grid pass: identified corners at input resolution.
+    """Identified corners at input resolution, for any target: ``Detector(target=...)``.
 
-    ``target``: the checkerboard to find (:class:`~cotrain.targets.Target`); default the board the
-    model was trained on. On another board than the model's, the network's corner and
-    board maps still find the squares, but its column / row votes are for the other board, so the
-    grid pass places the lattice from the geometry alone (colours, extent, margin; docs/detector.md).
+    What a target brings is how its corners are found and identified:
+    - a checkerboard (:class:`~cotrain.targets.Checkerboard`): the network (onnxruntime, CPU) and
+      the grid pass (:mod:`cotrain.detect.grid_pass`: saddles, lattice growth, one identity
+      decision per board from margins, checker colours and the network's votes). Default target:
+      the board the model was trained on. On another board than the model's, the network's corner
+      and board maps still find the squares, but its column / row votes are for the other board, so
+      the grid pass places the lattice from the geometry alone (docs/detector.md).
+    - an AprilGrid (:class:`~cotrain.targets.AprilGrid`): the tag pass (:mod:`cotrain.detect.tag_pass`:
+      X-junctions at full resolution, tags read through their own corners, one placement per
+      board); no network is run, and ``model`` and the checkerboard's options are not used.
+
+    Both give the same :class:`Detection` through the same two halves (:meth:`network`,
+    :meth:`finish`; :func:`cotrain.io.detections.detect_files` overlaps them).
     """
 
     # Files per worker process below which detect_files keeps them in one process: starting two
@@ -111,6 +123,10 @@ class Detector:
     # (threads faster over 220 files, processes over 608; the same time near 360;
     # docs/benchmarks.md).
     files_per_worker = 180
+    # The same for the tag pass: two spawned workers cost about 1.5 s to start and then take half
+    # the time of one process (about 120 ms per 1280x720 file): over 8 / 16 / 32 / 64 evaluation
+    # frames 1.95 / 2.22 / 3.61 / 5.31 s against 0.82 / 1.93 / 3.78 / 7.68 s, the same time near 28 files.
+    files_per_worker_tags = 14
 
     def __init__(
         self,
@@ -122,14 +138,23 @@ class Detector:
         mode: str = "grid",
         grid: GridConfig | None = None,
         target: Target | None = None,
+        tags: TagConfig | None = None,
     ):
+        if isinstance(target, AprilGrid):
+            if mode == "slots":
+                raise ValueError("slot mode reads a checkerboard network's per-slot corners; an AprilGrid is read by its tags")
+            self._init_tags(target, tags)
+            return
+        if target is not None and not isinstance(target, Checkerboard):
+            raise ValueError(f"target: no detector finds a {target.kind} (checkerboards and aprilgrids)")
+        self.tags = None
         self.net = _default_grid_model(threads) if model is None and mode == "grid" else OnnxModel(model, threads)
         self.path = self.net.path
         self.input_size = self.net.input_size  # (H, W)
         trained = self.net.target
         self.target: Target = target or trained
         if not isinstance(self.target, Checkerboard):
-            raise ValueError(f"target: this detector finds checkerboards, not {self.target.kind}")
+            raise ValueError(f"target: the model was trained on a {self.target.kind}; name the checkerboard to find")
         self.threshold = threshold
         self.consistency = consistency  # drop corners that sit in no consistent grid triple (see grid_consistent)
         self.polish = polish  # classical saddle-point polish of the final corners (see polish_corners)
@@ -154,9 +179,18 @@ class Detector:
             self.net.keep(self.dense)  # the per-slot heads are not run
         self.net.session  # noqa: B018 (a model onnxruntime cannot load fails here, not on the first image)
 
+    def _init_tags(self, target: AprilGrid, tags: TagConfig | None) -> None:
+        """An AprilGrid's detector: the tag pass under ``tags`` (default :class:`TagConfig`), no network."""
+        self.target, self.tags, self.mode = target, tags or TagConfig(), "tags"
+        self.net = None
+        self.path = "tag-pass"  # written as the detection JSON's "model": no network is involved
+        self.files_per_worker = type(self).files_per_worker_tags
+
     def cache_key(self) -> dict:
         """What decides this detector's output (the model file and the settings): cached
         detections are reused only under the same key."""
+        if self.tags is not None:
+            return {"version": OUTPUT_VERSION, "tag_pass": settings(self.tags)}
         model = Path(self.path)
         return {
             "version": OUTPUT_VERSION,
@@ -182,7 +216,7 @@ class Detector:
 
     def _grid(self, grey: np.ndarray, box: Letterbox, out: dict[str, np.ndarray], cfg: GridConfig) -> GridResult:
         """The grid pass on ``grey`` (its letterbox ``box``, the network's outputs ``out``); where
-        it finds fewer than ``cfg.half_below`` corners and the network sees a board over
+        it finds fewer than ``cfg.half_below`` corners (at any image size) and the network sees a board over
         ``cfg.half_min_board_share`` of its map, also at half resolution with the same network
         outputs (:func:`cotrain.detect.grid_pass.merge_half_resolution`: a board whose corners are
         too blurred at full resolution)."""
@@ -194,7 +228,7 @@ class Detector:
         maps = (out["corner_prob"][0, 0], out["mask_prob"][0, 0], logp_col, logp_row)
         g = grid_pass(grey, box, *maps, self.target, cfg)
         h, w = grey.shape
-        if len(g.ids) >= cfg.half_below or min(h, w) < cfg.half_min_side:
+        if len(g.ids) >= cfg.half_below or min(h, w) // 2 < MIN_SIDE:
             return g
         if np.mean(maps[1] > 0.5) < cfg.half_min_board_share:
             return g  # measured: no board under 0.4 % of the map was found at half resolution alone
@@ -240,6 +274,8 @@ class Detector:
         Python loops; onnxruntime releases the GIL, so another thread can run :meth:`finish` on
         the previous image meanwhile, see :func:`cotrain.io.detections.detect_files`)."""
         grey = self._grey(image)
+        if self.tags is not None:
+            return Pending(grey, None, {})  # the tag pass runs no network
         box = self.letterbox(grey)
         return Pending(grey, box, self.net.run(box.apply(grey)[None, None]))
 
@@ -248,9 +284,12 @@ class Detector:
         ``grid.retry_gain`` set, a frame giving nothing runs the network again here, on the frame
         with its contrast raised (:meth:`_grid_or_gained`)."""
         grey, box, out = pending.grey, pending.box, pending.out
+        h, w = grey.shape
+        if self.tags is not None:
+            r = tag_pass(grey, self.target, self.tags)
+            return Detection(r.ids, r.xy, r.confidence, np.ones(len(r.ids)), w, h)
         if self.mode == "grid":
             g = self._grid_or_gained(grey, box, out, self.grid)
-            h, w = grey.shape
             return Detection(g.ids, g.xy, g.confidence, np.ones(len(g.ids)), w, h)
         det = self._postprocess(out, box, consistency=self.consistency)
         if self.polish and len(det.ids):
@@ -278,52 +317,11 @@ def slot_readout(out: dict[str, np.ndarray], box: Letterbox, threshold: float) -
     return (out["visibility"][0] >= threshold) & inside & np.isfinite(xy).all(1), xy
 
 
-class AprilGridDetector:
-    """Kalibr AprilGrid corners and ids from the image alone: the tag pass of
-    :mod:`cotrain.detect.tag_pass` (X-junctions at full resolution, tags read through their own
-    corners, one placement per board). Same ``detect`` as :class:`Detector`."""
-
-    path = "tag-pass"  # written as the detection JSON's "model": no network is involved
-    # Two spawned workers cost about 1.5 s to start and then take half the time of one process (about
-    # 120 ms per 1280x720 file): over 8 / 16 / 32 / 64 evaluation frames 1.95 / 2.22 / 3.61 / 5.31 s
-    # against 0.82 / 1.93 / 3.78 / 7.68 s, the same time near 28 files (see Detector.files_per_worker).
-    files_per_worker = 14
-
-    def __init__(self, target: AprilGrid, cfg: TagConfig | None = None):
-        if not isinstance(target, AprilGrid):
-            raise ValueError(f"target: the tag pass finds aprilgrids, not {target.kind}")
-        self.target = target
-        self.cfg = cfg or TagConfig()
-
-    def cache_key(self) -> dict:
-        """What decides this detector's output: its settings (see :meth:`Detector.cache_key`)."""
-        return {"version": OUTPUT_VERSION, "tag_pass": settings(self.cfg)}
-
-    def detect(self, image: np.ndarray) -> Detection:
-        """Detect corners in one image (any size, 8/16-bit or float, grey or colour)."""
-        return self.finish(self.network(image))
-
-    def network(self, image: np.ndarray) -> Pending:
-        """The image as the tag pass reads it (no network: the same two halves as :class:`Detector`);
-        an under-exposed frame is scaled up (:func:`cotrain.detect.images.brighten`), as for the grid pass."""
-        grey = to_grey_float(image) if image.dtype != np.float32 or image.ndim != 2 else image
-        h, w = grey.shape
-        if min(h, w) < MIN_SIDE:
-            raise ImageError(f"image too small ({w}x{h}); need at least {MIN_SIDE} px per side")
-        return Pending(brighten(grey), None, {})
-
-    def finish(self, pending: Pending) -> Detection:
-        """The tag pass on an image from :meth:`network`."""
-        h, w = pending.grey.shape
-        r = tag_pass(pending.grey, self.target, self.cfg)
-        return Detection(r.ids, r.xy, r.confidence, np.ones(len(r.ids)), w, h)
-
-
-def make_detector(target: Target | None, model: str | Path | None = None, **options) -> Detector | AprilGridDetector:
-    """The detector for a target: the tag pass for an AprilGrid, the network and the grid pass
-    (``options``: :class:`Detector`'s) otherwise."""
+def make_detector(target: Target | None, model: str | Path | None = None, **options) -> Detector:
+    """``Detector(model, target=target, **options)``: the tag pass for an AprilGrid (which runs no
+    network and takes none of a checkerboard's ``options``), the network and the grid pass otherwise."""
     if isinstance(target, AprilGrid):
-        return AprilGridDetector(target)
+        return Detector(target=target)
     return Detector(model, target=target, **options)
 
 

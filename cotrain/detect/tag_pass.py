@@ -75,7 +75,7 @@ from scipy.spatial import cKDTree
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.half_resolution import corners_at_half_resolution, halve
 from cotrain.detect.image_circle import EquidistantLens, guess_lens, parallelogram_corner, ray_homographies
-from cotrain.detect.images import local_gain
+from cotrain.detect.images import MIN_SIDE, local_gain
 from cotrain.detect.lattice import (
     STEPS,
     Lattice,
@@ -160,8 +160,7 @@ class TagConfig:
     min_side_px: int = 720  # frames whose shorter side is under this are read enlarged to it (bilinear; 0: never) ...
     max_enlarge: float = 1.5  # ... by at most this factor; the thresholds above that judge a tag's size in px scale with it
     # --- blurred and large tags ---
-    half_below: int = 70  # a frame where fewer corners are found is read at half resolution too (0: never) ...
-    half_min_side: int = 700  # ... and not read enlarged (min_side_px), with a shorter side of this many px or more
+    half_below: int = 70  # a frame not read enlarged (min_side_px) where fewer corners are found is read at half resolution too (0: never)
     # --- boards ---
     min_corners: int = 4  # smallest lattice that is reported
     complete: CompletionConfig = field(default_factory=CompletionConfig)  # corners the growth missed, predicted from the placed board
@@ -1803,9 +1802,8 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
     the tags as they are, as does completion's ``moved_px`` (a distance in the frame's pixels).
     Positions are given in the frame's pixels either way.
 
-    A frame not enlarged, with a shorter side of ``cfg.half_min_side`` px or more, where fewer
-    than ``cfg.half_below`` corners are found, is read again at half resolution (blurred tags,
-    large tags), and the corners only that finds are added where the print check keeps them
+    A frame not enlarged where fewer than ``cfg.half_below`` corners are found is read again at
+    half resolution (blurred tags, large tags), and the corners only that finds are added where the print check keeps them
     (:func:`cotrain.detect.tag_completion.print_check`) and their neighbours put them
     (:func:`cotrain.detect.tag_completion.print_moved`); not where completion found every corner
     it predicted in view (``TagResult.unfound`` 0: a partial view found whole).
@@ -1858,7 +1856,7 @@ def _tag_pass_both(grey: np.ndarray, board: AprilGrid, cfg: TagConfig, view: _Vi
     for it, :func:`_view_of`, else read here), then at half resolution where few corners were found."""
     view = view or _view_of(grey, cfg)
     r = _tag_pass_circle(grey, board, cfg, view)
-    if len(r.ids) >= cfg.half_below or r.scale > 1 or min(grey.shape) < cfg.half_min_side:
+    if len(r.ids) >= cfg.half_below or r.scale > 1 or min(grey.shape) // 2 < MIN_SIDE:
         return r
     if r.unfound == 0:
         return r  # every corner the board predicts inside the image circle is found: nothing to look for

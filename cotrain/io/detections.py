@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from cotrain.detect.buffers import keep_image_buffers
-from cotrain.detect.detector import AprilGridDetector, Detector, draw_detection
+from cotrain.detect.detector import Detector, draw_detection
 from cotrain.detect.images import ImageError, load_image
 from cotrain.progress import progress_bar
 
@@ -27,7 +27,7 @@ MAX_WORKERS = 8  # worker processes at most (workers=0: one per core up to this)
 
 
 def detect_files(
-    paths: list[Path], detector: Detector | AprilGridDetector, draw_dir: Path | None = None, progress: bool = True, workers: int = 1
+    paths: list[Path], detector: Detector, draw_dir: Path | None = None, progress: bool = True, workers: int = 1
 ) -> dict:
     """Run the detector over files; returns the detection JSON of docs/conventions.md (as a dict).
 
@@ -89,7 +89,7 @@ def detect_files(
     return {"model": str(detector.path), "target": detector.target.to_json(), "images": entries}
 
 
-def _entry(detector: Detector | AprilGridDetector, p: Path, pending, draw_dir: Path | None) -> dict:
+def _entry(detector: Detector, p: Path, pending, draw_dir: Path | None) -> dict:
     """One file's entry of the detection JSON; ``pending()`` gives the image through the first
     half of the detector (:meth:`Detector.network`), or raises :class:`ImageError`."""
     entry = {"path": str(p), "width": 0, "height": 0, "corners": [], "error": None}
@@ -108,16 +108,16 @@ def _entry(detector: Detector | AprilGridDetector, p: Path, pending, draw_dir: P
     return entry
 
 
-_worker_detector: Detector | AprilGridDetector | None = None  # a worker process's own detector
+_worker_detector: Detector | None = None  # a worker process's own detector
 
 
-def _start_worker(detector: Detector | AprilGridDetector, threads: int) -> None:
+def _start_worker(detector: Detector, threads: int) -> None:
     """A worker process's start in :func:`detect_files`: keep its copy of the detector (sent once
     per process, not per file), its network at ``threads`` onnxruntime threads and OpenCV at as many."""
     global _worker_detector
     keep_image_buffers()
     cv2.setNumThreads(threads)  # the processes share the cores: OpenCV's threads would contend across them
-    if isinstance(detector, Detector):
+    if detector.net is not None:  # (the tag pass runs no network)
         detector.net.threads = threads
     _worker_detector = detector
 

@@ -402,12 +402,12 @@ def test_cache_keys_are_strict_json_and_tell_settings_apart():
     another key."""
     import json
 
-    from cotrain.detect.detector import AprilGridDetector, Detector
+    from cotrain.detect.detector import Detector
     from cotrain.targets import AprilGrid
 
     off = Detector().cache_key()
     on = Detector(grid=GridConfig(min_margin_votes_alone=35.0)).cache_key()
-    for key in (off, on, AprilGridDetector(AprilGrid()).cache_key()):
+    for key in (off, on, Detector(target=AprilGrid()).cache_key()):
         assert json.loads(json.dumps(key, allow_nan=False)) == key
     assert off["grid"]["min_margin_votes_alone"] == "inf" and on != off
 

@@ -10,7 +10,7 @@ import pytest
 import torch
 from scipy.spatial import cKDTree
 
-from cotrain.detect.detector import AprilGridDetector
+from cotrain.detect.detector import Detector
 from cotrain.detect.image_circle import EquidistantLens
 from cotrain.detect.lattice import Lattice, edge_contrast_kernel
 from cotrain.detect.tag_completion import CompletionConfig
@@ -141,7 +141,7 @@ def test_flat_view_finds_every_corner_at_its_label():
     c = centre(g)
     img, q, vis, _ = render(g, "kb4", 120, [c[0] + 0.02, c[1] - 0.03, 0.45], c)
     assert vis.all()
-    det = AprilGridDetector(g).detect(img)
+    det = Detector(target=g).detect(img)
     assert len(det.ids) == g.n_corners
     err = check_ids(det, q, vis)
     assert np.median(err) < 0.08
@@ -187,7 +187,7 @@ def test_decodes_near_the_rim_of_each_camera_family(model):
     look = c + np.array([-0.5, 0.05, 0.0])  # the board lies far to the camera's side
     img, q, vis, angle = render(g, model, 200, eye.tolist(), look.tolist())
     assert vis.sum() > 40 and angle[vis].max() > 80
-    det = AprilGridDetector(g).detect(img)
+    det = Detector(target=g).detect(img)
     check_ids(det, q, vis)
     far = vis & (angle > 70)
     found = np.isin(np.nonzero(far)[0], det.ids).mean()
@@ -204,7 +204,7 @@ def test_bit_errors_are_corrected_up_to_the_limit_and_refused_beyond():
         g.printed[t].flat[flip] ^= 1
     c = centre(g)
     img, q, vis, _ = render(g, "kb4", 120, [c[0], c[1], 0.45], c)
-    det = AprilGridDetector(g).detect(img)
+    det = Detector(target=g).detect(img)
     check_ids(det, q, vis)
     res = tag_pass(img.astype(np.float32) / 255, g)
     read = dict(zip(res.tags.tolist(), res.hamming.tolist()))
@@ -213,7 +213,7 @@ def test_bit_errors_are_corrected_up_to_the_limit_and_refused_beyond():
     # Their corners get no ids from the lattice growth; completion may find them from the placed
     # board (the print check sees their borders and crossing squares), each at its own label.
     bad_corners = set(g.tag_corners(np.arange(20, 36)).ravel().tolist()) - set(g.tag_corners(np.arange(20)).ravel().tolist())
-    grown = AprilGridDetector(g, TagConfig(complete=CompletionConfig(rounds=0))).detect(img)
+    grown = Detector(target=g, tags=TagConfig(complete=CompletionConfig(rounds=0))).detect(img)
     assert not set(grown.ids.tolist()) & bad_corners
 
 
@@ -244,7 +244,7 @@ def test_wild_tags_and_a_second_board_give_no_corners():
         m = cv2.aruco.generateImageMarker(d, tag, 60, borderBits=2)
         img[y - 10 : y + 70, x - 10 : x + 70] = 255
         img[y : y + 60, x : x + 60] = m
-    det = AprilGridDetector(g).detect(img)
+    det = Detector(target=g).detect(img)
     assert len(det.ids) > 0.8 * vis.sum()
     check_ids(det, q, vis)
     assert (det.xy[:, 0] < 640).all()
@@ -298,8 +298,8 @@ def test_small_gaps_keep_corners_whose_final_fit_fails():
     noise = np.random.default_rng(0).normal(0, 3, img.shape)
     img = np.clip(cv2.GaussianBlur(img.astype(np.float32), (0, 0), 1.0) + noise, 0, 255).astype(np.uint8)
     grown = CompletionConfig(rounds=0)  # completion would find the dropped ones again
-    kept = AprilGridDetector(g, TagConfig(complete=grown)).detect(img)
-    dropped = AprilGridDetector(g, TagConfig(keep_unfitted_px=0.0, complete=grown)).detect(img)
+    kept = Detector(target=g, tags=TagConfig(complete=grown)).detect(img)
+    dropped = Detector(target=g, tags=TagConfig(keep_unfitted_px=0.0, complete=grown)).detect(img)
     assert len(kept.ids) >= len(dropped.ids) + 5
     check_ids(kept, q, vis, tol=0.6)
 
@@ -671,7 +671,7 @@ def test_another_renderer_opencv_fisheye_with_glare_and_a_grey_print():
         rvec, tvec = cv2.Rodrigues(R)[0].ravel(), np.array(at) - R @ c
         img, q, inside = opencv_fisheye_view(g, rvec, tvec, K, D)
         assert inside.sum() > 100
-        det = AprilGridDetector(g).detect(img)
+        det = Detector(target=g).detect(img)
         err = np.linalg.norm(det.xy - q[det.ids], axis=1)
         assert err.max() < 1.0, f"corner {det.ids[err.argmax()]} is {err.max():.2f} px off"
         assert np.median(err) < 0.15
@@ -991,8 +991,8 @@ def test_detect_files_runs_the_tag_pass_in_processes_with_the_same_output(tmp_pa
             cv2.imwrite(str(files[-1]), img)
     (tmp_path / "broken.png").write_bytes(b"not an image")
     files.insert(3, tmp_path / "broken.png")
-    monkeypatch.setattr(AprilGridDetector, "files_per_worker", 4)  # a pool for these few files
-    det = AprilGridDetector(g)
+    monkeypatch.setattr(Detector, "files_per_worker_tags", 4)  # a pool for these few files
+    det = Detector(target=g)
     serial = detect_files(files, det, progress=False, workers=1)
     parallel = detect_files(files, det, progress=False, workers=2)
     assert worker_pools == [2]  # the files went to two worker processes
@@ -1002,7 +1002,7 @@ def test_detect_files_runs_the_tag_pass_in_processes_with_the_same_output(tmp_pa
     assert all(len(e["corners"]) > 50 for i, e in enumerate(parallel["images"]) if i != 3)
 
 
-class _Unpicklable(AprilGridDetector):
+class _Unpicklable(Detector):
     """A detector that cannot be made in a worker process (its copy fails to unpickle there)."""
 
     def __setstate__(self, state):
@@ -1018,9 +1018,9 @@ def test_a_dead_worker_process_is_a_one_line_error(tmp_path, monkeypatch):
     for k in range(8):
         files.append(tmp_path / f"blank{k}.png")
         cv2.imwrite(str(files[-1]), np.full((64, 64), 128, np.uint8))
-    monkeypatch.setattr(AprilGridDetector, "files_per_worker", 4)  # a pool for these few files
+    monkeypatch.setattr(Detector, "files_per_worker_tags", 4)  # a pool for these few files
     with pytest.raises(ChildProcessError, match="--workers 1"):
-        detect_files(files, _Unpicklable(make_target(TargetConfig(kind="aprilgrid"))), progress=False, workers=2)
+        detect_files(files, _Unpicklable(target=make_target(TargetConfig(kind="aprilgrid"))), progress=False, workers=2)
 
 
 def test_tags_read_together_read_as_each_alone():
