@@ -26,9 +26,7 @@ LOOKAHEAD = 2  # images read and through the network ahead of the one the grid p
 MAX_WORKERS = 8  # worker processes at most (workers=0: one per core up to this)
 
 
-def detect_files(
-    paths: list[Path], detector: Detector, draw_dir: Path | None = None, progress: bool = True, workers: int = 1
-) -> dict:
+def detect_files(paths: list[Path], detector: Detector, draw_dir: Path | None = None, progress: bool = True, workers: int = 1) -> dict:
     """Run the detector over files; returns the detection JSON of docs/conventions.md (as a dict).
 
     With ``workers`` other than 1 (0: one per core, at most :data:`MAX_WORKERS`) and enough files
