@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -349,6 +350,188 @@ def cut_at_margins(lat: Lattice, edges: list[tuple[int, int, int, float]], cfg: 
     return parts
 
 
+class _Crop(NamedTuple):
+    """The part of the input image the grid pass works on (crop pixels + offset = input pixels)."""
+
+    grey: np.ndarray  # (h, w) float32 crop of the input image
+    roi: np.ndarray  # (h, w) bool: the network's corner / board region, inside the image circle
+    allowed: np.ndarray  # (h, w) bool: inside the image circle and off the image's border
+    offset: np.ndarray  # (2,) input pixel of the crop's top-left pixel
+    bounds: tuple[int, int, int, int]  # x0, x1, y0, y1 of the crop in the input image
+    shape: tuple[int, int]  # (H, W) of the input image
+    rim_dist: np.ndarray  # (h, w) float32 distance to the nearest pixel not allowed, px
+    circle: tuple[np.ndarray, float] | None  # the image circle (centre, radius) in input pixels
+    cfg: GridConfig  # the settings, contrast thresholds scaled to the crop (contrast_scaled)
+
+
+def _crop(grey: np.ndarray, box: Letterbox, corner_prob: np.ndarray, mask_prob: np.ndarray, cfg: GridConfig) -> _Crop | None:
+    """Stage 1, the region: the crop around the network's corner / board region (all
+    full-resolution filtering scales with its area), inside the image circle; None where the
+    region is empty."""
+    roi = search_region(np.maximum(corner_prob, mask_prob), box, cfg)
+    # The black frame beyond the image circle: not the board's black squares at the rim that join it.
+    outside, circle = outside_and_circle(grey)
+    outside = beyond_circle(outside, circle)
+    allowed = ~outside
+    allowed[[0, -1], :] = False  # the image's own border is a rim too
+    allowed[:, [0, -1]] = False
+    roi &= allowed
+    ys, xs = np.nonzero(roi.any(1))[0], np.nonzero(roi.any(0))[0]
+    if not len(ys):
+        return None
+    pad = cfg.crop_pad_px
+    y0, y1 = max(0, ys[0] - pad), min(grey.shape[0], ys[-1] + 1 + pad)
+    x0, x1 = max(0, xs[0] - pad), min(grey.shape[1], xs[-1] + 1 + pad)
+    grey_c, roi, allowed = grey[y0:y1, x0:x1], roi[y0:y1, x0:x1], allowed[y0:y1, x0:x1]
+    offset = np.array([x0, y0], np.float64)
+    cfg = contrast_scaled(cfg, grey_c, roi)
+    rim_dist = cv2.distanceTransform(allowed.astype(np.uint8), cv2.DIST_L2, 3)
+    return _Crop(grey_c, roi, allowed, offset, (x0, x1, y0, y1), outside.shape, rim_dist, circle, cfg)
+
+
+def _grow(
+    c: _Crop, xy: np.ndarray, axes: np.ndarray, mask_prob: np.ndarray, box: Letterbox, smoothed: dict, response: np.ndarray
+) -> list[Lattice]:
+    """Stage 3, the lattices: grown from several seeds (distractors can hold the strongest
+    saddles), verified, on what the network calls board; joined where ``cfg.join_lattices``
+    (joined lattices are placed beside their parts, a part alone can be surer, and verified again
+    with their corners' final neighbours)."""
+    cfg, grey, offset, rim_dist = c.cfg, c.grey, c.offset, c.rim_dist
+    crop_circle = None if c.circle is None else (c.circle[0] - offset, c.circle[1])  # the image circle in crop pixels
+    covered = np.zeros(len(xy), bool)
+    tried = 0
+    grown: list[Lattice] = []
+    for seed in range(len(xy)):
+        if tried >= cfg.max_seeds:
+            break
+        if covered[seed]:
+            continue
+        tried += 1
+        lat = grow_lattice(xy, axes, seed, grey, cfg, smoothed, rim_dist)
+        if lat is None:
+            continue
+        covered |= cKDTree(lat.xy).query(xy)[0] < cfg.merge_radius_px
+        if len(lat.ab) < cfg.min_corners:
+            continue  # (the verification only drops corners)
+        lat = verify_lattice(lat, grey, cfg, smoothed, rim_dist, crop_circle)
+        if len(lat.ab) < cfg.min_corners or skipped_corners(lat, response, cfg) > cfg.max_skipped:
+            continue
+        if CELLS.sample(mask_prob[None], box.to_processing(lat.xy + offset))[:, 0].mean() < cfg.min_board_prob:
+            continue
+        grown.append(lat)
+    if cfg.join_lattices:
+        parts = {id(x) for x in grown}
+        joined = [verify_lattice(x, grey, cfg, smoothed, rim_dist, crop_circle) for x in join_lattices(grown, cfg) if id(x) not in parts]
+        grown += [x for x in joined if len(x.ab) >= cfg.min_corners and skipped_corners(x, response, cfg) <= cfg.max_skipped]
+    return grown
+
+
+class _Votes(NamedTuple):
+    """What stage 4 places a lattice with: the network's maps and the image around the lattice."""
+
+    logp_col: np.ndarray  # (nx + 2, h, w) column log-probabilities
+    logp_row: np.ndarray  # (ny + 2, h, w) row log-probabilities
+    box: Letterbox  # the input's letterbox into the processing size
+    xy: np.ndarray  # (K, 2) every candidate, crop pixels
+    extent_rim_px: float  # lattice corners this near the rim are no evidence of the board's extent
+
+
+def _place(c: _Crop, lat: Lattice, v: _Votes, board: Checkerboard, smoothed: dict) -> tuple[Placement, list, bool] | None:
+    """The lattice's placement, its margin evidence, and whether the placement stands (does not
+    contradict that evidence beyond ``cfg.max_violated_edges`` or ``cfg.max_violated_share`` of
+    it: the board would end where the target goes on, another target or a distractor); None for
+    a line of corners."""
+    cfg = c.cfg
+    blur1 = smooth_cached(smoothed, c.grey, -1)
+    dark = cell_darkness(blur1, lat)
+    if len(dark) < cfg.min_cells:
+        return None  # a line of corners (or a diagonal) is not a checker lattice
+    lc, lr = corner_votes(lat, v.logp_col, c.offset, v.box, cfg), corner_votes(lat, v.logp_row, c.offset, v.box, cfg)
+    edges = edge_evidence(blur1, lat, cfg, v.xy)
+    placed = assign_ids(lat.ab, lc, lr, dark, board, cfg, edges, extent_weight(lat, c.rim_dist, v.extent_rim_px))
+    return placed, edges, placed.violated <= max(cfg.max_violated_edges, cfg.max_violated_share * sum(e[3] for e in edges))
+
+
+def _identify(
+    c: _Crop, grown: list[Lattice], v: _Votes, board: Checkerboard, smoothed: dict
+) -> list[tuple[float, Lattice, np.ndarray, float]]:
+    """Stage 4, identity: each lattice placed on the board, (margin, lattice, ids, geometry
+    margin) for those whose placement stands. A lattice whose placement contradicts its margin
+    evidence or is unsure may have stepped over the board's margin onto a distractor: its parts on
+    this side of each line of margin evidence are placed on their own, and the surest that stands
+    and is sure replaces it."""
+    cfg = c.cfg
+    scored = []
+    for lat in grown:
+        res = _place(c, lat, v, board, smoothed)
+        if res is None:
+            continue
+        placed, edges, stands = res
+        if cfg.cut_at_margins and edges and not (stands and placement_is_sure(placed.margin, placed.geometry_margin, len(lat.ab), cfg)):
+            cuts = []
+            for part in cut_at_margins(lat, edges, cfg):
+                r = _place(c, part, v, board, smoothed)
+                if r is not None and r[2] and placement_is_sure(r[0].margin, r[0].geometry_margin, len(part.ab), cfg):
+                    cuts.append((r[0], part))
+            if cuts:
+                (placed, lat), stands = max(cuts, key=lambda x: x[0].margin), True
+        if stands:
+            scored.append((placed.margin, lat, placed.ids, placed.geometry_margin))
+    return scored
+
+
+def _completed(c: _Crop, xy: np.ndarray, ids: np.ndarray, q: np.ndarray, conf: np.ndarray, margin: float, board, smoothed, lens):
+    """Stage 5, completion: corners the growth did not reach (bent rows at the rim, a blurred
+    stretch), predicted from the identified ones and checked against the print
+    (:mod:`cotrain.detect.tag_completion`); their confidence is the placement's times that
+    check's correlation. Returns ids, q (crop pixels) and confidence."""
+    cfg = c.cfg
+    x0, x1, y0, y1 = c.bounds
+    # The crop's own edges (where they are not the frame's) cut fit windows as the rim does.
+    inside = c.allowed.copy()
+    inside[:, : int(x0 > 0)] = inside[:, inside.shape[1] - int(x1 < c.shape[1]) :] = False
+    inside[: int(y0 > 0)] = inside[inside.shape[0] - int(y1 < c.shape[0]) :] = False
+    rim_c = cv2.distanceTransform(inside.astype(np.uint8), cv2.DIST_L2, 3)
+    # A checker's print tells only the two parities apart: a saddle at an occluder's edge, or
+    # the rim's, can match it, so every corner added must also have its four edge rays along
+    # the board's axes and a correlation of cfg.complete_min_corr. Nor is a corner judged again
+    # under the map through it (CompletionConfig.refit_gap_px): with a map fitted to it, a
+    # checker's print matched a saddle 15 px off at the rim (a new wrong corner, no new right one
+    # over the eight checkerboard sets).
+    complete = CompletionConfig(
+        rounds=cfg.complete_rounds,
+        min_rim_px=cfg.complete_rim_px,
+        min_corr=cfg.complete_min_corr,
+        check=False,
+        sure_corr=math.inf,
+        min_ray_px=0.0,  # rays at every gap: a checker's print tells only the parities apart
+        refit_gap_px=0.0,
+    )
+    given = dict(zip(ids.tolist(), conf.tolist()))
+    ids, q, corr, _ = complete_board(c.grey, smoothed, rim_c, xy, board, ids, q, complete, cfg, lens)
+    conf = np.array([given.get(i, (1.0 - np.exp(-margin)) * k) for i, k in zip(ids.tolist(), corr.tolist())])
+    return ids, q, conf
+
+
+def _neighbours_agree(ids: np.ndarray, q: np.ndarray, board: Checkerboard, cfg: GridConfig, lens) -> np.ndarray:
+    """Stage 6's check: (K,) bool, the corners where their identified neighbours put them. A corner
+    off there (the growth took a T-junction at an occluder's edge, or slid a row's end) is dropped;
+    completion may find it where it is. Where many miss, the maps are at fault (no image circle to
+    guess the lens from, and a bend no homography follows: a 640x480 board lost 22 of its 23
+    placed corners so), and none is dropped."""
+    return neighbour_check(
+        board,
+        ids,
+        q,
+        cfg.misfit_neighbours,
+        cfg.max_neighbour_misfit,
+        lens,
+        max_share=cfg.max_misfit_share,
+        worst_misfit=cfg.worst_neighbour_misfit,
+        worst_rounds=cfg.worst_misfit_rounds,
+    )
+
+
 def grid_pass(
     grey: np.ndarray,
     box: Letterbox,
@@ -374,160 +557,38 @@ def grid_pass(
         dark rim makes X-junctions of its own there.
     """
     empty = GridResult(np.zeros(0, int), np.zeros((0, 2)), np.zeros(0), float("nan"))
-    # Work on the crop around the network's corner / board region (all full-resolution filtering
-    # scales with its area); crop pixels + offset = input pixels.
-    roi = search_region(np.maximum(corner_prob, mask_prob), box, cfg)
-    # The black frame beyond the image circle: not the board's black squares at the rim that join it.
-    outside, circle = outside_and_circle(grey)
-    outside = beyond_circle(outside, circle)
-    allowed = ~outside
-    allowed[[0, -1], :] = False  # the image's own border is a rim too
-    allowed[:, [0, -1]] = False
-    roi &= allowed
-    ys, xs = np.nonzero(roi.any(1))[0], np.nonzero(roi.any(0))[0]
-    if not len(ys):
+    c = _crop(grey, box, corner_prob, mask_prob, cfg)
+    if c is None:
         return empty
-    pad = cfg.crop_pad_px
-    y0, y1 = max(0, ys[0] - pad), min(grey.shape[0], ys[-1] + 1 + pad)
-    x0, x1 = max(0, xs[0] - pad), min(grey.shape[1], xs[-1] + 1 + pad)
-    grey, roi, allowed = grey[y0:y1, x0:x1], roi[y0:y1, x0:x1], allowed[y0:y1, x0:x1]
-    offset = np.array([x0, y0], np.float64)
-    cfg = contrast_scaled(cfg, grey, roi)
-    rim_dist = cv2.distanceTransform(allowed.astype(np.uint8), cv2.DIST_L2, 3)
-    crop_circle = None if circle is None else (circle[0] - offset, circle[1])  # the image circle in crop pixels
+    cfg = c.cfg
     smoothed: dict[int, np.ndarray] = {}
-    response = saddle_response(grey)
-    xy, axes = find_candidates(grey, roi, offset, box, corner_prob, cfg, smoothed, rim_dist, response)
+    response = saddle_response(c.grey)
+    xy, axes = find_candidates(c.grey, c.roi, c.offset, box, corner_prob, cfg, smoothed, c.rim_dist, response)  # stage 2
     if len(xy) < cfg.min_corners:
         return empty
-    # Grow from several seeds (distractors can hold the strongest saddles); a lattice must lie on
-    # what the network calls board, and the one whose identity is surest wins.
-    best: tuple[float, Lattice, np.ndarray, float] | None = None
-    scored: list[tuple[float, Lattice, np.ndarray, float]] = []
-    covered = np.zeros(len(xy), bool)
-    tried = 0
-    grown: list[Lattice] = []
-    for seed in range(len(xy)):
-        if tried >= cfg.max_seeds:
-            break
-        if covered[seed]:
-            continue
-        tried += 1
-        lat = grow_lattice(xy, axes, seed, grey, cfg, smoothed, rim_dist)
-        if lat is None:
-            continue
-        covered |= cKDTree(lat.xy).query(xy)[0] < cfg.merge_radius_px
-        if len(lat.ab) < cfg.min_corners:
-            continue  # (the verification only drops corners)
-        lat = verify_lattice(lat, grey, cfg, smoothed, rim_dist, crop_circle)
-        if len(lat.ab) < cfg.min_corners or skipped_corners(lat, response, cfg) > cfg.max_skipped:
-            continue
-        if CELLS.sample(mask_prob[None], box.to_processing(lat.xy + offset))[:, 0].mean() < cfg.min_board_prob:
-            continue
-        grown.append(lat)
-    if cfg.join_lattices:
-        # Joined lattices are placed beside their parts (a part alone can be surer), verified
-        # again with their corners' final neighbours.
-        parts = {id(x) for x in grown}
-        joined = [verify_lattice(x, grey, cfg, smoothed, rim_dist, crop_circle) for x in join_lattices(grown, cfg) if id(x) not in parts]
-        grown += [x for x in joined if len(x.ab) >= cfg.min_corners and skipped_corners(x, response, cfg) <= cfg.max_skipped]
-
-    def place(lat: Lattice) -> tuple[Placement, list[tuple[int, int, int, float]], bool] | None:
-        """The lattice's placement, its margin evidence, and whether the placement stands (does
-        not contradict that evidence beyond ``cfg.max_violated_edges`` or
-        ``cfg.max_violated_share`` of it: the board would end where the target goes on, another
-        target or a distractor); None for a line of corners."""
-        blur1 = smooth_cached(smoothed, grey, -1)
-        dark = cell_darkness(blur1, lat)
-        if len(dark) < cfg.min_cells:
-            return None  # a line of corners (or a diagonal) is not a checker lattice
-        lc, lr = corner_votes(lat, logp_col, offset, box, cfg), corner_votes(lat, logp_row, offset, box, cfg)
-        edges = edge_evidence(blur1, lat, cfg, xy)
-        placed = assign_ids(lat.ab, lc, lr, dark, board, cfg, edges, extent_weight(lat, rim_dist, extent_rim_px))
-        return placed, edges, placed.violated <= max(cfg.max_violated_edges, cfg.max_violated_share * sum(e[3] for e in edges))
-
-    for lat in grown:
-        res = place(lat)
-        if res is None:
-            continue
-        placed, edges, stands = res
-        if cfg.cut_at_margins and edges and not (stands and placement_is_sure(placed.margin, placed.geometry_margin, len(lat.ab), cfg)):
-            # The lattice may have stepped over the board's margin onto a distractor, whose corners
-            # make the placement contradict the margin or leave it unsure: its parts on this side of
-            # each line of margin evidence are placed on their own, and the surest that stands and
-            # is sure replaces it.
-            cuts = []
-            for part in cut_at_margins(lat, edges, cfg):
-                r = place(part)
-                if r is not None and r[2] and placement_is_sure(r[0].margin, r[0].geometry_margin, len(part.ab), cfg):
-                    cuts.append((r[0], part))
-            if cuts:
-                (placed, lat), stands = max(cuts, key=lambda c: c[0].margin), True
-        if not stands:
-            continue
-        scored.append((placed.margin, lat, placed.ids, placed.geometry_margin))
-        if best is None or placed.margin > best[0]:
-            best = (placed.margin, lat, placed.ids, placed.geometry_margin)
-    if best is None:
+    grown = _grow(c, xy, axes, mask_prob, box, smoothed, response)
+    scored = _identify(c, grown, _Votes(logp_col, logp_row, box, xy, extent_rim_px), board, smoothed)
+    if not scored:
         return empty
-    margin, lat, ids, geometry_margin = best
+    # The lattice whose identity is surest wins (the first of equal margins).
+    margin, lat, ids, geometry_margin = max(scored, key=lambda s: s[0])
     if not placement_is_sure(margin, geometry_margin, len(lat.ab), cfg):
         return GridResult(np.zeros(0, int), np.zeros((0, 2)), np.zeros(0), float(margin))
     if cfg.merge_lattices:
         lat, ids = merge_lattices(lat, ids, [x for x in scored if x[1] is not lat], board, cfg)
-    lat = refine_positions(lat, grey, cfg, smoothed, rim_dist)
+    lat = refine_positions(lat, c.grey, cfg, smoothed, c.rim_dist)  # stage 6, refinement
     ids = canonical_ids(ids, lat.xy, board)
     on = ids >= 0
     conf = np.full(len(ids), 1.0 - np.exp(-margin)) * np.where(lat.filled, cfg.filled_confidence, 1.0)
     ids, q, conf = ids[on], lat.xy[on], conf[on]
-    lens = lens_of_circle(circle, cfg.lens_fov, offset)
+    lens = lens_of_circle(c.circle, cfg.lens_fov, c.offset)
     if cfg.misfit_neighbours and cfg.max_neighbour_misfit > 0:
-        # A corner off where its identified neighbours put it (the growth took a T-junction at an
-        # occluder's edge, or slid a row's end) is dropped; completion may find it where it is.
-        # Where many miss, the maps are at fault (no image circle to guess the lens from, and a
-        # bend no homography follows: a 640x480 board lost 22 of its 23 placed corners so), and
-        # none is dropped.
-        ok = neighbour_check(
-            board,
-            ids,
-            q,
-            cfg.misfit_neighbours,
-            cfg.max_neighbour_misfit,
-            lens,
-            max_share=cfg.max_misfit_share,
-            worst_misfit=cfg.worst_neighbour_misfit,
-            worst_rounds=cfg.worst_misfit_rounds,
-        )
+        ok = _neighbours_agree(ids, q, board, cfg, lens)
         ids, q, conf = ids[ok], q[ok], conf[ok]
     if cfg.complete_rounds and 4 <= len(ids) < board.n_corners:
-        # Corners the growth did not reach (bent rows at the rim, a blurred stretch), predicted from
-        # the identified ones and checked against the print (cotrain.detect.tag_completion); their
-        # confidence is the placement's times that check's correlation.
-        # The crop's own edges (where they are not the frame's) cut fit windows as the rim does.
-        inside = allowed.copy()
-        inside[:, : int(x0 > 0)] = inside[:, inside.shape[1] - int(x1 < outside.shape[1]) :] = False
-        inside[: int(y0 > 0)] = inside[inside.shape[0] - int(y1 < outside.shape[0]) :] = False
-        rim_c = cv2.distanceTransform(inside.astype(np.uint8), cv2.DIST_L2, 3)
-        # A checker's print tells only the two parities apart: a saddle at an occluder's edge, or
-        # the rim's, can match it, so every corner added must also have its four edge rays along
-        # the board's axes and a correlation of cfg.complete_min_corr. Nor is a corner judged again
-        # under the map through it (CompletionConfig.refit_gap_px): with a map fitted to it, a
-        # checker's print matched a saddle 15 px off at the rim (a new wrong corner, no new right one
-        # over the eight checkerboard sets).
-        complete = CompletionConfig(
-            rounds=cfg.complete_rounds,
-            min_rim_px=cfg.complete_rim_px,
-            min_corr=cfg.complete_min_corr,
-            check=False,
-            sure_corr=math.inf,
-            min_ray_px=0.0,  # rays at every gap: a checker's print tells only the parities apart
-            refit_gap_px=0.0,
-        )
-        given = dict(zip(ids.tolist(), conf.tolist()))
-        ids, q, corr, _ = complete_board(grey, smoothed, rim_c, xy, board, ids, q, complete, cfg, lens)
-        conf = np.array([given.get(i, (1.0 - np.exp(-margin)) * c) for i, c in zip(ids.tolist(), corr.tolist())])
+        ids, q, conf = _completed(c, xy, ids, q, conf, margin, board, smoothed, lens)
     order = np.argsort(ids)
-    return GridResult(ids[order], q[order] + offset, conf[order], float(margin))
+    return GridResult(ids[order], q[order] + c.offset, conf[order], float(margin))
 
 
 def merge_half_resolution(grey: np.ndarray, full: GridResult, half: GridResult, board: Checkerboard, cfg: GridConfig) -> GridResult:

@@ -99,33 +99,10 @@ def cell_darkness(blur: np.ndarray, lat: Lattice) -> dict[tuple[int, int], float
 EDGE_T = np.arange(0.3, 2.0, 0.05)  # outward profile positions, in lattice steps
 
 
-def edge_evidence(
-    blur: np.ndarray, lat: Lattice, cfg: GridConfig | None = None, candidates: np.ndarray | None = None
-) -> list[tuple[int, int, int, float]]:
-    """Where the lattice stops because the board does: (k, da, db, e) for boundary corner k whose
-    neighbour (a + da, b + db) is missing, e in [0, 1] the evidence that the squares end one
-    square further on and the white margin follows. ``blur``: the (H, W) image blurred by 1 px.
-
-    Beyond the last corner row there is one more row of squares, then the margin. Two profiles run
-    outwards from the corner, half a square to either side: they differ across the last squares
-    (one black, one white, by ``cfg.min_edge_contrast`` at least), and where the squares end
-    (``cfg.edge_end_min`` .. ``cfg.edge_end_max`` steps out: perspective and the fisheye change
-    the step) both turn white, and stay white over the band ``cfg.margin_band_start`` ..
-    ``cfg.margin_band_end`` beyond. Where the board goes on (occlusion, image edge, rim)
-    the profiles keep differing, or turn dark, and there is no evidence. The outward step is the
-    one the lattice line would take next (:func:`cotrain.detect.lattice.next_step` from the two
-    steps behind: towards a fisheye's rim the last square can be 0.6 of the step before it, and the
-    line bends) where that is ``cfg.edge_predict_min_px`` long at least (the ratio of shorter,
-    blurred steps is noise), else the last step; the sideways step comes from a neighbour across.
-    Where one of them is missing (a lattice one corner deep, a corner at a tip) it is the other
-    turned by 90 degrees (lattice axes have a x b > 0 in the image).
-
-    Nor is there evidence where the board visibly goes on (:func:`board_goes_on`): one of the
-    X-junction ``candidates`` (M, 2) lies where the next corner would, with the checker edge
-    running to it. Where the squares grow fast (a board close to the lens) the predicted step falls
-    short, and the last black square's side, bending away from the profile, passed for its end.
-    """
-    cfg = cfg or GridConfig()
+def _edge_jobs(lat: Lattice, cfg: GridConfig) -> list[tuple]:
+    """The boundary corners :func:`edge_evidence` profiles: (k, da, db, p, out_step, across) for
+    corner k whose neighbour (a + da, b + db) is missing, at p (2,), with the image steps outwards
+    and sideways (2,) each."""
     where = lat.where
     jobs = []  # (k, da, db, p, out_step, across)
     for (a, b), k in where.items():
@@ -155,6 +132,37 @@ def edge_evidence(
             else:  # sideways the squares keep the last step's size (they shrink outwards)
                 across = rot90(last) if da else -rot90(last)
             jobs.append((k, da, db, lat.xy[k], out_step, across))
+    return jobs
+
+
+def edge_evidence(
+    blur: np.ndarray, lat: Lattice, cfg: GridConfig | None = None, candidates: np.ndarray | None = None
+) -> list[tuple[int, int, int, float]]:
+    """Where the lattice stops because the board does: (k, da, db, e) for boundary corner k whose
+    neighbour (a + da, b + db) is missing, e in [0, 1] the evidence that the squares end one
+    square further on and the white margin follows. ``blur``: the (H, W) image blurred by 1 px.
+
+    Beyond the last corner row there is one more row of squares, then the margin. Two profiles run
+    outwards from the corner, half a square to either side: they differ across the last squares
+    (one black, one white, by ``cfg.min_edge_contrast`` at least), and where the squares end
+    (``cfg.edge_end_min`` .. ``cfg.edge_end_max`` steps out: perspective and the fisheye change
+    the step) both turn white, and stay white over the band ``cfg.margin_band_start`` ..
+    ``cfg.margin_band_end`` beyond. Where the board goes on (occlusion, image edge, rim)
+    the profiles keep differing, or turn dark, and there is no evidence. The outward step is the
+    one the lattice line would take next (:func:`cotrain.detect.lattice.next_step` from the two
+    steps behind: towards a fisheye's rim the last square can be 0.6 of the step before it, and the
+    line bends) where that is ``cfg.edge_predict_min_px`` long at least (the ratio of shorter,
+    blurred steps is noise), else the last step; the sideways step comes from a neighbour across.
+    Where one of them is missing (a lattice one corner deep, a corner at a tip) it is the other
+    turned by 90 degrees (lattice axes have a x b > 0 in the image).
+
+    Nor is there evidence where the board visibly goes on (:func:`board_goes_on`): one of the
+    X-junction ``candidates`` (M, 2) lies where the next corner would, with the checker edge
+    running to it. Where the squares grow fast (a board close to the lens) the predicted step falls
+    short, and the last black square's side, bending away from the profile, passed for its end.
+    """
+    cfg = cfg or GridConfig()
+    jobs = _edge_jobs(lat, cfg)
     if not jobs:
         return []
     p = np.array([j[3] for j in jobs])[:, None, None, :]
@@ -249,6 +257,57 @@ class Placement(NamedTuple):
     geometry_margin: float  # the margin from colours, margin evidence and extent alone (no network votes)
 
 
+def _turn_scores(
+    ab: np.ndarray,
+    R: np.ndarray,
+    lc: np.ndarray,
+    lr: np.ndarray,
+    pen: np.ndarray,
+    cells: np.ndarray,
+    dsign: np.ndarray,
+    board: Checkerboard,
+    cfg: GridConfig,
+    edges: list[tuple[int, int, int, float]] | None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`assign_ids`'s scores of the lattice ``ab`` (K, 2) turned by ``R`` (2, 2), at every
+    offset: total (n_oi, n_oj), the geometry's part of it (n_oi, n_oj), and the offsets ois
+    (n_oi,), ojs (n_oj,). ``lc``, ``lr``: the floored column / row log-probabilities; ``pen`` (K,):
+    each corner's off-board penalty; ``cells`` (C, 2), ``dsign`` (C,): cell darkness."""
+    nx, ny = board.nx, board.ny
+    ij0 = ab @ R.T  # (K, 2) before the offset
+    # Column score for every offset oi: sum_k lc[k, i_k + 1], i_k = ij0[k, 0] + oi (off-board -> floor).
+    ois = np.arange(-ij0[:, 0].max() - 1, nx - ij0[:, 0].min() + 1)
+    ojs = np.arange(-ij0[:, 1].max() - 1, ny - ij0[:, 1].min() + 1)
+    ii = ij0[:, 0][:, None] + ois[None]  # (K, n_oi)
+    jj = ij0[:, 1][:, None] + ojs[None]
+    sc = np.where((ii >= 0) & (ii < nx), np.take_along_axis(lc, np.clip(ii + 1, 0, nx + 1), 1), -pen[:, None]).sum(0)
+    sr = np.where((jj >= 0) & (jj < ny), np.take_along_axis(lr, np.clip(jj + 1, 0, ny + 1), 1), -pen[:, None]).sum(0)
+    off_c = -(pen[:, None] * ((ii < 0) | (ii >= nx))).sum(0)  # the geometry's part of sc, sr
+    off_r = -(pen[:, None] * ((jj < 0) | (jj >= ny))).sum(0)
+    # Parity: the cell's min corner after rotation decides its colour; black when i + j even.
+    par = np.zeros(2)
+    if len(cells):
+        quad = np.stack([cells, cells + [1, 0], cells + [0, 1], cells + [1, 1]], 1) @ R.T  # (C, 4, 2)
+        mn = quad.min(1).sum(1)  # i0 + j0 without offset
+        for e in (0, 1):  # e = (oi + oj) mod 2
+            black = ((mn + e) % 2) == 0
+            par[e] = cfg.parity_weight * float((np.where(black, 1.0, -1.0) * dsign).sum())
+    total = sc[:, None] + sr[None, :] + par[(ois[:, None] + ojs[None, :]) % 2]
+    geo = off_c[:, None] + off_r[None, :] + par[(ois[:, None] + ojs[None, :]) % 2]
+    if edges:
+        # Margin evidence: the missing outward neighbour must fall off the board.
+        kk = np.array([e[0] for e in edges])
+        t0 = (ab[kk] + np.array([[e[1], e[2]] for e in edges])) @ R.T  # (E, 2) before the offset
+        ev = np.array([e[3] for e in edges])
+        ti = t0[:, 0, None, None] + ois[None, :, None]
+        tj = t0[:, 1, None, None] + ojs[None, None, :]
+        off = (ti < 0) | (ti >= nx) | (tj < 0) | (tj >= ny)  # (E, n_oi, n_oj)
+        margin_term = cfg.edge_weight * (ev[:, None, None] * np.where(off, 1.0, -1.0)).sum(0)
+        total = total + margin_term
+        geo = geo + margin_term
+    return total, geo, ois, ojs
+
+
 def assign_ids(
     ab: np.ndarray,
     logp_col: np.ndarray,
@@ -281,40 +340,7 @@ def assign_ids(
     cells = np.array(list(dark.keys()), int).reshape(-1, 2)
     dsign = np.array(list(dark.values()))
     pen = cfg.offboard_penalty * (np.ones(len(ab)) if extent_weight is None else extent_weight)  # (K,)
-    scored = []  # per turn r: (total (n_oi, n_oj), geometry's part (n_oi, n_oj), ois, ojs)
-    for R in ROTATIONS:
-        ij0 = ab @ R.T  # (K, 2) before the offset
-        # Column score for every offset oi: sum_k lc[k, i_k + 1], i_k = ij0[k, 0] + oi (off-board -> floor).
-        ois = np.arange(-ij0[:, 0].max() - 1, nx - ij0[:, 0].min() + 1)
-        ojs = np.arange(-ij0[:, 1].max() - 1, ny - ij0[:, 1].min() + 1)
-        ii = ij0[:, 0][:, None] + ois[None]  # (K, n_oi)
-        jj = ij0[:, 1][:, None] + ojs[None]
-        sc = np.where((ii >= 0) & (ii < nx), np.take_along_axis(lc, np.clip(ii + 1, 0, nx + 1), 1), -pen[:, None]).sum(0)
-        sr = np.where((jj >= 0) & (jj < ny), np.take_along_axis(lr, np.clip(jj + 1, 0, ny + 1), 1), -pen[:, None]).sum(0)
-        off_c = -(pen[:, None] * ((ii < 0) | (ii >= nx))).sum(0)  # the geometry's part of sc, sr
-        off_r = -(pen[:, None] * ((jj < 0) | (jj >= ny))).sum(0)
-        # Parity: the cell's min corner after rotation decides its colour; black when i + j even.
-        par = np.zeros(2)
-        if len(cells):
-            quad = np.stack([cells, cells + [1, 0], cells + [0, 1], cells + [1, 1]], 1) @ R.T  # (C, 4, 2)
-            mn = quad.min(1).sum(1)  # i0 + j0 without offset
-            for e in (0, 1):  # e = (oi + oj) mod 2
-                black = ((mn + e) % 2) == 0
-                par[e] = cfg.parity_weight * float((np.where(black, 1.0, -1.0) * dsign).sum())
-        total = sc[:, None] + sr[None, :] + par[(ois[:, None] + ojs[None, :]) % 2]
-        geo = off_c[:, None] + off_r[None, :] + par[(ois[:, None] + ojs[None, :]) % 2]
-        if edges:
-            # Margin evidence: the missing outward neighbour must fall off the board.
-            kk = np.array([e[0] for e in edges])
-            t0 = (ab[kk] + np.array([[e[1], e[2]] for e in edges])) @ R.T  # (E, 2) before the offset
-            ev = np.array([e[3] for e in edges])
-            ti = t0[:, 0, None, None] + ois[None, :, None]
-            tj = t0[:, 1, None, None] + ojs[None, None, :]
-            off = (ti < 0) | (ti >= nx) | (tj < 0) | (tj >= ny)  # (E, n_oi, n_oj)
-            margin_term = cfg.edge_weight * (ev[:, None, None] * np.where(off, 1.0, -1.0)).sum(0)
-            total = total + margin_term
-            geo = geo + margin_term
-        scored.append((total, geo, ois, ojs))
+    scored = [_turn_scores(ab, R, lc, lr, pen, cells, dsign, board, cfg, edges) for R in ROTATIONS]  # per turn
     # Every placement (turn r, offsets oi, oj) in the order turn, oi, oj, then best score first (a
     # stable sort: ties keep that order).
     totals = np.concatenate([t.ravel() for t, _, _, _ in scored])
