@@ -24,6 +24,7 @@ import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import cv2
 import numba
@@ -395,24 +396,10 @@ def _bent_neighbour(
     return None
 
 
-def grow_lattice(
-    xy: np.ndarray,
-    axes: np.ndarray,
-    seed: int,
-    grey: np.ndarray,
-    cfg: GridConfig,
-    smoothed: dict[int, np.ndarray],
-    rim_dist: np.ndarray | None = None,
-) -> Lattice | None:
-    """Breadth-first lattice growth from candidate ``seed`` among candidates xy (K, 2) with edge
-    directions axes (K, 2, 2) (see :func:`cotrain.detect.saddle.saddle_fit`) on the image grey
-    (H, W); corners found by the saddle search are fitted with ``rim_dist`` (H, W). None when the
-    seed has no two neighbours along its edges or no checker colours.
-
-    Lattice axes are oriented so that a x b > 0 in the image (x right, y down), as the board's own
-    i, j axes are when its printed side is seen.
-    """
-    tree = cKDTree(xy)
+def _seed_steps(xy: np.ndarray, axes: np.ndarray, seed: int, tree: cKDTree, cfg: GridConfig) -> tuple[np.ndarray, np.ndarray] | None:
+    """The seed's two steps (2,) each: to the nearest candidate along each of its edge directions
+    (within ``cfg.seed_axis_angle``, or bent, :func:`_bent_neighbour`), oriented so that a x b > 0;
+    None where one is missing or the two are nearly parallel."""
     p0 = xy[seed]
     d, nb = tree.query(p0, k=min(9, len(xy)))
     cos_seed = np.cos(np.radians(cfg.seed_axis_angle))
@@ -437,6 +424,142 @@ def grow_lattice(
         return None
     if _cross(sa, sb) < 0:
         sa, sb = sb, sa
+    return sa, sb
+
+
+def _remeasured(where: dict, pts: list, a: int, b: int, sa: np.ndarray, sb: np.ndarray, cfg: GridConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Corner (a, b)'s steps as its neighbours placed by now measure them: inherited along a row
+    from its parent, the step across is stale where the lattice bends (near a fisheye's rim it
+    turns by tens of degrees in a few squares). Small squares keep theirs (their neighbours'
+    positions are noisier than the inherited step)."""
+    k = where[(a, b)]
+    pairs = ((where.get((a + 1, b)), where.get((a - 1, b))), (where.get((a, b + 1)), where.get((a, b - 1))))
+    for axis, (m_f, m_b) in enumerate(pairs):
+        if m_f is not None or m_b is not None:
+            s_ = pts[m_f] - pts[k] if m_f is not None else pts[k] - pts[m_b]
+            if math.hypot(s_[0], s_[1]) >= cfg.walk_min_square_px:
+                sa, sb = (s_, sb) if axis == 0 else (sa, s_)
+    return sa, sb
+
+
+def _predicted(where: dict, pts: list, a: int, b: int, da: int, db: int, sa: np.ndarray, sb: np.ndarray, cfg: GridConfig):
+    """Where corner (a + da, b + db) should be: (v, pred, len_v), the step (2,) from (a, b) (from
+    the last two steps: perspective's cross-ratio and the fisheye's bend), the predicted point
+    (2,), averaged with the perpendicular neighbours' own steps along (da, db), and the step's
+    length; None where those predictions disagree by over ``cfg.agree_radius`` of a step."""
+    hypot = math.hypot
+    k, t = where[(a, b)], (a + da, b + db)
+    back = where.get((a - da, b - db))
+    v = pts[k] - pts[back] if back is not None else da * sa + db * sb
+    back2 = where.get((a - 2 * da, b - 2 * db))
+    if back is not None and back2 is not None:
+        v = next_step(pts[back] - pts[back2], v)
+    preds = [pts[k] + v]
+    for side in ((db, da), (-db, -da)):  # the perpendicular neighbours' own steps along (da, db)
+        m0, m1 = where.get((a + side[0], b + side[1])), where.get((t[0] + side[0], t[1] + side[1]))
+        if m0 is not None and m1 is not None:
+            preds.append(pts[k] + pts[m1] - pts[m0])
+    pred = preds[0] if len(preds) == 1 else np.array([sum(p_[0] for p_ in preds), sum(p_[1] for p_ in preds)]) / len(preds)
+    len_v = hypot(v[0], v[1])
+    if len(preds) > 1 and max(hypot(p_[0] - pred[0], p_[1] - pred[1]) for p_ in preds) > cfg.agree_radius * len_v:
+        return None
+    return v, pred, len_v
+
+
+def _step_across(where: dict, pts: list, t: tuple[int, int], da: int, db: int, sa, sb, found, len_new: float, cfg: GridConfig):
+    """The step across at the new corner t (2,): the parent's, scaled as the step along changed
+    (where squares grow or shrink fast, near a fisheye's rim, an inherited step goes stale), or
+    measured where t already has a neighbour across."""
+    along, across = (sa, sb) if da else (sb, sa)
+    across = across * min(max(len_new / max(math.hypot(along[0], along[1]), 1e-9), cfg.min_step_ratio), cfg.max_step_ratio)
+    for sgn in (1, -1):
+        m = where.get((t[0] + sgn * abs(db), t[1] + sgn * abs(da)))
+        if m is not None:
+            return sgn * (pts[m] - found)
+    return across
+
+
+def _crowded(placed: np.ndarray, found: np.ndarray, short: float, len_v: float, cfg: GridConfig) -> bool:
+    """Whether a corner ``found`` (2,) would sit on top of one already ``placed`` (K, 2). Measured
+    against the square's smaller side ``short`` (on a board seen obliquely the next corner across
+    is much nearer than the step), except in small squares (measured against the step ``len_v``),
+    where a diagonal slip is then let through."""
+    crowd = short if short >= cfg.crowd_small_factor * cfg.min_step_px else len_v
+    d = placed - found
+    return bool(np.sqrt((d * d).sum(1).min()) < cfg.crowd_radius * crowd)
+
+
+def _checker_step(sm1: np.ndarray, p, found, na, nbv, bright, side_px: float, parent: float, cfg: GridConfig) -> float | None:
+    """The new corner's checker contrast (:func:`diag_contrast` along its steps ``na``, ``nbv``),
+    or None where the step from ``p`` to ``found`` has no checker edge along it (off the board, or
+    a knight's move; its depth ``cfg.step_edge_depth`` of the square's smaller side ``side_px``)
+    or the colours do not alternate with the ``parent``'s (a slipped row or column, or not this
+    board)."""
+    if not step_has_edge(sm1, p, found, bright, cfg.step_edge_depth * side_px, parent, cfg):
+        return None
+    pc = diag_contrast(sm1, found, na, nbv, cfg.diag_offset)
+    if pc * parent >= 0 or abs(pc) < cfg.min_alternation * abs(parent):
+        return None
+    return pc
+
+
+class _Growing(NamedTuple):
+    """What :func:`grow_lattice` grows among: the candidates and the image."""
+
+    xy: np.ndarray  # (K, 2) candidates
+    axes: np.ndarray  # (K, 2, 2) their edge directions
+    tree: cKDTree  # over xy
+    grey: np.ndarray  # (H, W) image
+    sm1: np.ndarray  # (H, W) the image blurred for the colour and edge tests
+    smoothed: dict[int, np.ndarray]  # blurs by fit window (saddle.smooth_cached)
+    rim_dist: np.ndarray | None  # (H, W) distance to the rim, px
+    used: set[int]  # candidates taken by the lattice (filled in as it grows)
+    cfg: GridConfig
+
+
+def _neighbour(g: _Growing, p, pred, v, len_v: float, short: float, dab, sab, bright, parent: float):
+    """The corner found for the prediction ``pred`` (2,) one step ``v`` from ``p`` along lattice
+    direction ``dab`` = (da, db) (steps ``sab`` = (sa, sb) at p): the candidate within
+    ``cfg.match_radius`` of a step, or a saddle searched for there
+    (:func:`match_corner`), or in large squares the one the checker edge leaving ``p`` leads to
+    (:func:`edge_neighbour`). Returns (found (2,) or None, whether a search found it, the step's
+    length: the walk measures it)."""
+    (da, db), (sa, sb), cfg = dab, sab, g.cfg
+    pa, pb = (v * da if da else sa), (v * db if db else sb)
+    worth_fitting = functools.partial(_fill_alternates, g.sm1, pred, pa, pb, parent, cfg)
+    r = cfg.match_radius * len_v
+    found, was_filled = match_corner(pred, r, g.xy, g.used, g.grey, g.smoothed, window_half(short), cfg, g.rim_dist, worth_fitting)
+    if found is None and short >= cfg.walk_min_square_px:
+        found = edge_neighbour(g.sm1, p, v, bright, parent, g.xy, g.axes, g.tree, g.used, cfg)
+        if found is not None:
+            was_filled = False
+            len_v = math.hypot(found[0] - p[0], found[1] - p[1])  # the walk measured the step
+    return found, was_filled, len_v
+
+
+def grow_lattice(
+    xy: np.ndarray,
+    axes: np.ndarray,
+    seed: int,
+    grey: np.ndarray,
+    cfg: GridConfig,
+    smoothed: dict[int, np.ndarray],
+    rim_dist: np.ndarray | None = None,
+) -> Lattice | None:
+    """Breadth-first lattice growth from candidate ``seed`` among candidates xy (K, 2) with edge
+    directions axes (K, 2, 2) (see :func:`cotrain.detect.saddle.saddle_fit`) on the image grey
+    (H, W); corners found by the saddle search are fitted with ``rim_dist`` (H, W). None when the
+    seed has no two neighbours along its edges or no checker colours.
+
+    Lattice axes are oriented so that a x b > 0 in the image (x right, y down), as the board's own
+    i, j axes are when its printed side is seen.
+    """
+    tree = cKDTree(xy)
+    p0 = xy[seed]
+    seed_steps = _seed_steps(xy, axes, seed, tree, cfg)
+    if seed_steps is None:
+        return None
+    sa, sb = seed_steps
     pts = [p0.copy()]
     placed = np.empty((len(xy) + 16, 2))  # pts as one array, for the crowding test
     placed[0] = p0
@@ -444,91 +567,45 @@ def grow_lattice(
     par = {(0, 0): diag_contrast(sm1, p0, sa, sb, cfg.diag_offset)}
     if abs(par[(0, 0)]) < cfg.min_seed_contrast:
         return None
-    lab = [(0, 0)]
-    filled = [False]
+    lab, filled = [(0, 0)], [False]  # each corner's lattice coordinate, and whether a saddle search found it
     step = {(0, 0): (sa, sb)}
     where = {(0, 0): 0}  # the growing lattice's index (see Lattice.where)
-    used = {seed}
-    queue = collections.deque([(0, 0)])
-    H, W = grey.shape
-    hypot = math.hypot
+    used, queue = {seed}, collections.deque([(0, 0)])  # candidates taken; corners whose neighbours are still to look for
+    (H, W), hypot = grey.shape, math.hypot
+    ctx = _Growing(xy, axes, tree, grey, sm1, smoothed, rim_dist, used, cfg)
     while queue:
         a, b = queue.popleft()
         k = where[(a, b)]
         sa, sb = step[(a, b)]
         if cfg.remeasure_steps:
-            # The corner's steps as its neighbours placed by now measure them: inherited along a row
-            # from its parent, the step across is stale where the lattice bends (near a fisheye's
-            # rim it turns by tens of degrees in a few squares). Small squares keep theirs (their
-            # neighbours' positions are noisier than the inherited step).
-            pairs = ((where.get((a + 1, b)), where.get((a - 1, b))), (where.get((a, b + 1)), where.get((a, b - 1))))
-            for axis, (m_f, m_b) in enumerate(pairs):
-                if m_f is not None or m_b is not None:
-                    s_ = pts[m_f] - pts[k] if m_f is not None else pts[k] - pts[m_b]
-                    if math.hypot(s_[0], s_[1]) >= cfg.walk_min_square_px:
-                        sa, sb = (s_, sb) if axis == 0 else (sa, s_)
+            sa, sb = _remeasured(where, pts, a, b, sa, sb, cfg)
         for da, db in STEPS:
             t = (a + da, b + db)
             if t in where:
                 continue
-            back = where.get((a - da, b - db))
-            v = pts[k] - pts[back] if back is not None else da * sa + db * sb
-            back2 = where.get((a - 2 * da, b - 2 * db))
-            if back is not None and back2 is not None:
-                v = next_step(pts[back] - pts[back2], v)
-            preds = [pts[k] + v]
-            for side in ((db, da), (-db, -da)):  # the perpendicular neighbours' own steps along (da, db)
-                m0, m1 = where.get((a + side[0], b + side[1])), where.get((t[0] + side[0], t[1] + side[1]))
-                if m0 is not None and m1 is not None:
-                    preds.append(pts[k] + pts[m1] - pts[m0])
-            pred = preds[0] if len(preds) == 1 else np.array([sum(p_[0] for p_ in preds), sum(p_[1] for p_ in preds)]) / len(preds)
-            len_v = hypot(v[0], v[1])
-            if len(preds) > 1 and max(hypot(p_[0] - pred[0], p_[1] - pred[1]) for p_ in preds) > cfg.agree_radius * len_v:
+            predicted = _predicted(where, pts, a, b, da, db, sa, sb, cfg)
+            if predicted is None:
                 continue  # the neighbours disagree about where this corner is
+            v, pred, len_v = predicted
             side_v = sb if da else sa
             short = min(len_v, hypot(side_v[0], side_v[1]))  # the square's smaller side here
-            r = cfg.match_radius * len_v
             if not (0 <= pred[0] < W and 0 <= pred[1] < H) or short < cfg.min_step_px:
                 continue
-            pa, pb = (v * da if da else sa), (v * db if db else sb)
-            worth_fitting = functools.partial(_fill_alternates, sm1, pred, pa, pb, par[(a, b)], cfg)
-            found, was_filled = match_corner(pred, r, xy, used, grey, smoothed, window_half(short), cfg, rim_dist, worth_fitting)
             bright = _bright_side(da, db, sa, sb)
-            if found is None and short >= cfg.walk_min_square_px:
-                found = edge_neighbour(sm1, pts[k], v, bright, par[(a, b)], xy, axes, tree, used, cfg)
-                if found is not None:
-                    was_filled = False
-                    len_v = hypot(found[0] - pts[k][0], found[1] - pts[k][1])  # the walk measured the step
+            found, was_filled, len_v = _neighbour(ctx, pts[k], pred, v, len_v, short, (da, db), (sa, sb), bright, par[(a, b)])
             if found is None:
                 continue
             new_v = found - pts[k]
             len_new = hypot(new_v[0], new_v[1])
             if len_new < cfg.min_step_ratio * len_v or len_new > cfg.max_step_ratio * len_v:
                 continue  # the step changed its length too much
-            crowd = short if short >= cfg.crowd_small_factor * cfg.min_step_px else len_v
-            d = placed[: len(pts)] - found
-            if np.sqrt((d * d).sum(1).min()) < cfg.crowd_radius * crowd:
-                # Would sit on top of a lattice corner already placed. Measured against the smaller
-                # side (on a board seen obliquely the next corner across is much nearer than the
-                # step), except in small squares, where a diagonal slip is then let through.
+            if _crowded(placed[: len(pts)], found, short, len_v, cfg):
                 continue
-            # The step across is the parent's, scaled as the step along changed (where squares grow or
-            # shrink fast, near a fisheye's rim, an inherited step goes stale), or measured where t
-            # already has a neighbour across.
-            along, across = (sa, sb) if da else (sb, sa)
-            across = across * min(max(len_new / max(hypot(along[0], along[1]), 1e-9), cfg.min_step_ratio), cfg.max_step_ratio)
-            for sgn in (1, -1):
-                m = where.get((t[0] + sgn * abs(db), t[1] + sgn * abs(da)))
-                if m is not None:
-                    across = sgn * (pts[m] - found)
-                    break
+            across = _step_across(where, pts, t, da, db, sa, sb, found, len_new, cfg)
             na, nbv = (new_v * da, across) if da else (across, new_v * db)
-            depth = cfg.step_edge_depth * min(len_new, hypot(across[0], across[1]))
-            if not step_has_edge(sm1, pts[k], found, bright, depth, par[(a, b)], cfg):
-                continue  # no checker edge along the step: off the board, or a knight's move
-            pc = diag_contrast(sm1, found, na, nbv, cfg.diag_offset)
-            if pc * par[(a, b)] >= 0 or abs(pc) < cfg.min_alternation * abs(par[(a, b)]):
-                continue  # checker colours do not alternate: a slipped row or column, or not this board
+            pc = _checker_step(sm1, pts[k], found, na, nbv, bright, min(len_new, hypot(across[0], across[1])), par[(a, b)], cfg)
+            if pc is None:
+                continue
             par[t] = pc
             where[t] = len(pts)
             if len(pts) == len(placed):
@@ -566,6 +643,81 @@ def largest_component(lat: Lattice) -> np.ndarray:
     return comp == np.bincount(comp).argmax() if len(ab) else np.zeros(0, bool)
 
 
+def _local_squares(lat: Lattice, cfg: GridConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per corner of the lattice: (K,) bool whether it is looked at again (its local square at
+    least ``cfg.min_step_px`` and on straight lattice lines, :func:`verify_lattice`), (K,) its
+    local square's smaller side (px), and (K,) bool whether the square is seen obliquely (sides
+    over ``cfg.oblique_ratio``)."""
+    where = lat.where
+    K = len(lat.ab)
+    short, oblique = np.zeros(K), np.zeros(K, bool)
+    todo = np.zeros(K, bool)
+    pts = lat.xy.tolist()  # scalar arithmetic in the per-corner loop
+    for (a, b), k in where.items():
+        sides = []
+        straight = True
+        x, y = pts[k]
+        for nbrs in (((a + 1, b), (a - 1, b)), ((a, b + 1), (a, b - 1))):
+            d = [math.hypot(pts[where[t]][0] - x, pts[where[t]][1] - y) for t in nbrs if t in where]
+            if d:
+                sides.append(min(d))
+            if len(d) == 2:
+                (x1, y1), (x2, y2) = pts[where[nbrs[0]]], pts[where[nbrs[1]]]
+                straight &= math.hypot((x1 + x2) / 2 - x, (y1 + y2) / 2 - y) < cfg.max_line_offset * math.hypot(x1 - x2, y1 - y2) / 2
+        if sides and min(sides) >= cfg.min_step_px and straight:
+            todo[k] = True
+            short[k] = min(sides)
+            oblique[k] = len(sides) == 2 and max(sides) > cfg.oblique_ratio * min(sides)
+    return todo, short, oblique
+
+
+def _rim_cut_kept(
+    lat: Lattice, q: np.ndarray, axes: np.ndarray, keep: np.ndarray, cut: np.ndarray, halves: np.ndarray, circle, cfg: GridConfig
+) -> None:
+    """:func:`verify_lattice`'s check of the refitted corners ``q`` (K, 2) whose fit window the rim
+    cuts (``cut`` (K,) bool): their edge directions ``axes`` (K, 2, 2) must follow the lattice
+    lines; ``keep`` (K,) is cleared in place where they do not."""
+    where = lat.where
+    cos_rim, cos_border = np.cos(np.radians(cfg.max_rim_edge_angle)), np.cos(np.radians(cfg.max_border_edge_angle))
+    cos_borrowed = np.cos(np.radians(cfg.rim_borrowed_angle))
+    for k in np.nonzero(cut)[0]:
+        # Cut by the image's border alone (the image circle's rim, and the black frame beyond
+        # it, out of the window's reach): no dark rim there to make a half X of its own.
+        # (The black frame is kept CIRCLE_INSIDE_PX inside the fitted circle, and 1 px for the fit.)
+        rim_room = circle[1] - CIRCLE_INSIDE_PX - 1 - math.hypot(q[k, 0] - circle[0][0], q[k, 1] - circle[0][1]) if circle else 0.0
+        border = rim_room > window_reach(halves[k])
+        cos_max = cos_border if border else cos_rim
+        # Cut by the rim, a square's corner against the margin or the rim can pass for half an
+        # X-junction: the fitted edges must run along the lattice lines to the neighbours.
+        a, b = lat.ab[k]
+        seen_axis = [False, False]
+        for da, db in STEPS:
+            t = (a + da, b + db)
+            if t in where:
+                u = lat.xy[where[t]] - q[k]
+                u = u / max(np.linalg.norm(u), 1e-9)
+                keep[k] &= bool(np.abs(axes[k] @ u).max() >= cos_max)
+                seen_axis[abs(db)] = True
+        for axis in (0, 1):
+            if seen_axis[axis] or not keep[k] or not cfg.rim_borrowed_angle:
+                continue
+            # No neighbour along this lattice axis (a tip, or the rim): the axis as a neighbour
+            # across measures it. Where a square's edge meets the rim or the image border, the
+            # half-X there has the border as its second edge, across the lattice.
+            da, db = (1, 0) if axis == 0 else (0, 1)
+            for sa, sb in ((db, da), (-db, -da)):
+                m, m2 = where.get((a + sa, b + sb)), None
+                if m is not None:
+                    m2 = where.get((a + sa + da, b + sb + db))
+                    if m2 is None:
+                        m2 = where.get((a + sa - da, b + sb - db))
+                if m is not None and m2 is not None:
+                    u = lat.xy[m2] - lat.xy[m]
+                    u = u / max(np.linalg.norm(u), 1e-9)
+                    keep[k] &= bool(np.abs(axes[k] @ u).max() >= cos_borrowed)
+                    break
+
+
 def verify_lattice(
     lat: Lattice,
     grey: np.ndarray,
@@ -591,27 +743,9 @@ def verify_lattice(
       step during the growth, the corners along the seam fail this).
     Of what is left, the largest 4-connected part is kept.
     """
-    where = lat.where
     K = len(lat.ab)
     H, W = grey.shape
-    short, oblique = np.zeros(K), np.zeros(K, bool)
-    todo = np.zeros(K, bool)
-    pts = lat.xy.tolist()  # scalar arithmetic in the per-corner loop
-    for (a, b), k in where.items():
-        sides = []
-        straight = True
-        x, y = pts[k]
-        for nbrs in (((a + 1, b), (a - 1, b)), ((a, b + 1), (a, b - 1))):
-            d = [math.hypot(pts[where[t]][0] - x, pts[where[t]][1] - y) for t in nbrs if t in where]
-            if d:
-                sides.append(min(d))
-            if len(d) == 2:
-                (x1, y1), (x2, y2) = pts[where[nbrs[0]]], pts[where[nbrs[1]]]
-                straight &= math.hypot((x1 + x2) / 2 - x, (y1 + y2) / 2 - y) < cfg.max_line_offset * math.hypot(x1 - x2, y1 - y2) / 2
-        if sides and min(sides) >= cfg.min_step_px and straight:
-            todo[k] = True
-            short[k] = min(sides)
-            oblique[k] = len(sides) == 2 and max(sides) > cfg.oblique_ratio * min(sides)
+    todo, short, oblique = _local_squares(lat, cfg)
     # Refit all corners at once, per window size.
     halves = np.where(todo, window_half(np.maximum(short, 1.0)), 0)
     q, ok, axes = lat.xy.copy(), np.zeros(K, bool), np.zeros((K, 2, 2))
@@ -631,44 +765,7 @@ def verify_lattice(
     if rim_dist is not None:
         qi = pixel_index(q, W, H)
         cut = keep & (rim_dist[qi[:, 1], qi[:, 0]] < window_reach(halves))
-        cos_rim, cos_border = np.cos(np.radians(cfg.max_rim_edge_angle)), np.cos(np.radians(cfg.max_border_edge_angle))
-        cos_borrowed = np.cos(np.radians(cfg.rim_borrowed_angle))
-        for k in np.nonzero(cut)[0]:
-            # Cut by the image's border alone (the image circle's rim, and the black frame beyond
-            # it, out of the window's reach): no dark rim there to make a half X of its own.
-            # (The black frame is kept CIRCLE_INSIDE_PX inside the fitted circle, and 1 px for the fit.)
-            rim_room = circle[1] - CIRCLE_INSIDE_PX - 1 - math.hypot(q[k, 0] - circle[0][0], q[k, 1] - circle[0][1]) if circle else 0.0
-            border = rim_room > window_reach(halves[k])
-            cos_max = cos_border if border else cos_rim
-            # Cut by the rim, a square's corner against the margin or the rim can pass for half an
-            # X-junction: the fitted edges must run along the lattice lines to the neighbours.
-            a, b = lat.ab[k]
-            seen_axis = [False, False]
-            for da, db in STEPS:
-                t = (a + da, b + db)
-                if t in where:
-                    u = lat.xy[where[t]] - q[k]
-                    u = u / max(np.linalg.norm(u), 1e-9)
-                    keep[k] &= bool(np.abs(axes[k] @ u).max() >= cos_max)
-                    seen_axis[abs(db)] = True
-            for axis in (0, 1):
-                if seen_axis[axis] or not keep[k] or not cfg.rim_borrowed_angle:
-                    continue
-                # No neighbour along this lattice axis (a tip, or the rim): the axis as a neighbour
-                # across measures it. Where a square's edge meets the rim or the image border, the
-                # half-X there has the border as its second edge, across the lattice.
-                da, db = (1, 0) if axis == 0 else (0, 1)
-                for sa, sb in ((db, da), (-db, -da)):
-                    m, m2 = where.get((a + sa, b + sb)), None
-                    if m is not None:
-                        m2 = where.get((a + sa + da, b + sb + db))
-                        if m2 is None:
-                            m2 = where.get((a + sa - da, b + sb - db))
-                    if m is not None and m2 is not None:
-                        u = lat.xy[m2] - lat.xy[m]
-                        u = u / max(np.linalg.norm(u), 1e-9)
-                        keep[k] &= bool(np.abs(axes[k] @ u).max() >= cos_borrowed)
-                        break
+        _rim_cut_kept(lat, q, axes, keep, cut, halves, circle, cfg)
     xy = np.where(keep[:, None], q, lat.xy)
     lat = Lattice(xy[keep], lat.ab[keep], lat.filled[keep])
     big = largest_component(lat)

@@ -57,7 +57,7 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import NamedTuple
 
 import cv2
@@ -590,6 +590,19 @@ PRINT_FIT_MAX_STEP = 0.5  # ... moving the print by at most this much per Gauss-
 PRINT_FIT_STOP_STEP = 0.01  # ... until a step is shorter than this (px)
 
 
+def _printed_grid(board: Target, to_image: PlaneMaps, lo: np.ndarray, hi: np.ndarray, pad: float, f: int) -> np.ndarray:
+    """:func:`print_fit`'s print (nyf, nxf) float32 on a grid ``f`` times finer than the pixels,
+    from pixel ``lo - pad`` (2,) to ``hi + pad``. The grid's board points are mapped back at whole
+    pixels, linearly between them (the map bends by far less than a hundredth of a pixel over one)."""
+    fx0, fy0 = lo[0] - pad, lo[1] - pad
+    nxf, nyf = int(np.ceil((hi[0] - lo[0] + 2 * pad) * f)) + 1, int(np.ceil((hi[1] - lo[1] + 2 * pad) * f)) + 1
+    ncx, ncy = (nxf - 1) // f + 2, (nyf - 1) // f + 2
+    cy, cx = np.mgrid[0:ncy, 0:ncx]
+    coarse = to_image.to_plane(np.stack([fx0 + cx, fy0 + cy], -1).reshape(1, -1, 2).astype(np.float64))[0].reshape(ncy, ncx, 2)
+    plane, ok = _fine_grid(coarse, f, nxf, nyf)
+    return np.where(ok, board.intensity(plane)[0], 0.5).reshape(nyf, nxf).astype(np.float32)
+
+
 def print_fit(
     img: np.ndarray,
     rim_dist: np.ndarray,
@@ -645,15 +658,7 @@ def print_fit(
     f = PRINT_FIT_SUPERSAMPLE
     pad = 3 * sigmas[-1] + reach + 2
     fx0, fy0 = lo[0] - pad, lo[1] - pad
-    nxf, nyf = int(np.ceil((hi[0] - lo[0] + 2 * pad) * f)) + 1, int(np.ceil((hi[1] - lo[1] + 2 * pad) * f)) + 1
-    # The grid's board points: mapped back at whole pixels, linearly between them (the map bends
-    # by far less than a hundredth of a pixel over one).
-    ncx, ncy = (nxf - 1) // f + 2, (nyf - 1) // f + 2
-    cy, cx = np.mgrid[0:ncy, 0:ncx]
-    coarse = to_image.to_plane(np.stack([fx0 + cx, fy0 + cy], -1).reshape(1, -1, 2).astype(np.float64))[0].reshape(ncy, ncx, 2)
-    plane, ok = _fine_grid(coarse, f, nxf, nyf)
-    printed = np.where(ok, board.intensity(plane)[0], 0.5).reshape(nyf, nxf).astype(np.float32)
-
+    printed = _printed_grid(board, to_image, lo, hi, pad, f)
     best = None  # (sum of squared residuals, shift)
     origin = np.array([fx0, fy0], np.float64)
     for sigma in sigmas[::-1]:  # widest first: each blur starts from the best shift so far
@@ -899,6 +904,237 @@ def dim_fit(
     return q[0], share
 
 
+class _Scene(NamedTuple):
+    """What the completion rounds (:func:`complete_board`) look in: the image and the board."""
+
+    grey: np.ndarray  # (H, W) float32 image
+    smoothed: dict[int, np.ndarray]  # its blur cache (smooth_cached)
+    sm: np.ndarray  # (H, W) the image blurred by 1 px, for the print correlations
+    rim_dist: np.ndarray  # (H, W) distance to the image circle's rim, px
+    candidates: np.ndarray  # (C, 2) the tag pass's fitted saddles
+    tree: cKDTree | None  # over candidates (None: none)
+    board: Target
+    P: np.ndarray  # (N, 2) every corner's board point
+    gap: float  # the board's smallest step (smallest_step), metres
+    cfg: CompletionConfig
+    grid: GridConfig  # the saddle fit's thresholds ...
+    fit_cfg: GridConfig  # ... with cfg.min_symmetry ...
+    small_cfg: GridConfig  # ... and with cfg.small_min_symmetry (gaps under cfg.small_gap_px)
+    lens: EquidistantLens | None
+
+
+@dataclass
+class _Rounds:
+    """The state of :func:`complete_board`'s rounds."""
+
+    known: dict[int, np.ndarray]  # corner -> its pixel, given and added
+    score: dict[int, float]  # corner -> its print correlation (NaN for the given ones)
+    gaps: dict[int, float] = field(default_factory=dict)  # added corner -> its local gap (px)
+    failed: dict[int, int] = field(default_factory=dict)  # corner -> identified neighbours when it failed: tried again when it has more
+    unfound: set[int] = field(default_factory=set)  # corners predicted inside the image where nothing matched
+    # The corners of gaps too small to read edge rays in (cfg.min_ray_px) are taken on their print's
+    # margin alone only once the rounds that read rays add nothing more: their predictions then come
+    # from every corner those found, and a corner they would also find keeps the position it has there.
+    # Each small-gap corner those rounds refused (for any reason) is tried once more then, with
+    # the maps of every corner found so far.
+    small_rays: bool = False
+    # Last, where no corner is added otherwise, the corners whose saddle fit failed are fitted
+    # again with the contrast threshold scaled to the print's contrast around them (dim_fit): the
+    # corners taken before keep their positions (a print fit or a candidate sits better there).
+    # These last rounds take small gaps' corners on their print's margin too, as the rounds
+    # before them do.
+    dim_rounds: bool = False
+    # Corners whose saddle fit failed in a dim spot (dim_contrast under 1) while those wait.
+    dim_failed: set[int] = field(default_factory=set)
+    small_failed: set[int] = field(default_factory=set)  # corners refused in gaps too small for rays while those wait
+
+
+def _to_try(st: _Rounds, board: Target) -> list[tuple[int, int]]:
+    """(corner, identified grid neighbours) of the corners beside identified ones, not found and
+    not failed with as many neighbours."""
+    nx = board.nx
+    have = {(i % nx, i // nx) for i in st.known}
+    out = []
+    for t in range(board.n_corners):
+        if t in st.known:
+            continue
+        c, r = t % nx, t // nx
+        beside = sum((c + a, r + b) in have for a, b in ((1, 0), (-1, 0), (0, 1), (0, -1)))
+        if beside and st.failed.get(t, 0) < beside:
+            out.append((t, beside))
+    return out
+
+
+def _predictions(s: _Scene, st: _Rounds, kP: np.ndarray, kq: np.ndarray) -> list[tuple]:
+    """Step 1 of a round: each corner to try, predicted through its identified neighbours' map,
+    as (t, prediction (2,), local gap px, map, identified neighbours, at the rim, neighbours'
+    indices into kP); those that cannot be looked for are marked failed (and unfound where they
+    may be in view)."""
+    cfg, P = s.cfg, s.P
+    Hh, Ww = s.grey.shape
+    todo = []
+    tries = _to_try(st, s.board)
+    nears = np.array([np.argsort(np.linalg.norm(kP - P[t], axis=1))[: cfg.neighbours] for t, _ in tries], int)
+    # Every corner's map from its identified neighbours, and through it its prediction, its
+    # gap's ends and the neighbours again, all at once (each as local_map gives it alone).
+    maps, posed = each_local_map(kP[nears], kq[nears], s.lens) if len(tries) else (None, np.zeros(0, bool))
+    if len(tries):
+        ahead = maps(P[[t for t, _ in tries]][:, None] + np.array([[0.0, 0.0], [s.gap, 0], [0, s.gap]]))  # (N, 3, 2)
+        again = np.linalg.norm(maps(kP[nears]) - kq[nears], axis=2).max(1)  # (N,)
+    for n, (t, beside) in enumerate(tries):
+        near = nears[n]
+        if not posed[n]:
+            st.failed[t] = beside
+            st.unfound.add(t)  # no prediction: it may be in view
+            continue
+        to_image = maps.take(n)
+        q0, *ends = ahead[n]
+        g_px = min(np.linalg.norm(ends[0] - q0), np.linalg.norm(ends[1] - q0))
+        res = again[n]
+        in_frame = bool(0 <= q0[0] <= Ww - 1 and 0 <= q0[1] <= Hh - 1)
+        rim_q0 = _value(s.rim_dist, q0)
+        at_rim = in_frame and g_px < cfg.print_fit_rim_gap_px and 0 < cfg.print_fit_rim_px <= rim_q0 < cfg.min_rim_px
+        if not in_frame or (rim_q0 < cfg.min_rim_px and not at_rim):
+            st.failed[t] = beside  # out of view (NaN: behind the horizon)
+            st.unfound.discard(t)
+            continue
+        if not np.isfinite(g_px) or g_px < cfg.min_gap_px or not res <= cfg.max_residual * g_px:
+            st.failed[t] = beside
+            st.unfound.add(t)  # too small to fit, or a poor prediction: it may be in view
+            continue
+        todo.append((t, q0, g_px, to_image, beside, at_rim, near))
+    return todo
+
+
+def _saddles_at(s: _Scene, todo: list[tuple], sel: np.ndarray, h: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Step 2's saddle fits at the predictions ``todo[sel]`` in windows of half-size ``h``:
+    fitted (S, 2), ok (S,), and fit (S,), whether a saddle was fitted (none at the rim, where the
+    print fit alone looks)."""
+    fit = ~np.array([todo[k][5] for k in sel], bool)
+    fitted, ok = np.array([todo[k][1] for k in sel], np.float64), np.zeros(len(sel), bool)
+    if fit.any():
+        fitted[fit], ok[fit], _ = fit_saddles(s.grey, s.smoothed, fitted[fit], int(h), s.fit_cfg, s.rim_dist)
+    # In gaps of a few pixels the crossing square ends inside the smallest window and its far
+    # corner breaks the point symmetry (tags of 8-12 px): such a fit is tried again, looser.
+    small = np.nonzero(fit & ~ok & (np.array([todo[k][2] for k in sel]) < s.cfg.small_gap_px))[0]
+    if len(small):
+        pts = np.array([todo[sel[k]][1] for k in small])
+        fitted[small], ok[small], _ = fit_saddles(s.grey, s.smoothed, pts, int(h), s.small_cfg, s.rim_dist)
+    return fitted, ok, fit
+
+
+def _options(s: _Scene, item: tuple, q_fit: np.ndarray, ok_k: bool) -> tuple[list[np.ndarray], bool]:
+    """Step 2's positions to judge for one prediction: the saddle fitted there (within ``reach``
+    of the gap), else the print fit (in small gaps, or at the rim), else the tag pass's
+    candidates around it; and whether they are those candidates (searched)."""
+    cfg = s.cfg
+    t, q0, g_px, to_image, _, at_rim, _ = item
+    options = [q_fit] if ok_k and np.linalg.norm(q_fit - q0) < cfg.reach * g_px else []
+    if not options and (g_px < cfg.print_fit_gap_px or at_rim):
+        q_print = print_fit(s.grey, s.rim_dist, s.board, to_image, t, g_px, cfg, cfg.reach if at_rim else cfg.search)
+        options = [] if q_print is None else [q_print]
+    searched = s.tree is not None and not options and not at_rim
+    if searched:
+        options = [s.candidates[j] for j in s.tree.query_ball_point(q0, cfg.search * g_px)]
+    return options, searched
+
+
+def _found(s: _Scene, st: _Rounds, item: tuple, q_fit, ok_k: bool, fit_k: bool, h: int, round_cfg: CompletionConfig, kP, kq) -> bool:
+    """Steps 2 and 3 for one prediction ``item`` (:func:`_predictions`): the corner taken where
+    an option holds (recorded in ``st``), else marked failed; whether it was taken."""
+    cfg = s.cfg
+    t, q0, g_px, to_image, beside, at_rim, near = item
+    options, searched = _options(s, item, q_fit, ok_k)
+    rim_px = cfg.print_fit_rim_px if at_rim else cfg.min_rim_px
+    allq = np.array(list(st.known.values()))
+    # The map through an option, for a second look (best_option); in gaps of refit_gap_px on.
+    refit = None
+    if 0 < cfg.refit_gap_px <= g_px:
+        refit = functools.partial(map_through, kP[near], kq[near], s.P[t], lens=s.lens, max_px=cfg.max_residual * g_px)
+    look = functools.partial(best_option, s.sm, s.rim_dist, s.board, to_image, q0, t, s.P[t], s.gap)
+    best, best_corr = look(options, searched, g_px, allq, rim_px, round_cfg, refit)
+    if best is None and fit_k and not ok_k and not st.dim_rounds:
+        if dim_contrast(s.grey, q0, g_px, s.grid, cfg) < 1:
+            st.dim_failed.add(t)
+    elif best is None and fit_k and not ok_k:
+        # Under glare, in shade or on a grey print a saddle's contrast falls under the
+        # threshold set for a whole print, while the neighbours, found where the print is
+        # clear, predict it within a fraction of a pixel: where nothing else is taken, a
+        # fit with the threshold scaled by the contrast around the prediction is offered
+        # to the same checks. Only then: a print fit or a candidate taken sits better.
+        # Its score (the detection's confidence, the calibrator's weight: an inverse
+        # variance) is the print correlation times s^2, s the print's share of contrast
+        # there: the same noise moves a saddle of s times the contrast 1/s times as far.
+        dim = dim_fit(s.grey, s.smoothed, q0, g_px, int(h), s.small_cfg if g_px < cfg.small_gap_px else s.fit_cfg, s.rim_dist, cfg)
+        if dim is not None:
+            best, best_corr = look([dim[0]], False, g_px, allq, rim_px, round_cfg, refit)
+            best_corr *= dim[1] ** 2
+    if best is None:
+        st.failed[t] = beside
+        if not st.small_rays and options and not cfg.reads_rays(g_px):
+            st.small_failed.add(t)
+        if at_rim:
+            st.unfound.discard(t)  # as out of view: the view may end there
+        else:
+            st.unfound.add(t)
+        return False
+    st.known[t], st.score[t], st.gaps[t] = np.asarray(best, np.float64), best_corr, g_px
+    return True
+
+
+def _round(s: _Scene, st: _Rounds, rays_cfg: CompletionConfig) -> int:
+    """One round: every corner beside an identified one predicted, found and verified; the
+    number added."""
+    round_cfg = s.cfg if st.small_rays else rays_cfg
+    kid = np.array(sorted(st.known))
+    kP, kq = s.P[kid], np.array([st.known[i] for i in kid])
+    todo = _predictions(s, st, kP, kq)
+    added = 0
+    halves = np.array([window_half(x[2]) for x in todo])
+    for h in np.unique(halves):
+        sel = np.nonzero(halves == h)[0]
+        fitted, ok, fit = _saddles_at(s, todo, sel, h)
+        for k, q_fit, ok_k, fit_k in zip(sel, fitted, ok, fit):
+            added += _found(s, st, todo[k], q_fit, ok_k, fit_k, h, round_cfg, kP, kq)
+    return added
+
+
+def _next_rounds(st: _Rounds) -> bool:
+    """After a round that added nothing: whether rounds go on, with the corners of small gaps
+    (once the rounds that read rays are done), then with the corners whose saddle was too faint
+    (dim_fit); the corners found since are no longer waiting."""
+    st.small_failed -= st.known.keys()  # found since, with more neighbours
+    st.dim_failed -= st.known.keys()
+    if not st.small_rays and st.small_failed:
+        st.small_rays = True  # the rounds that read rays are done: the corners of small gaps again
+        for t in st.small_failed:
+            st.failed.pop(t, None)
+    elif not st.dim_rounds and st.dim_failed:
+        st.dim_rounds = st.small_rays = True  # then the corners whose saddle was too faint, with dim_fit
+        for t in st.dim_failed:
+            st.failed.pop(t, None)
+    else:
+        return False
+    return True
+
+
+def _final_positions(s: _Scene, st: _Rounds) -> None:
+    """Final positions as the tag pass's (lattice.final_fits): the corners added fitted once more
+    in a small window; where that fails the corner keeps the position it was found at."""
+    grid = s.grid
+    add = np.array(sorted(st.gaps))
+    g = np.array([st.gaps[t] for t in add])
+    halves = window_half(g, grid.final_max_half)
+    for h in np.unique(halves):
+        sel = np.nonzero(halves == h)[0]
+        q_old = np.array([st.known[t] for t in add[sel]])
+        q, ok, _ = fit_saddles(s.grey, s.smoothed, q_old, int(h), grid, s.rim_dist)
+        good = ok & (np.linalg.norm(q - q_old, axis=1) < grid.max_final_shift * g[sel])
+        for k, t in enumerate(add[sel]):
+            if good[k]:
+                st.known[t] = q[k]
+
+
 def complete_board(
     grey: np.ndarray,
     smoothed: dict[int, np.ndarray],
@@ -922,180 +1158,36 @@ def complete_board(
         The :class:`Completion`: the corners, sorted by id, and those that may be in view and were
         not found (occluded, blurred, the prediction off, or left untried when the rounds ran out).
     """
-    P = board.board_xy()
-    gap = smallest_step(board)
-    known = {int(i): np.asarray(p, np.float64) for i, p in zip(ids, xy)}
-    score = {int(i): np.nan for i in ids}
-    gaps: dict[int, float] = {}  # added corner -> its local gap (px)
-    failed: dict[int, int] = {}  # corner -> identified neighbours when it failed: tried again when it has more
-    unfound: set[int] = set()  # corners predicted inside the image where nothing matched
-    sm = smooth_cached(smoothed, grey, 1)
-    fit_cfg = replace(grid, min_symmetry=cfg.min_symmetry)
-    small_cfg = replace(grid, min_symmetry=cfg.small_min_symmetry)
-    tree = cKDTree(candidates) if len(candidates) else None
-    Hh, Ww = grey.shape
-    nx = board.nx
-
-    def to_try() -> list[tuple[int, int]]:
-        """(corner, identified grid neighbours) of the corners beside identified ones, not found and
-        not failed with as many neighbours."""
-        have = {(i % nx, i // nx) for i in known}
-        out = []
-        for t in range(board.n_corners):
-            if t in known:
-                continue
-            c, r = t % nx, t // nx
-            beside = sum((c + a, r + b) in have for a, b in ((1, 0), (-1, 0), (0, 1), (0, -1)))
-            if beside and failed.get(t, 0) < beside:
-                out.append((t, beside))
-        return out
-
-    # The corners of gaps too small to read edge rays in (cfg.min_ray_px) are taken on their print's
-    # margin alone only once the rounds that read rays add nothing more: their predictions then come
-    # from every corner those found, and a corner they would also find keeps the position it has there.
-    # Each small-gap corner those rounds refused (for any reason) is tried once more then, with
-    # the maps of every corner found so far.
-    small_rays = False
-    # Last, where no corner is added otherwise, the corners whose saddle fit failed are fitted
-    # again with the contrast threshold scaled to the print's contrast around them (dim_fit): the
-    # corners taken before keep their positions (a print fit or a candidate sits better there).
-    # These last rounds take small gaps' corners on their print's margin too, as the rounds
-    # before them do.
-    dim_rounds = False
-    dim_failed: set[int] = set()  # corners whose saddle fit failed in a dim spot (dim_contrast under 1) while those wait
-    small_failed: set[int] = set()  # corners refused in gaps too small for rays while those wait
+    s = _Scene(
+        grey,
+        smoothed,
+        smooth_cached(smoothed, grey, 1),
+        rim_dist,
+        candidates,
+        cKDTree(candidates) if len(candidates) else None,
+        board,
+        board.board_xy(),
+        smallest_step(board),
+        cfg,
+        grid,
+        replace(grid, min_symmetry=cfg.min_symmetry),
+        replace(grid, min_symmetry=cfg.small_min_symmetry),
+        lens,
+    )
+    st = _Rounds({int(i): np.asarray(p, np.float64) for i, p in zip(ids, xy)}, {int(i): np.nan for i in ids})
     rays_cfg = replace(cfg, min_ray_px=0.0)  # the rounds that read rays at every gap
-    for _ in range(cfg.rounds if len(known) >= 4 else 0):
-        round_cfg = cfg if small_rays else rays_cfg
-        kid = np.array(sorted(known))
-        kP, kq = P[kid], np.array([known[i] for i in kid])
-        todo = []  # (t, prediction, local gap px, homography, identified neighbours)
-        tries = to_try()
-        nears = np.array([np.argsort(np.linalg.norm(kP - P[t], axis=1))[: cfg.neighbours] for t, _ in tries], int)
-        # Every corner's map from its identified neighbours, and through it its prediction, its
-        # gap's ends and the neighbours again, all at once (each as local_map gives it alone).
-        maps, posed = each_local_map(kP[nears], kq[nears], lens) if len(tries) else (None, np.zeros(0, bool))
-        if len(tries):
-            ahead = maps(P[[t for t, _ in tries]][:, None] + np.array([[0.0, 0.0], [gap, 0], [0, gap]]))  # (N, 3, 2)
-            again = np.linalg.norm(maps(kP[nears]) - kq[nears], axis=2).max(1)  # (N,)
-        for n, (t, beside) in enumerate(tries):
-            near = nears[n]
-            if not posed[n]:
-                failed[t] = beside
-                unfound.add(t)  # no prediction: it may be in view
-                continue
-            to_image = maps.take(n)
-            q0, *ends = ahead[n]
-            g_px = min(np.linalg.norm(ends[0] - q0), np.linalg.norm(ends[1] - q0))
-            res = again[n]
-            in_frame = bool(0 <= q0[0] <= Ww - 1 and 0 <= q0[1] <= Hh - 1)
-            rim_q0 = _value(rim_dist, q0)
-            at_rim = in_frame and g_px < cfg.print_fit_rim_gap_px and 0 < cfg.print_fit_rim_px <= rim_q0 < cfg.min_rim_px
-            if not in_frame or (rim_q0 < cfg.min_rim_px and not at_rim):
-                failed[t] = beside  # out of view (NaN: behind the horizon)
-                unfound.discard(t)
-                continue
-            if not np.isfinite(g_px) or g_px < cfg.min_gap_px or not res <= cfg.max_residual * g_px:
-                failed[t] = beside
-                unfound.add(t)  # too small to fit, or a poor prediction: it may be in view
-                continue
-            todo.append((t, q0, g_px, to_image, beside, at_rim, near))
-        added = 0
-        halves = np.array([window_half(x[2]) for x in todo])
-        for h in np.unique(halves):
-            sel = np.nonzero(halves == h)[0]
-            # No saddle is fitted at the rim (the print fit alone looks there).
-            fit = ~np.array([todo[k][5] for k in sel], bool)
-            fitted, ok = np.array([todo[k][1] for k in sel], np.float64), np.zeros(len(sel), bool)
-            if fit.any():
-                fitted[fit], ok[fit], _ = fit_saddles(grey, smoothed, fitted[fit], int(h), fit_cfg, rim_dist)
-            # In gaps of a few pixels the crossing square ends inside the smallest window and its far
-            # corner breaks the point symmetry (tags of 8-12 px): such a fit is tried again, looser.
-            small = np.nonzero(fit & ~ok & (np.array([todo[k][2] for k in sel]) < cfg.small_gap_px))[0]
-            if len(small):
-                pts = np.array([todo[sel[k]][1] for k in small])
-                fitted[small], ok[small], _ = fit_saddles(grey, smoothed, pts, int(h), small_cfg, rim_dist)
-            for k, q_fit, ok_k, fit_k in zip(sel, fitted, ok, fit):
-                t, q0, g_px, to_image, beside, at_rim, near = todo[k]
-                options = [q_fit] if ok_k and np.linalg.norm(q_fit - q0) < cfg.reach * g_px else []
-                if not options and (g_px < cfg.print_fit_gap_px or at_rim):
-                    q_print = print_fit(grey, rim_dist, board, to_image, t, g_px, cfg, cfg.reach if at_rim else cfg.search)
-                    options = [] if q_print is None else [q_print]
-                searched = tree is not None and not options and not at_rim
-                if searched:
-                    options = [candidates[j] for j in tree.query_ball_point(q0, cfg.search * g_px)]
-                rim_px = cfg.print_fit_rim_px if at_rim else cfg.min_rim_px
-                allq = np.array(list(known.values()))
-                # The map through an option, for a second look (best_option); in gaps of refit_gap_px on.
-                refit = None
-                if 0 < cfg.refit_gap_px <= g_px:
-                    refit = functools.partial(map_through, kP[near], kq[near], P[t], lens=lens, max_px=cfg.max_residual * g_px)
-                best, best_corr = best_option(
-                    sm, rim_dist, board, to_image, q0, t, P[t], gap, options, searched, g_px, allq, rim_px, round_cfg, refit
-                )
-                if best is None and fit_k and not ok_k and not dim_rounds:
-                    if dim_contrast(grey, q0, g_px, grid, cfg) < 1:
-                        dim_failed.add(t)
-                elif best is None and fit_k and not ok_k:
-                    # Under glare, in shade or on a grey print a saddle's contrast falls under the
-                    # threshold set for a whole print, while the neighbours, found where the print is
-                    # clear, predict it within a fraction of a pixel: where nothing else is taken, a
-                    # fit with the threshold scaled by the contrast around the prediction is offered
-                    # to the same checks. Only then: a print fit or a candidate taken sits better.
-                    # Its score (the detection's confidence, the calibrator's weight: an inverse
-                    # variance) is the print correlation times s^2, s the print's share of contrast
-                    # there: the same noise moves a saddle of s times the contrast 1/s times as far.
-                    dim = dim_fit(grey, smoothed, q0, g_px, int(h), small_cfg if g_px < cfg.small_gap_px else fit_cfg, rim_dist, cfg)
-                    if dim is not None:
-                        best, best_corr = best_option(
-                            sm, rim_dist, board, to_image, q0, t, P[t], gap, [dim[0]], False, g_px, allq, rim_px, round_cfg, refit
-                        )
-                        best_corr *= dim[1] ** 2
-                if best is None:
-                    failed[t] = beside
-                    if not small_rays and options and not cfg.reads_rays(g_px):
-                        small_failed.add(t)
-                    if at_rim:
-                        unfound.discard(t)  # as out of view: the view may end there
-                    else:
-                        unfound.add(t)
-                    continue
-                known[t], score[t], gaps[t] = np.asarray(best, np.float64), best_corr, g_px
-                added += 1
-        if not added:
-            small_failed -= known.keys()  # found since, with more neighbours
-            dim_failed -= known.keys()
-            if not small_rays and small_failed:
-                small_rays = True  # the rounds that read rays are done: the corners of small gaps again
-                for t in small_failed:
-                    failed.pop(t, None)
-            elif not dim_rounds and dim_failed:
-                dim_rounds = small_rays = True  # then the corners whose saddle was too faint, with dim_fit
-                for t in dim_failed:
-                    failed.pop(t, None)
-            else:
-                break
+    for _ in range(cfg.rounds if len(st.known) >= 4 else 0):
+        if not _round(s, st, rays_cfg) and not _next_rounds(st):
+            break
     else:
-        if cfg.rounds and len(known) >= 4:
-            unfound |= {t for t, _ in to_try()}  # the rounds ran out with these still to try
-    if gaps:
-        # Final positions as the tag pass's (lattice.final_fits): fitted once more in a small
-        # window; where that fails the corner keeps the position it was found at.
-        add = np.array(sorted(gaps))
-        g = np.array([gaps[t] for t in add])
-        halves = window_half(g, grid.final_max_half)
-        for h in np.unique(halves):
-            sel = np.nonzero(halves == h)[0]
-            q_old = np.array([known[t] for t in add[sel]])
-            q, ok, _ = fit_saddles(grey, smoothed, q_old, int(h), grid, rim_dist)
-            good = ok & (np.linalg.norm(q - q_old, axis=1) < grid.max_final_shift * g[sel])
-            for k, t in enumerate(add[sel]):
-                if good[k]:
-                    known[t] = q[k]
-    out = np.array(sorted(known), int)
+        if cfg.rounds and len(st.known) >= 4:
+            st.unfound |= {t for t, _ in _to_try(st, board)}  # the rounds ran out with these still to try
+    if st.gaps:
+        _final_positions(s, st)
+    out = np.array(sorted(st.known), int)
     return Completion(
         out,
-        np.array([known[i] for i in out]).reshape(-1, 2),
-        np.array([score[i] for i in out]),
-        np.array(sorted(unfound - set(known)), int),
+        np.array([st.known[i] for i in out]).reshape(-1, 2),
+        np.array([st.score[i] for i in out]),
+        np.array(sorted(st.unfound - set(st.known)), int),
     )
