@@ -65,14 +65,15 @@ def _agreement_px(ours: np.ndarray, theirs: np.ndarray, nx: int, ny: int) -> flo
     return float(min(np.abs(np.linalg.norm(o.reshape(-1, 2) - ours, axis=1)).max() for o in orders))
 
 
-def evaluate_set(s: RealSet, progress: bool = True) -> dict:
-    """Whole boards found by each detector on one set, and the frames where OpenCV is ahead."""
+def evaluate_set(s: RealSet, progress: bool = True, detector=None) -> dict:
+    """Whole boards found by each detector on one set, and the frames where OpenCV is ahead;
+    ours is ``detector`` (default ``Detector`` of the set's board)."""
     from cotrain.detect.detector import Detector
     from cotrain.detect.images import load_image
     from cotrain.targets import Checkerboard, TargetConfig
 
     board = Checkerboard(TargetConfig(squares_x=s.squares_x, squares_y=s.squares_y))
-    det = Detector(target=board, threads=1)
+    det = detector or Detector(target=board, threads=1)
     nx, ny = board.nx, board.ny
     frames = sorted((REAL / s.folder).glob(s.pattern))
     rows = []

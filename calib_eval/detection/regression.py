@@ -194,13 +194,19 @@ def _run_foreign(s: KeptSet, out: Path, detector_for) -> dict:
     return _score_labelled(detector_for(board), labels, out / "images", board, s.name)
 
 
+def _real_board(spec):
+    from cotrain.targets import Checkerboard, TargetConfig
+
+    return Checkerboard(TargetConfig(squares_x=spec.squares_x, squares_y=spec.squares_y))
+
+
 def _run_real(s: KeptSet, out: Path, detector_for) -> dict:
     from calib_eval.detection.real_frames import REAL, SETS, evaluate_set
 
     spec = next(r for r in SETS if r.folder == dict(s.settings)["folder"])
     if not (REAL / spec.folder).is_dir():
         return {"missing": f"no {REAL / spec.folder}"}
-    r = evaluate_set(spec)
+    r = evaluate_set(spec, detector=detector_for(_real_board(spec)))
     return {
         "rows": {
             "whole boards": {"recall": r["whole"]["ours"] / max(1, r["frames"]), "hits": r["whole"]["ours"], "detectable": r["frames"]}
@@ -220,18 +226,22 @@ def _write_atomic(path: Path, obj) -> None:
     os.replace(tmp, path)
 
 
-def run(out: Path, only: list[str] | None = None, sets: Path | None = None) -> dict:
-    """Every kept set (or those named in ``only``) through the default detector of its target:
-    {set name: row}. The frames are rendered under ``sets`` (default ``out/sets``); rows already in
-    ``out/rows`` under the same detector key are reused."""
-    from cotrain.detect.detector import make_detector
+def run(out: Path, only: list[str] | None = None, sets: Path | None = None, grid=None, tags=None) -> dict:
+    """Every kept set (or those named in ``only``) through the detector of its target, under
+    ``grid`` (a checkerboard's :class:`GridConfig`) and ``tags`` (an AprilGrid's
+    :class:`TagConfig`), default their defaults: {set name: row}. The frames are rendered under
+    ``sets`` (default ``out/sets``); rows already in ``out/rows`` under the same detector key are
+    reused."""
+    from cotrain.detect.detector import Detector
+    from cotrain.detect.grid_config import GridConfig
+    from cotrain.detect.tag_config import TagConfig
 
-    sets = sets or out / "sets"
-    detectors: dict[str, object] = {}
+    sets, grid, tags = sets or out / "sets", grid or GridConfig(), tags or TagConfig()
+    detectors: dict[str, Detector] = {}
 
-    def detector_for(board):
+    def detector_for(board) -> Detector:
         key = json.dumps(board.to_json(), sort_keys=True)
-        detectors.setdefault(key, make_detector(board, threads=1))
+        detectors.setdefault(key, Detector(target=board, threads=1, grid=grid, tags=tags))
         return detectors[key]
 
     results = {}
@@ -239,7 +249,7 @@ def run(out: Path, only: list[str] | None = None, sets: Path | None = None) -> d
         if only and s.name not in only:
             continue
         done = out / "rows" / f"{s.name}.json"
-        key = json.loads(json.dumps({"set": asdict(s), "detector": _detector_key(s)}))  # as it reads back
+        key = json.loads(json.dumps({"set": asdict(s), "detector": _detector_key(s, grid, tags)}))  # as it reads back
         if done.is_file() and json.loads(done.read_text()).get("key") == key:
             results[s.name] = json.loads(done.read_text())["row"]
             continue
@@ -252,18 +262,16 @@ def run(out: Path, only: list[str] | None = None, sets: Path | None = None) -> d
     return results
 
 
-def _detector_key(s: KeptSet) -> dict:
-    """What decides our output on the set: the default detector's cache key for its target kind."""
+def _detector_key(s: KeptSet, grid, tags) -> dict:
+    """What decides our output on the set: the detector's settings for its target kind."""
     from cotrain.detect.detector import OUTPUT_VERSION, settings
-    from cotrain.detect.grid_config import GridConfig
     from cotrain.detect.onnx_model import default_grid_model_path
-    from cotrain.detect.tag_pass import TagConfig
 
     aprilgrid = dict(s.settings).get("target") == "aprilgrid" or s.source == "tags"
     if aprilgrid:
-        return {"version": OUTPUT_VERSION, "tag_pass": settings(TagConfig())}
+        return {"version": OUTPUT_VERSION, "tag_pass": settings(tags)}
     model = default_grid_model_path()
-    return {"version": OUTPUT_VERSION, "grid": settings(GridConfig()), "model": [model.name, model.stat().st_size]}
+    return {"version": OUTPUT_VERSION, "grid": settings(grid), "model": [model.name, model.stat().st_size]}
 
 
 def compare(before: dict, after: dict) -> tuple[str, int]:
@@ -304,12 +312,35 @@ def table(results: dict) -> str:
     return "\n".join(lines)
 
 
+def _overridden(name: str, pairs: list[str]):
+    """The config class ``name`` (GridConfig or TagConfig) with ``FIELD=VALUE`` pairs set (values
+    read as YAML: numbers, true / false, .inf); ValueError (one line) for an unknown field."""
+    import dataclasses
+
+    import yaml
+
+    from cotrain.detect.grid_config import GridConfig
+    from cotrain.detect.tag_config import TagConfig
+
+    cls = {"GridConfig": GridConfig, "TagConfig": TagConfig}[name]
+    names = {f.name for f in dataclasses.fields(cls)}
+    values = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or key not in names:
+            raise ValueError(f"{pair!r}: not FIELD=VALUE with a field of {name}")
+        values[key] = yaml.safe_load(value)
+    return cls(**values)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m calib_eval.detection.regression", description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=Path("runs/regression"), help="rows and regression.json go here")
     ap.add_argument("--sets", type=Path, help="the rendered sets (default OUT/sets): two runs can share them")
     ap.add_argument("--only", nargs="+", metavar="NAME", help="these kept sets only (--list names them)")
     ap.add_argument("--list", action="store_true", help="name the kept sets and stop")
+    ap.add_argument("--grid", nargs="+", default=[], metavar="FIELD=VALUE", help="the checkerboard's GridConfig fields (a rule's ablation)")
+    ap.add_argument("--tags", nargs="+", default=[], metavar="FIELD=VALUE", help="the AprilGrid's TagConfig fields")
     ap.add_argument("--compare", nargs=2, type=Path, metavar=("BEFORE", "AFTER"), help="two regression.json files")
     args = ap.parse_args(argv)
     if args.list:
@@ -328,7 +359,12 @@ def main(argv: list[str] | None = None) -> int:
     if unknown:
         print(f"regression: no kept set {unknown[0]} (--list names them)", file=sys.stderr)
         return 2
-    print(table(run(args.out, args.only, args.sets)))
+    try:
+        grid, tags = _overridden("GridConfig", args.grid), _overridden("TagConfig", args.tags)
+    except ValueError as e:
+        print(f"regression: {e}", file=sys.stderr)
+        return 2
+    print(table(run(args.out, args.only, args.sets, grid, tags)))
     return 0
 
 

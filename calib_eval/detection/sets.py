@@ -11,9 +11,10 @@ at 1280x720 (:data:`KEPT_SIZE`), whose sets keep their frames, so the figures me
 before stay comparable. Sets of other sizes were drawn anew on that day.
 
 :data:`TUNING_SETS` lists every set a threshold or a rule of the detectors was set on, or a change
-was kept or dropped on the figures of (from ``docs/detector.md``, ``docs/results/*.md`` and
-``CHANGELOG.md`` as of 2026-12-07). Such a set is never reported as held out: :func:`describe` says
-which kind a set is, and the evaluation commands write that line into their reports. A held-out
+was kept or dropped on the figures of (from the detector's tuning log, moved from
+``docs/detector.md`` into ``CHANGELOG.md`` on 2026-12-07, ``docs/results/*.md`` and
+``CHANGELOG.md``). Such a set is never reported as held out: :func:`describe` says which kind a
+set is, and the evaluation commands write that line into their reports. A held-out
 set is rendered with a seed not listed here, after the thresholds are frozen; once a threshold is
 set on it, it goes into this list.
 
@@ -78,7 +79,7 @@ class TuningSet:
 
 TUNING_SETS: tuple[TuningSet, ...] = (
     # ---- checkerboard (calib-eval detection; the grid pass, cotrain/detect/grid_*.py) ----
-    # The first tuning set: GridConfig.min_margin was tuned to 18 on it (docs/detector.md, "How the
+    # The first tuning set: GridConfig.min_margin was tuned to 18 on it (the tuning log in CHANGELOG.md, "How the
     # thresholds were chosen"; CHANGELOG "Margin threshold 18, tuned on seed 7"); the default of
     # `python -m calib_eval.detection.tuning`; every grid-pass change since is measured on it.
     # Its scenes were also the "seed-7 sets" at 640x480, 1024x1024 and 1920x1080 ("Other image
@@ -92,15 +93,15 @@ TUNING_SETS: tuple[TuningSet, ...] = (
     # The evaluation set, which is a tuning set too: min_margin was raised 18 -> 25 after it
     # showed a wrong placement at 22.2 ("that one choice has seen the evaluation set"), and the
     # geometry-backed rule (20 nats where the geometry puts a placement 15 ahead) was "read off
-    # the evaluation set's placements" (docs/detector.md, "How the thresholds were chosen").
+    # the evaluation set's placements" (the tuning log in CHANGELOG.md, "How the thresholds were chosen").
     TuningSet("checkerboard", 2026, (1280, 720), "min_margin raised to 25 on it; min_margin_backed read off it"),
     # Seed 2026's scenes at 640x480: min_margin_votes_alone 30 -> 35 from its fov180_022 (a board
     # placed turned by a quarter at 32.4 nats). Its frames at 1920x1080 and 1024x1024 gated the
-    # changes of the same sessions (docs/detector.md, step 5; docs/results/size_curve.md).
+    # changes of the same sessions (the tuning log in CHANGELOG.md, step 5; docs/results/size_curve.md).
     TuningSet("checkerboard", 2026, (640, 480), "min_margin_votes_alone 35 from its fov180_022"),
     # Seeds 41 and 53 (with the hard rows) and 67 at 1920x1080: a board placed by the votes alone
     # at 35.2 nats (seed 53, fov180_000) took min_margin_votes_alone to infinity and
-    # offboard_penalty 10 -> 15, judged over these sets (docs/detector.md, "How the thresholds
+    # offboard_penalty 10 -> 15, judged over these sets (the tuning log in CHANGELOG.md, "How the thresholds
     # were chosen"); with 2026, 7, 11, 31 at 1024x768 they are "the seven rendered sets" later
     # grid-pass changes are kept on (e.g. the lattice split at a margin line, step 5).
     TuningSet("checkerboard", 41, (1280, 720), "offboard_penalty 15 and votes alone off judged on it; gates changes"),
@@ -118,11 +119,11 @@ TUNING_SETS: tuple[TuningSet, ...] = (
     # seven sets above as "the eight checkerboard sets" (1,566 + 146 = 1,712 frames, CHANGELOG)
     # every grid-pass change since is kept or dropped on.
     TuningSet("checkerboard", 71, (640, 480), "one of the eight sets every grid-pass change is gated on"),
-    # Seed 97, the first set rendered after the thresholds were set (docs/detector.md): two rules
+    # Seed 97, the first set rendered after the thresholds were set (the tuning log in CHANGELOG.md): two rules
     # were then made from its large-squares frames, margin_max_brighter (a light occluder read as
     # margin) and grid_pass.extent_weight (no extent evidence near the rim at half resolution).
     TuningSet("checkerboard", 97, (1280, 720), "margin_max_brighter and extent_weight made from its frames"),
-    # Seed 99 (1280x1024 in docs/detector.md, 1024x1024 in held_out_checkerboard.md): changes were
+    # Seed 99 (1280x1024 in the tuning log in CHANGELOG.md, 1024x1024 in held_out_checkerboard.md): changes were
     # tried and dropped on the held-out sets' figures ("Tried and not kept"), this one among them;
     # so were seeds 7, 11 and 31 at 1920x1080, 31 at 640x480 and 97 (listed above).
     TuningSet("checkerboard", 99, (1024, 1024), "changes tried and dropped on its figures"),
@@ -130,7 +131,7 @@ TUNING_SETS: tuple[TuningSet, ...] = (
     # The AprilGrid evaluation set, a tuning set too: the tag pass's thresholds were set on it
     # (e.g. keep_unfitted_px and max_ray_angle_small "on the evaluation set and two sets of other
     # seeds", retry_seed_angle 16 deg from its fov180_013, the print check's margins, the image
-    # circle's draws; docs/detector.md, "AprilGrid", steps 1-13; docs/results/tags.md).
+    # circle's draws; the tuning log in CHANGELOG.md, "AprilGrid", steps 1-13; docs/results/tags.md).
     TuningSet("aprilgrid", 2027, (1280, 720), "the tag pass's thresholds set on it (retry_seed_angle, keep_unfitted_px, ...)"),
     # The "two more sets of other seeds" (40 and 30 frames per FoV): keep_unfitted_px (6 px, "up to
     # 10 px brought two wrong ones") and max_ray_angle_small (30 deg) chosen on them with 2027.

@@ -32,7 +32,8 @@ from cotrain.detect.half_resolution import halve
 from cotrain.detect.images import MIN_SIDE, ImageError, brighten, local_gain, to_grey_float
 from cotrain.detect.onnx_model import OnnxModel, default_grid_model_path
 from cotrain.detect.saddle import saddle_fit, smooth_for, window_half
-from cotrain.detect.tag_pass import TagConfig, tag_pass
+from cotrain.detect.tag_config import TagConfig
+from cotrain.detect.tag_pass import tag_pass
 from cotrain.geometry.letterbox import Letterbox
 from cotrain.model.outputs import DENSE_OUTPUTS, GRID_OUTPUTS, dense_maps
 from cotrain.targets import AprilGrid, Checkerboard, Target

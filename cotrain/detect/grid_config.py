@@ -2,8 +2,9 @@
 
 The stages (:mod:`cotrain.detect.saddle`, :mod:`cotrain.detect.lattice`,
 :mod:`cotrain.detect.identity`, :mod:`cotrain.detect.grid_pass`) read their numbers from here;
-docs/detector.md explains where each one comes from. Lengths called "steps" are lattice steps in
-image pixels (the distance to the neighbouring corner); "squares" are a square's smaller side.
+docs/detector.md says what each group decides; the detector's tuning log (CHANGELOG.md) where
+each one comes from. Lengths called "steps" are lattice steps in image pixels (the distance to
+the neighbouring corner); "squares" are a square's smaller side.
 """
 
 from __future__ import annotations

@@ -119,7 +119,7 @@ def remap_values(img, pts):
 
 @numba.njit(cache=True, nogil=True)
 def edge_contrast_kernel(img, rim_dist, px, py, qx, qy, nx, ny, depth):
-    """The tag pass's edge test (:func:`cotrain.detect.tag_pass.edge_contrast`) of segment (px, py)
+    """The tag pass's edge test (:func:`cotrain.detect.tag_growth.edge_contrast`) of segment (px, py)
     -> (qx, qy) with normal (nx, ny), compiled, in its arithmetic (float32 samples and their
     mean); ``img`` and ``rim_dist`` float32. Here beside :func:`remap_values`, which it calls:
     numba's cache of a function is renewed when its own file changes, not its callees'."""

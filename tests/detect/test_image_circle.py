@@ -18,7 +18,8 @@ from cotrain.detect.image_circle import (
     ray_homographies,
 )
 from cotrain.detect.saddle import black_level, half_blurred, outside_and_circle, outside_circle
-from cotrain.detect.tag_pass import TagConfig, decode_bits, look_at_tag, shortest_side
+from cotrain.detect.tag_config import TagConfig
+from cotrain.detect.tag_reading import decode_bits, look_at_tag, shortest_side
 from cotrain.targets import TargetConfig, make_target
 from tests.detect.test_tag_pass import centre, render
 

@@ -10,6 +10,7 @@ import torch
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.image_circle import EquidistantLens, PlaneMaps, fit_image_circle
 from cotrain.detect.saddle import outside_circle
+from cotrain.detect.tag_candidates import tag_candidates
 from cotrain.detect.tag_completion import (
     CompletionConfig,
     best_option,
@@ -27,7 +28,8 @@ from cotrain.detect.tag_completion import (
     print_moved,
     smallest_step,
 )
-from cotrain.detect.tag_pass import TagConfig, tag_candidates, tag_pass
+from cotrain.detect.tag_config import TagConfig
+from cotrain.detect.tag_pass import tag_pass
 from cotrain.targets import TargetConfig, make_target
 from tests.detect.test_tag_pass import centre, render
 

@@ -12,46 +12,36 @@ from scipy.spatial import cKDTree
 
 from cotrain.detect.detector import Detector
 from cotrain.detect.image_circle import EquidistantLens
-from cotrain.detect.lattice import Lattice, edge_contrast_kernel
+from cotrain.detect.lattice import Lattice, corner_rays, edge_contrast_kernel
+from cotrain.detect.tag_candidates import RayNeighbours, _in_cone, edges_along
 from cotrain.detect.tag_completion import CompletionConfig
-from cotrain.detect.tag_pass import (
-    _ASK_TREE,
-    _NO_FOURTH,
+from cotrain.detect.tag_config import TagConfig
+from cotrain.detect.tag_growth import edge_contrast, join_lattices, lattice_link, ray_step
+from cotrain.detect.tag_pass import _view_of, tag_pass
+from cotrain.detect.tag_placement import (
     Placement,
-    RayNeighbours,
-    TagCell,
-    TagConfig,
     _Board,
-    _in_cone,
-    _row_medians,
-    _seed_frames,
-    _seed_quads,
-    _turn_index,
-    _view_of,
     consistent_boards,
-    corner_rays,
-    decode_bits,
-    decode_many,
-    edge_contrast,
-    edges_along,
-    fourth_corner,
-    join_lattices,
-    lattice_link,
-    look_at_tag,
-    look_at_tags,
-    looks_like_a_tag,
-    otsu_split,
-    page_order,
-    ray_step,
     rays_agree,
-    side_points,
     slipped_corr,
     tag_corr,
-    tag_map,
-    tag_pass,
     tag_under,
     verified_corners,
 )
+from cotrain.detect.tag_reading import (
+    TagCell,
+    _row_medians,
+    _turn_index,
+    decode_bits,
+    decode_many,
+    look_at_tag,
+    look_at_tags,
+    otsu_split,
+    page_order,
+    side_points,
+    tag_map,
+)
+from cotrain.detect.tag_seeds import _ASK_TREE, _NO_FOURTH, _seed_frames, _seed_quads, fourth_corner, looks_like_a_tag
 from cotrain.geometry import cameras, poses
 from cotrain.render.renderer import RenderConfig, Scene, render_scene, sample_draws
 from cotrain.targets import TargetConfig, make_target
@@ -923,7 +913,7 @@ def test_candidates_of_small_tags_pass_the_looser_symmetry_test():
     the tag pass's candidate symmetry test over 90 % of the corners are candidates, with the grid
     pass's stricter one (checkerboard X-junctions are symmetric over the whole window) under 75 %."""
     from cotrain.detect.saddle import outside_circle
-    from cotrain.detect.tag_pass import tag_candidates
+    from cotrain.detect.tag_candidates import tag_candidates
 
     g = make_target(TargetConfig(kind="aprilgrid", margin=0.3))
     c = centre(g)
@@ -949,7 +939,7 @@ def test_a_views_side_thread_reads_what_one_thread_reads():
     blurs) runs partly on a second thread where OpenCV may use two: the candidates, their rays,
     the distance to the rim and every blur are those of the one-thread reading, to the bit."""
     from cotrain.detect.saddle import outside_circle
-    from cotrain.detect.tag_pass import _candidates_of
+    from cotrain.detect.tag_candidates import _candidates_of
 
     g = make_target(TargetConfig(kind="aprilgrid"))
     c = centre(g)
@@ -1085,7 +1075,8 @@ def test_the_pass_on_the_image_circle_finds_what_it_finds_on_the_whole_frame():
     from cotrain.detect.image_circle import EquidistantLens, fit_image_circle
     from cotrain.detect.images import to_grey_float
     from cotrain.detect.saddle import outside_circle
-    from cotrain.detect.tag_pass import CIRCLE_PAD_PX, TagConfig, _tag_pass_in, tag_pass
+    from cotrain.detect.tag_config import TagConfig
+    from cotrain.detect.tag_pass import CIRCLE_PAD_PX, _tag_pass_in, tag_pass
 
     g = make_target(TargetConfig(kind="aprilgrid", margin=0.3))
     c = np.array(centre(g))
@@ -1124,7 +1115,8 @@ def test_small_frames_are_read_enlarged_with_positions_in_frame_pixels():
     """A frame whose shorter side is under min_side_px is read enlarged (bilinear, at most
     max_enlarge): a 640x480 fisheye view of tags 10-11 px across is read at 1.5x, every corner it
     reports keeps its own id and lies within 0.3 px of its label in the frame's own pixels."""
-    from cotrain.detect.tag_pass import TagConfig, enlargement, tag_pass
+    from cotrain.detect.tag_config import TagConfig
+    from cotrain.detect.tag_pass import enlargement, tag_pass
 
     cfg = TagConfig()
     assert enlargement((480, 640), cfg) == 1.5

@@ -103,7 +103,8 @@ def test_a_board_of_blurred_nine_pixel_tags_is_placed_by_all_its_codes_together(
     their tags correlate with their codes by 0.37 on average: under a bar of 0.4
     (``min_mean_corr`` before the seventeenth session) nothing; at 0.3, 80 corners or more, each
     visible and within 1.5 px of its label with its own id."""
-    from cotrain.detect.tag_pass import TagConfig, tag_pass
+    from cotrain.detect.tag_config import TagConfig
+    from cotrain.detect.tag_pass import tag_pass
 
     g, grey, q, vis = _set_frame(TagEvalConfig(seed=2041, per_fov=30), 200, 24)
     assert len(tag_pass(grey, g, TagConfig(min_mean_corr=0.4)).ids) == 0
@@ -120,7 +121,8 @@ def test_a_frame_where_nothing_is_found_is_read_again_with_a_wider_seed_cone():
     second, with the cone at ``retry_seed_angle`` (16 deg), places the board: 50 corners or more,
     each visible and within 1.5 px of its label with its own id (0.4 on median). Without the
     second look: nothing. A frame without a target gives nothing with it too."""
-    from cotrain.detect.tag_pass import TagConfig, tag_pass
+    from cotrain.detect.tag_config import TagConfig
+    from cotrain.detect.tag_pass import tag_pass
 
     g, grey, q, vis = _set_frame(TagEvalConfig(), 180, 13)
     assert len(tag_pass(grey, g, TagConfig(retry_seed_angle=0.0)).ids) == 0
