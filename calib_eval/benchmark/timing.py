@@ -307,9 +307,9 @@ TAG_STAGES = (
     ("reading the tags", "cotrain.detect.tag_reading", "read_cells"),
     ("placement", "cotrain.detect.tag_placement", "place_board"),
     ("ray check", "cotrain.detect.tag_placement", "rays_agree"),
-    ("final fits", "cotrain.detect.lattice", "final_fits"),
-    ("print check", "cotrain.detect.tag_completion", "print_check"),
-    ("completion", "cotrain.detect.tag_completion", "complete_board"),
+    ("final fits", "cotrain.detect.refinement", "final_fits"),
+    ("print check", "cotrain.detect.verification", "print_check"),
+    ("completion", "cotrain.detect.completion", "complete_board"),
     ("image circle", "cotrain.detect.image_circle", "fit_image_circle"),
 )
 

@@ -30,7 +30,7 @@ This pass turns them into identities the way a person would (docs/detector.md ha
 4. positions (:func:`cotrain.detect.lattice.refine_positions`): the reported corners are fitted
    once more in a small window (at most 3 px half-size), close to the junction, where bent edges
    and the blooming of real prints pull least;
-5. completion (docs/detector.md, grid pass step 7; :func:`cotrain.detect.tag_completion.complete_board`, as for the AprilGrid): the
+5. completion (docs/detector.md, grid pass step 7; :func:`cotrain.detect.completion.complete_board`, as for the AprilGrid): the
    placed board's corners the growth did not reach, predicted from the identified ones (through
    the lens guessed from the image circle, :mod:`cotrain.detect.image_circle`), found where a
    saddle matches the print around them and its edge rays follow the board's axes.
@@ -52,11 +52,14 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
+from cotrain.detect.completion import complete_board
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.half_resolution import corners_at_half_resolution
 from cotrain.detect.identity import Placement, assign_ids, canonical_ids, cell_darkness, corner_votes, edge_evidence
 from cotrain.detect.image_circle import beyond_circle, lens_of_circle
-from cotrain.detect.lattice import STEPS, Lattice, grow_lattice, largest_component, refine_positions, skipped_corners, verify_lattice
+from cotrain.detect.lattice import STEPS, Lattice, grow_lattice, largest_component, skipped_corners, verify_lattice
+from cotrain.detect.print_model import CompletionConfig
+from cotrain.detect.refinement import refine_positions
 from cotrain.detect.saddle import (
     contrast_scale,
     fit_saddles,
@@ -67,7 +70,7 @@ from cotrain.detect.saddle import (
     smooth_cached,
     window_half,
 )
-from cotrain.detect.tag_completion import CompletionConfig, complete_board, neighbour_check
+from cotrain.detect.verification import neighbour_check
 from cotrain.geometry.letterbox import CELLS, Letterbox
 from cotrain.targets import ROTATIONS, Checkerboard
 
@@ -483,7 +486,7 @@ def _identify(
 def _completed(c: _Crop, xy: np.ndarray, ids: np.ndarray, q: np.ndarray, conf: np.ndarray, margin: float, board, smoothed, lens):
     """Stage 5, completion: corners the growth did not reach (bent rows at the rim, a blurred
     stretch), predicted from the identified ones and checked against the print
-    (:mod:`cotrain.detect.tag_completion`); their confidence is the placement's times that
+    (:mod:`cotrain.detect.completion`); their confidence is the placement's times that
     check's correlation. Returns ids, q (crop pixels) and confidence."""
     cfg = c.cfg
     x0, x1, y0, y1 = c.bounds

@@ -6,8 +6,8 @@ tag pass, :mod:`cotrain.detect.tag_pass`, and the grid pass with the detector,
 :mod:`cotrain.detect.grid_pass`) read a frame where they found little again at half resolution
 and add what only that finds, through :func:`corners_at_half_resolution`: the two results must
 agree where both report a corner, and each added corner is fitted again at full resolution and
-checked against the print around it (:func:`cotrain.detect.tag_completion.print_check`) and
-against where its neighbours put it (:func:`cotrain.detect.tag_completion.print_moved`).
+checked against the print around it (:func:`cotrain.detect.verification.print_check`) and
+against where its neighbours put it (:func:`cotrain.detect.verification.print_moved`).
 
 Pure functions over numpy arrays; pixels follow docs/conventions.md.
 """
@@ -19,8 +19,9 @@ import numpy as np
 
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.image_circle import EquidistantLens
+from cotrain.detect.print_model import CompletionConfig
 from cotrain.detect.saddle import fit_saddles, outside_circle, pixel_index, smooth_cached
-from cotrain.detect.tag_completion import CompletionConfig, print_check, print_moved
+from cotrain.detect.verification import print_check, print_moved
 from cotrain.targets import Target
 
 AGREE_PX = 1.5  # a corner both resolutions report must lie this close (px) in both, else the half-resolution result is not used
@@ -58,7 +59,7 @@ def corners_at_half_resolution(
     (``grid.final_max_half``; it keeps its position mapped back where that fit fails or moves it
     1 px or more), lies ``rim_px`` or more from the image circle's rim, is kept by the print
     check among all the corners (held to its small margin and to ``min_corr``), and lies where its
-    neighbours' maps put it (:func:`cotrain.detect.tag_completion.print_moved`, through ``lens``,
+    neighbours' maps put it (:func:`cotrain.detect.verification.print_moved`, through ``lens``,
     in the frame's pixels, where given: a heavy blur lets the half-resolution growth slide a
     corner along its tag's side, where its own print still matches best).
 

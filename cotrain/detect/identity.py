@@ -21,7 +21,8 @@ from typing import NamedTuple
 import numpy as np
 
 from cotrain.detect.grid_config import GridConfig
-from cotrain.detect.lattice import STEPS, Lattice, diag_contrast, edge_contrasts, next_step, value_at, values_at
+from cotrain.detect.lattice import STEPS, Lattice, next_step
+from cotrain.detect.sampling import diag_contrast, edge_contrasts, value_at, values_at
 from cotrain.geometry.letterbox import CELLS, Letterbox
 from cotrain.targets.checkerboard import ROTATIONS, Checkerboard
 

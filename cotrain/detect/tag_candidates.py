@@ -19,8 +19,8 @@ import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
-from cotrain.detect.lattice import beside_points, corner_rays, values_at
 from cotrain.detect.saddle import fit_saddles, saddle_response, smooth_cached, smooth_for, window_half
+from cotrain.detect.sampling import beside_points, corner_rays, values_at
 from cotrain.detect.tag_config import TagConfig
 
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cotrain.detect.grid_config import GridConfig
-from cotrain.detect.tag_completion import CompletionConfig
+from cotrain.detect.print_model import CompletionConfig
 
 
 @dataclass

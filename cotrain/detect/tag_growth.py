@@ -19,8 +19,9 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial import cKDTree
 
-from cotrain.detect.lattice import STEPS, Lattice, edge_contrast_kernel, edge_sample_points, values_at
+from cotrain.detect.lattice import STEPS, Lattice
 from cotrain.detect.saddle import fit_saddles, smooth_cached, window_half
+from cotrain.detect.sampling import edge_contrast_kernel, edge_sample_points, values_at
 from cotrain.detect.tag_candidates import RayNeighbours
 from cotrain.detect.tag_config import TagConfig
 

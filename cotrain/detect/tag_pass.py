@@ -47,7 +47,7 @@ checkerboard's: tags and crossing squares are dark, the gap strips between them 
    (:func:`cotrain.detect.lattice.final_fits`); one whose fit fails is dropped, except in gaps
    narrower than ``keep_unfitted_px``, where the window reaches across the crossing square and
    its failure says nothing (the corner keeps its lattice position);
-8. completion (:mod:`cotrain.detect.tag_completion`): first every corner is checked against the
+8. completion (:mod:`cotrain.detect.completion`): first every corner is checked against the
    print around it (one that a grid neighbour's print matches better is dropped), then the placed
    board's corners the growth did not reach are predicted from the identified ones and checked
    against the print around them;
@@ -75,13 +75,14 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
+from cotrain.detect.completion import complete_board
 from cotrain.detect.half_resolution import corners_at_half_resolution, halve
 from cotrain.detect.image_circle import EquidistantLens, guess_lens
 from cotrain.detect.images import MIN_SIDE, local_gain
-from cotrain.detect.lattice import Lattice, final_fits, shortest_steps
+from cotrain.detect.lattice import Lattice
+from cotrain.detect.refinement import final_fits, shortest_steps
 from cotrain.detect.saddle import outside_circle, smooth_cached
 from cotrain.detect.tag_candidates import RayNeighbours, _Candidates, _candidates_of, axis_neighbours
-from cotrain.detect.tag_completion import complete_board, own_print_corr, print_check, print_moved
 from cotrain.detect.tag_config import TagConfig, TagResult
 from cotrain.detect.tag_growth import grow_tag_lattice, join_lattices
 from cotrain.detect.tag_placement import (
@@ -97,6 +98,7 @@ from cotrain.detect.tag_placement import (
 )
 from cotrain.detect.tag_reading import TURNS, read_cells
 from cotrain.detect.tag_seeds import seed_tag
+from cotrain.detect.verification import own_print_corr, print_check, print_moved
 from cotrain.targets.aprilgrid import AprilGrid
 
 # The lowest confidence a corner put back after print_moved gets (its own print's correlation,
@@ -126,8 +128,8 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
 
     A frame not enlarged where fewer than ``cfg.half_below`` corners are found is read again at
     half resolution (blurred tags, large tags), and the corners only that finds are added where the print check keeps them
-    (:func:`cotrain.detect.tag_completion.print_check`) and their neighbours put them
-    (:func:`cotrain.detect.tag_completion.print_moved`); not where completion found every corner
+    (:func:`cotrain.detect.verification.print_check`) and their neighbours put them
+    (:func:`cotrain.detect.verification.print_moved`); not where completion found every corner
     it predicted in view (``TagResult.unfound`` 0: a partial view found whole).
 
     A frame where nothing is found is read once more at full resolution with seeds whose

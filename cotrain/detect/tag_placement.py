@@ -16,7 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from cotrain.detect.lattice import STEPS, Lattice, corner_rays
+from cotrain.detect.lattice import STEPS, Lattice
+from cotrain.detect.sampling import corner_rays
 from cotrain.detect.tag_config import TagConfig
 from cotrain.detect.tag_growth import is_long
 from cotrain.detect.tag_reading import TURNS, TagCell, _codes, page_order

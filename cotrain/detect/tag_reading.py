@@ -19,7 +19,8 @@ import cv2
 import numpy as np
 
 from cotrain.detect.image_circle import EquidistantLens, ray_homographies
-from cotrain.detect.lattice import Lattice, values_at
+from cotrain.detect.lattice import Lattice
+from cotrain.detect.sampling import values_at
 from cotrain.detect.tag_config import TagConfig
 from cotrain.targets.aprilgrid import BORDER_BITS, CELLS, DATA_BITS, N_CODES, printed_bits
 

@@ -18,7 +18,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from cotrain.detect.image_circle import EquidistantLens, parallelogram_corner
-from cotrain.detect.lattice import values_at
+from cotrain.detect.sampling import values_at
 from cotrain.detect.tag_candidates import RayNeighbours
 from cotrain.detect.tag_config import TagConfig
 from cotrain.detect.tag_growth import ray_step

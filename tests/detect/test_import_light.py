@@ -21,7 +21,7 @@ def test_detecting_does_not_import_torch():
         "import sys\n"
         "import numpy as np\n"
         "from cotrain.detect.detector import Detector\n"
-        "from cotrain.detect.tag_completion import CompletionConfig, print_patches, smallest_step\n"
+        "from cotrain.detect.print_model import CompletionConfig, print_patches, smallest_step\n"
         "from cotrain.targets import AprilGrid, Checkerboard\n"
         "image = np.random.default_rng(0).random((240, 320)).astype(np.float32)\n"
         "Detector().detect(image)\n"

@@ -4,8 +4,9 @@ import cv2
 import numpy as np
 import pytest
 
-from cotrain.detect.lattice import Lattice, next_step, skipped_corners, values_at
+from cotrain.detect.lattice import Lattice, next_step, skipped_corners
 from cotrain.detect.saddle import saddle_response
+from cotrain.detect.sampling import values_at
 from tests.detect.boards import NX, NY, board_image, warped_board_image
 
 
@@ -148,7 +149,8 @@ def test_step_has_edge_along_lattice_steps_only():
     side where the parent corner's quadrant contrast says; a knight's move (two along, one across)
     and a step out over the board's white margin have no such edge all along."""
     from cotrain.detect.grid_config import GridConfig
-    from cotrain.detect.lattice import _bright_side, diag_contrast, edge_contrasts, step_has_edge
+    from cotrain.detect.lattice import _bright_side
+    from cotrain.detect.sampling import diag_contrast, edge_contrasts, step_has_edge
 
     sq = 24
     img, q = board_image(sq=sq, org=(30, 30), size=(330, 250))
@@ -213,8 +215,9 @@ def test_edge_neighbour_follows_the_edge_where_the_prediction_missed():
     from scipy.spatial import cKDTree
 
     from cotrain.detect.grid_config import GridConfig
-    from cotrain.detect.lattice import _bright_side, diag_contrast, edge_neighbour
+    from cotrain.detect.lattice import _bright_side, edge_neighbour
     from cotrain.detect.saddle import fit_saddles
+    from cotrain.detect.sampling import diag_contrast
 
     sq = 24
     img, q = board_image(sq=sq, org=(30, 30), size=(330, 250))
@@ -392,7 +395,7 @@ def test_compiled_colour_tests_match_their_sampled_definitions():
     import cv2
 
     from cotrain.detect.grid_config import GridConfig
-    from cotrain.detect.lattice import diag_contrast, edge_contrasts, step_has_edge, value_at
+    from cotrain.detect.sampling import diag_contrast, edge_contrasts, step_has_edge, value_at
 
     cfg = GridConfig()
     rng = np.random.default_rng(3)

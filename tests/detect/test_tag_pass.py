@@ -12,9 +12,10 @@ from scipy.spatial import cKDTree
 
 from cotrain.detect.detector import Detector
 from cotrain.detect.image_circle import EquidistantLens
-from cotrain.detect.lattice import Lattice, corner_rays, edge_contrast_kernel
+from cotrain.detect.lattice import Lattice
+from cotrain.detect.print_model import CompletionConfig
+from cotrain.detect.sampling import corner_rays, edge_contrast_kernel
 from cotrain.detect.tag_candidates import RayNeighbours, _in_cone, edges_along
-from cotrain.detect.tag_completion import CompletionConfig
 from cotrain.detect.tag_config import TagConfig
 from cotrain.detect.tag_growth import edge_contrast, join_lattices, lattice_link, ray_step
 from cotrain.detect.tag_pass import _view_of, tag_pass

@@ -1,4 +1,4 @@
-"""Completion of a placed AprilGrid (cotrain.detect.tag_completion): local homographies, the check
+"""Completion of a placed AprilGrid (cotrain.detect.print_model, verification, completion): local homographies, the check
 against the print, and corners recovered from a few identified ones."""
 
 from dataclasses import replace
@@ -7,29 +7,25 @@ import cv2
 import numpy as np
 import torch
 
+from cotrain.detect.completion import best_option, complete_board, print_fit
 from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.image_circle import EquidistantLens, PlaneMaps, fit_image_circle
-from cotrain.detect.saddle import outside_circle
-from cotrain.detect.tag_candidates import tag_candidates
-from cotrain.detect.tag_completion import (
+from cotrain.detect.print_model import (
     CompletionConfig,
-    best_option,
-    complete_board,
     each_local_map,
     local_homographies,
     local_homography,
     local_map,
     local_maps,
     map_through,
-    neighbour_check,
-    print_check,
     print_correlation,
-    print_fit,
-    print_moved,
     smallest_step,
 )
+from cotrain.detect.saddle import outside_circle
+from cotrain.detect.tag_candidates import tag_candidates
 from cotrain.detect.tag_config import TagConfig
 from cotrain.detect.tag_pass import tag_pass
+from cotrain.detect.verification import neighbour_check, print_check, print_moved
 from cotrain.targets import TargetConfig, make_target
 from tests.detect.test_tag_pass import centre, render
 
@@ -634,7 +630,7 @@ def test_rays_along_reads_a_corner_next_to_the_image_border_on_a_smaller_circle(
     no rays), and they follow the board's axes; a circle that would have to shrink under
     MIN_BORDER_RAY_PX (2 px from the edge) still gives none. The same corner turned by 45 deg
     against the board's axes fails."""
-    from cotrain.detect.tag_completion import MIN_BORDER_RAY_PX, CompletionConfig, rays_along
+    from cotrain.detect.print_model import MIN_BORDER_RAY_PX, CompletionConfig, rays_along
 
     def checker(x0: float, y0: float, turn_deg: float = 0.0) -> np.ndarray:
         yy, xx = np.mgrid[0:120, 0:200].astype(np.float64)

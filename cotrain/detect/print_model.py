@@ -1,0 +1,291 @@
+"""The board's print seen through the lens, as completion (:mod:`cotrain.detect.completion`) and
+verification (:mod:`cotrain.detect.verification`) read it: local maps from board points to pixels
+fitted to identified corners (:func:`local_map`: a homography of their pixels, or of their rays
+through the equidistant lens guessed from the image circle), the printed pattern around a corner
+and its correlation with the image there (:func:`print_correlation`), and a corner's edge rays
+along the board's axes (:func:`rays_along`). :class:`CompletionConfig` holds the thresholds of
+all three modules. Pixels follow docs/conventions.md.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import cv2
+import numpy as np
+
+from cotrain.detect.image_circle import EquidistantLens, PlaneMaps, local_views
+from cotrain.detect.saddle import pixel_index
+from cotrain.detect.sampling import corner_rays, values_at
+from cotrain.targets import Target
+
+
+@dataclass
+class CompletionConfig:
+    rounds: int = 64  # rounds of prediction, each a grid step further (until one adds no corner, small gaps' and dim fits' too); 0: none
+    neighbours: int = 7  # identified corners nearest on the board that a prediction's homography is fitted to
+    max_residual: float = 0.5  # ... which must fit them within this fraction of the local gap
+    min_gap_px: float = 1.6  # no prediction where the local gap (crossing square's side) is narrower (px)
+    min_rim_px: float = 3.0  # ... or nearer to the image circle's rim (px); and no corner found nearer
+    reach: float = 0.3  # a saddle fitted at the prediction counts within this fraction of the local gap ...
+    search: float = 0.6  # ... else candidates within this fraction of it are tried
+    min_symmetry: float = 0.5  # point symmetry of that saddle fit (as the candidates'; the print check follows) ...
+    small_gap_px: float = 7.0  # ... or, where the local gap is narrower than this (px; tags under 23 px), where that fails ...
+    small_min_symmetry: float = 0.3  # ... this much
+    crowd: float = 0.5  # a corner this close to an identified one (fraction of the local gap) is refused
+    patch: float = 0.45  # half-size of the patch compared with the print, in the board's spacing (a tag side, a square)
+    patch_samples: int = 11  # samples across it
+    min_corr: float = 0.5  # correlation of the image with the print around the corner ...
+    min_corr_margin: float = 0.1  # ... better by this than with the print around each grid neighbour
+    ray_radius: float = 0.5  # a corner's edge rays are read on a circle of this fraction of the local gap ...
+    max_ray_angle: float = 30.0  # ... and the board's axes must leave along them within this (deg) ...
+    sure_corr: float = 0.7  # ... unless the print correlation reaches this ...
+    min_ray_px: float = 2.0  # where that circle is smaller (px; tags under 13 px: the X's blurred core) rays are not read (0: always) ...
+    small_corr_margin: float = 0.3  # ... and the print must beat each grid neighbour's by this instead
+    sure_inside: float = 0.75  # ... and, among several candidates of the search, over this share of the patch inside the image circle
+    check: bool = True  # first, the growth's corners are checked against the print (:func:`print_check`) ...
+    check_margin: float = 0.0  # ... and one is dropped where a grid neighbour's print matches it better by more than this ...
+    check_large_px: float = 20.0  # ... or, in tags at least this wide (px) ...
+    check_margin_large: float = 0.35  # ... by more than this (a local homography fits a large tag's bend less well) ...
+    check_min_corr_large: float = 0.1  # ... or at all, where its own print correlates under this (nothing of it is there)
+    moved_px: float = 3.0  # then one this far (px, of the frame) or more from where its neighbours' map puts it (print_moved; 0: never) ...
+    moved_margin: float = 0.2  # ... where the print matches better there by this, is left to completion to place (else put back)
+    lens: bool = True  # homographies of the corners' rays under the tag pass's lens guess, where it has one (tag_config.TagConfig.lens_fov)
+    print_fit_gap_px: float = 10.0  # where the saddle fits fail in a gap under this (px), the print is moved onto the image (print_fit) ...
+    print_fit_radius: float = 1.5  # ... over the pixels within this many local gaps of it ...
+    print_fit_max_radius_px: float = 12.0  # ... and this many px at most (the corner's own squares or tag border fill it) ...
+    print_fit_min_pixels: int = 20  # ... at least this many inside the image circle and the frame ...
+    print_fit_min_share: float = 0.5  # ... and this share of the disc ...
+    print_fit_iterations: int = 12  # ... by at most this many Gauss-Newton steps per blur tried ...
+    print_fit_max_blur: float = 0.5  # ... blurs up to this fraction of the gap (a wider one washes the corner out) ...
+    print_fit_min_r2: float = 0.7  # ... and it must explain this share of their variance through the lens ...
+    print_fit_min_r2_pixels: float = 0.8  # ... or this share through a pixel homography (which misses the bend at the rim)
+    print_fit_rim_px: float = 1.5  # a prediction nearer the rim than min_rim_px but this far (px; 0: never) is found by print_fit alone ...
+    print_fit_rim_gap_px: float = 20.0  # ... in a gap under this (px), within reach of it
+    refit_gap_px: float = 16.0  # from this gap on (px; 0: never), an option the moved map refuses is judged under the map through it ...
+    refit_margin: float = 0.3  # ... where it must match better than each grid neighbour's print by this ...
+    refit_inside: float = 0.5  # ... over this share of the patch inside the image circle, and have its edge rays along the board's axes
+    dim_gaps: float = 1.0  # last, failed saddle fits again, their threshold scaled to the print's contrast within this many gaps (0: never)
+
+    def reads_rays(self, gap_px: float) -> bool:
+        """Whether a corner's edge rays are read in a local gap of ``gap_px`` (its circle of
+        ``ray_radius`` of the gap at least ``min_ray_px``); else its print's margin stands for them."""
+        return self.ray_radius * gap_px >= self.min_ray_px
+
+
+_PATCHES: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}  # print_patches' results per board and patch
+_GRID8 = np.array([(a, b) for b in (-1, 0, 1) for a in (-1, 0, 1) if a or b])  # a corner's eight grid neighbours (column, row steps)
+
+
+def print_patches(board: Target, cfg: CompletionConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Offsets U (M, 2) in metres over a square of half-size ``cfg.patch`` of the board's spacing
+    (an AprilGrid's tag side, a checkerboard's square; ``cfg.patch_samples`` across), and the
+    board's printed intensity (N, M) around every one of its N corners at them (point samples: 0
+    black, 1 white). Kept per board and patch."""
+    printed = getattr(board, "printed", None)
+    key = (repr(board.cfg), b"" if printed is None else printed.tobytes(), cfg.patch, cfg.patch_samples)
+    if key not in _PATCHES:
+        g = np.linspace(-cfg.patch, cfg.patch, cfg.patch_samples) * board.spacing
+        U = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+        _PATCHES[key] = U, board.intensity(board.board_xy()[:, None] + U[None])[0]
+    return _PATCHES[key]
+
+
+def nearest_value(img: np.ndarray, q: np.ndarray) -> float:
+    """img (H, W) at the pixel nearest q (2,), clamped into the image."""
+    x, y = pixel_index(q[None], img.shape[1], img.shape[0])[0]
+    return float(img[y, x])
+
+
+def local_homography(P: np.ndarray, q: np.ndarray) -> np.ndarray | None:
+    """Least-squares homography (3, 3) from board points P (K, 2) (metres) to pixels q (K, 2); None
+    where the points do not span both board axes."""
+    if len(P) < 4 or np.ptp(P[:, 0]) <= 0 or np.ptp(P[:, 1]) <= 0:
+        return None
+    H, _ = cv2.findHomography(P, q, 0)
+    if H is None:
+        return None
+    return H if (P.mean(0) @ H[2, :2] + H[2, 2]) > 0 else -H  # points in front: positive scale
+
+
+def smallest_step(board: Target) -> float:
+    """The shortest step (metres) between neighbouring corners along the board's x axis: an
+    AprilGrid's gap between tags (the crossing square's side), a checkerboard's square."""
+    xs = np.unique(np.round(board.board_xy()[:, 0], 9))
+    return float(np.diff(xs).min())
+
+
+def local_map(P: np.ndarray, q: np.ndarray, lens: EquidistantLens | None = None) -> PlaneMaps | None:
+    """The map (one of :class:`PlaneMaps`) from board points P (K, 2) (metres) to pixels q (K, 2):
+    their :func:`local_homography`, or with ``lens`` the one to the points' own view of their rays
+    (:func:`cotrain.detect.image_circle.local_views`: the fisheye's bend across the points is
+    then the lens's). None where the points do not span both board axes."""
+    if lens is None:
+        H = local_homography(P, q)
+        return None if H is None else PlaneMaps(H[None])
+    g, R, ok = local_views(np.asarray(q, np.float64)[None], lens)
+    H = local_homography(P, g[0]) if ok[0] else None
+    return None if H is None else PlaneMaps(H[None], R, lens)
+
+
+def each_local_map(P: np.ndarray, q: np.ndarray, lens: EquidistantLens | None = None) -> tuple[PlaneMaps, np.ndarray]:
+    """:func:`local_map` of N point sets (P, q (N, K, 2)) each, the same maps as one at a time
+    (the views of the rays found at once, ``cv2.findHomography`` per set): the N maps (the
+    identity where a set gives none) and whether each exists (N,)."""
+    N = len(P)
+    H = np.tile(np.eye(3), (N, 1, 1))
+    posed = np.zeros(N, bool)
+    g, R, ok = (q, None, np.ones(N, bool)) if lens is None else local_views(np.asarray(q, np.float64), lens)
+    for n in range(N):
+        h = local_homography(P[n], g[n]) if ok[n] else None
+        if h is not None:
+            H[n], posed[n] = h, True
+    return PlaneMaps(H, R, lens), posed
+
+
+def map_through(
+    P: np.ndarray, q: np.ndarray, p: np.ndarray, q_p: np.ndarray, lens: EquidistantLens | None, max_px: float
+) -> PlaneMaps | None:
+    """:func:`local_map` of board points P (K, 2) at pixels q (K, 2) and of one more, p (2,) at
+    q_p (2,): the map through a corner's candidate position. None where that map does not fit
+    all K + 1 points within ``max_px``."""
+    P1, q1 = np.vstack([P, p]), np.vstack([q, q_p])
+    m = local_map(P1, q1, lens)
+    if m is None or not np.linalg.norm(m(P1[None])[0] - q1, axis=1).max() <= max_px:
+        return None
+    return m
+
+
+def local_maps(P: np.ndarray, q: np.ndarray, lens: EquidistantLens | None = None) -> tuple[PlaneMaps, np.ndarray]:
+    """:func:`local_map` of N point sets at once (P, q (N, K, 2); through :func:`local_homographies`):
+    the maps and whether each is posed (N,)."""
+    if lens is None:
+        H, posed = local_homographies(P, q)
+        return PlaneMaps(H), posed
+    g, R, ok = local_views(np.asarray(q, np.float64), lens)
+    H, posed = local_homographies(P, g)
+    return PlaneMaps(H, R, lens), posed & ok
+
+
+MIN_INSIDE = 0.2  # print matches need this share of the patch's samples inside the image circle
+
+
+class PrintMatch(NamedTuple):
+    """How the image around a corner matches the print (:func:`print_correlation`)."""
+
+    corr: float  # correlation with the print around the corner
+    other: float  # the best correlation with the print around any of its eight grid neighbours
+    inside: float  # the share of the patch's samples inside the image circle that the correlations are over
+
+
+def print_correlation(
+    sm: np.ndarray, rim_dist: np.ndarray, board: Target, to_image: PlaneMaps, shift: np.ndarray, t: int, cfg: CompletionConfig
+) -> PrintMatch:
+    """The image ``sm`` (H, W) around corner ``t`` against the print there, sampled through
+    ``to_image`` (one map, board metres -> pixels) moved by ``shift`` (2,) px over the patch of
+    :func:`print_patches` (see :class:`PrintMatch`). (-1, 1) where under :data:`MIN_INSIDE` of the
+    samples lie inside the image circle (``rim_dist`` (H, W) over 1.5 px)."""
+    corr, other_ok, inside = print_correlations(sm, rim_dist, board, to_image, np.asarray(shift, np.float64)[None], np.array([t]), cfg)
+    if not inside[0] >= MIN_INSIDE:
+        return PrintMatch(-1.0, 1.0, float(inside[0]))
+    others = corr[0, 1:][other_ok[0]]
+    return PrintMatch(float(corr[0, 0]), float(others.max()) if len(others) else -1.0, float(inside[0]))
+
+
+def print_correlations(
+    sm: np.ndarray, rim_dist: np.ndarray, board: Target, to_image: PlaneMaps, shift: np.ndarray, ids: np.ndarray, cfg: CompletionConfig
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The image ``sm`` (H, W) around corners ``ids`` (K,), sampled over the patch of
+    :func:`print_patches` through K maps ``to_image`` (board metres -> pixels) moved by
+    ``shift`` (K, 2) px, correlated with the print around each corner and around its eight grid
+    neighbours. Returns the correlations (K, 9) (the corner's own first; -1 without contrast),
+    which neighbours count (K, 8): on the board and printed otherwise than the corner (a
+    checkerboard's diagonal neighbours are printed alike), and the share of the samples inside
+    the image circle (``rim_dist`` over 1.5 px) (K,)."""
+    U, printed = print_patches(board, cfg)
+    p = board.board_xy()[ids]
+    q = to_image(p[:, None] + U[None]) + shift[:, None]
+    q = np.where(np.isfinite(q), q, -1e6)  # behind the horizon: outside the image
+    vals = values_at(sm, q)  # (K, M), NaN outside the image
+    inside = np.isfinite(vals) & (values_at(rim_dist, q) > 1.5)
+    c0, r0 = ids % board.nx, ids // board.nx
+    cn, rn = c0[:, None] + _GRID8[:, 0], r0[:, None] + _GRID8[:, 1]
+    on = (cn >= 0) & (cn < board.nx) & (rn >= 0) & (rn < board.ny)
+    nb = np.where(on, rn * board.nx + cn, 0)
+    pat = printed[np.concatenate([ids[:, None], nb], 1)]  # (K, 9, M)
+    m = inside.astype(np.float64)[:, None]  # (K, 1, M)
+    cnt = np.maximum(m.sum(2, keepdims=True), 1)
+    seen = np.where(inside, vals, 0.0)[:, None]
+    seen = (seen - (seen * m).sum(2, keepdims=True) / cnt) * m
+    pat = (pat - (pat * m).sum(2, keepdims=True) / cnt) * m
+    den = np.sqrt((pat * pat).sum(2) * (seen * seen).sum(2))
+    corr = np.where(den > 1e-12, (pat * seen).sum(2) / np.maximum(den, 1e-12), -1.0)
+    same = np.abs(printed[nb] - printed[ids][:, None]).max(2) < 1e-6
+    return corr, on & ~same, inside.mean(1)
+
+
+def local_homographies(P: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`local_homography` of N point sets at once: board points P (N, K, 2) (metres) to
+    pixels q (N, K, 2), by the normalised direct linear transform (each set centred and scaled to
+    mean distance sqrt(2), the smallest singular vector; the least-squares algebraic fit, which
+    ``cv2.findHomography(P, q, 0)`` refines further). Returns H (N, 3, 3), oriented with the points
+    in front, and whether each is posed (N,): both board axes spanned, and not degenerate."""
+    P, q = np.asarray(P, np.float64), np.asarray(q, np.float64)
+    N, K = P.shape[:2]
+    if K < 4:
+        return np.zeros((N, 3, 3)), np.zeros(N, bool)
+    finite = np.isfinite(P).all((1, 2)) & np.isfinite(q).all((1, 2))
+    P, q = np.where(finite[:, None, None], P, 0.0), np.where(finite[:, None, None], q, 0.0)
+
+    def normaliser(x: np.ndarray) -> np.ndarray:  # (N, 3, 3): centre at 0, mean distance sqrt(2)
+        m = x.mean(1)
+        d = np.linalg.norm(x - m[:, None], axis=2).mean(1)
+        f = np.sqrt(2) / np.maximum(d, 1e-12)
+        T = np.zeros((N, 3, 3))
+        T[:, 0, 0] = T[:, 1, 1] = f
+        T[:, :2, 2] = -f[:, None] * m
+        T[:, 2, 2] = 1
+        return T
+
+    Tp, Tq = normaliser(P), normaliser(q)
+    a = P * Tp[:, None, 0, 0, None] + Tp[:, None, :2, 2]
+    b = q * Tq[:, None, 0, 0, None] + Tq[:, None, :2, 2]
+    one, zero = np.ones((N, K, 1)), np.zeros((N, K, 3))
+    ah = np.concatenate([a, one], 2)  # (N, K, 3)
+    rows_x = np.concatenate([ah, zero, -b[..., :1] * ah], 2)
+    rows_y = np.concatenate([zero, ah, -b[..., 1:] * ah], 2)
+    A = np.concatenate([rows_x, rows_y], 1)  # (N, 2K, 9)
+    _, sv, vt = np.linalg.svd(A)
+    Hn = vt[:, -1].reshape(N, 3, 3)
+    H = np.linalg.solve(Tq, Hn @ Tp)  # Tq^-1 Hn Tp
+    span = (np.ptp(P[..., 0], 1) > 0) & (np.ptp(P[..., 1], 1) > 0) & (K >= 4)
+    # Rank 8 (the 8th singular value of the 2K x 9 system clear of 0): three of four points on a line are not.
+    posed = finite & span & np.isfinite(H).all((1, 2)) & (sv[:, 7] > 1e-9 * sv[:, 0])
+    w = np.einsum("nk,nk->n", P.mean(1), H[:, 2, :2]) + H[:, 2, 2]
+    return H * np.where(w < 0, -1.0, 1.0)[:, None, None], posed
+
+
+MIN_BORDER_RAY_PX = 3.0  # rays_along: the smallest circle read next to the image's border (px; the blurred core of an X is 1-2 px)
+
+
+def rays_along(sm: np.ndarray, q: np.ndarray, to_image: PlaneMaps, p: np.ndarray, gap: float, gap_px: float, cfg: CompletionConfig) -> bool:
+    """Whether the X-junction at q (2,) in ``sm`` has four edge rays (read on a circle of
+    ``cfg.ray_radius`` of the local gap ``gap_px``) and each of the board's four axis directions
+    at board point p (2,) (through ``to_image``, one map; ``gap`` metres long) leaves along one of them
+    within ``cfg.max_ray_angle``: a corner half under an occluder or cut by a glare spot has an
+    edge of that instead. Next to the image's border the circle shrinks to stay inside it (to
+    :data:`MIN_BORDER_RAY_PX` at least): a corner a few pixels from the frame's edge has its
+    rays as well."""
+    H, W = sm.shape
+    inside = min(q[0], q[1], W - 1 - q[0], H - 1 - q[1]) - 1.0  # the largest circle inside the image
+    radius = min(cfg.ray_radius * gap_px, inside)
+    if radius < min(MIN_BORDER_RAY_PX, cfg.ray_radius * gap_px):
+        return False
+    rays = corner_rays(sm, q[None], np.array([radius]))[0]  # (4, 2)
+    if np.isnan(rays).any():
+        return False
+    ends = to_image((p + np.array([[0.0, 0], [gap, 0], [0, gap], [-gap, 0], [0, -gap]]))[None])[0]
+    d = ends[1:] - ends[0]
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return bool((d @ rays.T).max(1).min() >= np.cos(np.radians(cfg.max_ray_angle)))
