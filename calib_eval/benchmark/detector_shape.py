@@ -209,7 +209,7 @@ def measure(root: Path, doc: Path | None) -> dict:
         raise ShapeError(f"no such directory: {root}")
     if doc is not None and not doc.is_file():
         raise ShapeError(f"no such file: {doc}")
-    files, by_file, long_functions = {}, {}, []
+    files, by_file, long_functions, longest = {}, {}, [], {"where": None, "lines": 0}
     for path in sorted(p for p in root.rglob("*.py") if p.is_file()):
         key = path.as_posix()
         fig = measure_file(path)
@@ -223,6 +223,9 @@ def measure(root: Path, doc: Path | None) -> dict:
             "constant_names": fig["constants"],
         }
         long_functions += [{"where": f"{key}:{name}", "lines": n} for name, n in fig["functions"] if n > TARGETS["function_lines"]]
+        for name, n in fig["functions"]:
+            if n > longest["lines"]:
+                longest = {"where": f"{key}:{name}", "lines": n}
     dataclass_total = sum(f["dataclass_fields"] for f in by_file.values())
     constant_total = sum(f["constants"] for f in by_file.values())
     return {
@@ -238,6 +241,7 @@ def measure(root: Path, doc: Path | None) -> dict:
         "files": files,
         "files_over_700": [{"path": p, "lines": n} for p, n in files.items() if n > TARGETS["file_lines"]],
         "functions_over_80": long_functions,
+        "longest_function": longest,
         "doc_lines": None if doc is None else len(doc.read_text(encoding="utf-8").splitlines()),
     }
 
@@ -251,7 +255,7 @@ def markdown(fig: dict) -> str:
     """The figures as a short markdown page: the summary against the targets, tuned numbers by
     file and by dataclass, the long files and functions."""
     t, tn = fig["targets"], fig["tuned_numbers"]
-    longest_fn = max((f["lines"] for f in fig["functions_over_80"]), default=0)
+    longest_fn = f"{fig['longest_function']['lines']}, {fig['longest_function']['where']}"
     rows = [
         ("tuned numbers", tn["total"], t["tuned_numbers"]),
         ("files over 700 lines", len(fig["files_over_700"]), 0),
