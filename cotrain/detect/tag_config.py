@@ -60,7 +60,7 @@ class TagConfig:
     retry_gain_sigma: float = 0.028  # the local mean's Gaussian sigma, as a share of the frame's shorter side (20 px at 720)
     lens_fov: float = 210.0  # deg: where an image circle shows, tags are read through an equidistant lens of this FoV filling it (0: never)
     # --- placement ---
-    min_margin: float = 12.0  # the board's placement must beat the runner-up by this (correlation; a clean tag gives 36)
+    min_margin_corr: float = 12.0  # the board's placement must beat the runner-up by this (summed tag correlation; a clean tag gives 36)
     min_mean_corr: float = (
         0.3  # ... and its tags must correlate with their codes by this much on average (-1 .. 1; blurred 9 px tags: 0.37)
     )

@@ -394,7 +394,7 @@ def _placed_boards(
         cells = read_cells(lat, grey, spacing, cfg, lens)
         foreign |= {c.key for c in cells if c.clean and c.tag >= board.n_tags and c.hamming <= cfg.max_hamming}
         place = place_board(cells, board)
-        if place is None or place.margin < cfg.min_margin or place.score < cfg.min_mean_corr * 36 * place.cells:
+        if place is None or place.margin < cfg.min_margin_corr or place.score < cfg.min_mean_corr * 36 * place.cells:
             continue
         under = tag_under(np.array([c.cell for c in cells]), place.turn, place.offset, board)
         alone = [(c, t) for c, t in zip(cells, under) if c.clean and c.hamming <= cfg.max_hamming and c.tag < board.n_tags]
