@@ -101,6 +101,8 @@ def cmd_detect(args: argparse.Namespace) -> int:
         raise FileNotFoundError("no images found in the given paths" + hint)
     base = OnnxModel(args.model).target if args.square_size is not None and args.squares_x is None else None
     target = target_from_flags(args.target, args.squares_x, args.squares_y, args.square_size, base)
+    if args.grey_print and isinstance(target, AprilGrid):
+        raise ValueError("--grey-print reads a checkerboard frame again; the tag pass raises a grey print's contrast itself")
     if args.grey_print and args.slots:
         raise ValueError("--grey-print reads frames again with the grid pass; --slots does not run it")
     options = {"grid": GridConfig(retry_gain=GREY_PRINT_GAIN)} if args.grey_print else {}

@@ -8,7 +8,8 @@ the whole board in, and the frames where ``cv2.findChessboardCornersSB`` (or the
 corner, each reported once. Where both find it, the largest distance between ours and OpenCV's
 corners (under the board's symmetries, OpenCV's ids taken row-major) says whether they are the
 same corners (the classic detector's corners are not refined: its users call cornerSubPix).
-These are real frames, never tuned on; they are reported, not tuned on.
+No threshold was set on these frames, but `right-0000.png` of the stereo head is what the
+removal of the half-resolution gate (2026-12-07) was made for.
 """
 
 from __future__ import annotations

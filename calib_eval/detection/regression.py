@@ -98,7 +98,7 @@ KEPT_SETS = (
     _kept("foreign_aprilgrid_isp", "foreign", target="aprilgrid", isp=True),
     _kept("foreign_aprilgrid_defocus", "foreign", target="aprilgrid", defocus=2.5),
     _kept("real_boofcv", "real", folder="boofcv_fisheye_chessboard/images"),
-    _kept("real_ros_stereo", "real", folder="ros_fisheye_stereo/images"),
+    KeptSet("real_ros_stereo", "real", (("folder", "ros_fisheye_stereo/images"),), tuning=True),  # right-0000.png: the half-resolution gate
 )
 
 
@@ -241,7 +241,8 @@ def run(out: Path, only: list[str] | None = None, sets: Path | None = None, grid
 
     def detector_for(board) -> Detector:
         key = json.dumps(board.to_json(), sort_keys=True)
-        detectors.setdefault(key, Detector(target=board, threads=1, grid=grid, tags=tags))
+        if key not in detectors:
+            detectors[key] = Detector(target=board, threads=1, grid=grid, tags=tags)
         return detectors[key]
 
     results = {}
@@ -254,7 +255,8 @@ def run(out: Path, only: list[str] | None = None, sets: Path | None = None, grid
             results[s.name] = json.loads(done.read_text())["row"]
             continue
         row = RUNNERS[s.source](s, sets / s.name, detector_for) | {"tuning": s.tuning}
-        _write_atomic(done, {"key": key, "row": row})
+        if "missing" not in row:  # a set that could not be read is looked for again next time
+            _write_atomic(done, {"key": key, "row": row})
         results[s.name] = row
         rows = ", ".join(f"{k} {v['recall']:.4f}/{v.get('wrong', 0)}" for k, v in row.get("rows", {}).items())
         print(f"{s.name}: {rows}", file=sys.stderr)
@@ -264,27 +266,34 @@ def run(out: Path, only: list[str] | None = None, sets: Path | None = None, grid
 
 def _detector_key(s: KeptSet, grid, tags) -> dict:
     """What decides our output on the set: the detector's settings for its target kind."""
+    from calib_eval.detection.evaluation import BENCH_VERSION
     from cotrain.detect.detector import OUTPUT_VERSION, settings
     from cotrain.detect.onnx_model import default_grid_model_path
+    from cotrain.render.renderer import LABEL_VERSION
 
+    frames = {"bench_version": BENCH_VERSION, "label_version": LABEL_VERSION}  # re-rendered sets are scored again
     aprilgrid = dict(s.settings).get("target") == "aprilgrid" or s.source == "tags"
     if aprilgrid:
-        return {"version": OUTPUT_VERSION, "tag_pass": settings(tags)}
+        return {"version": OUTPUT_VERSION, "tag_pass": settings(tags)} | frames
     model = default_grid_model_path()
-    return {"version": OUTPUT_VERSION, "grid": settings(grid), "model": [model.name, model.stat().st_size]}
+    return {"version": OUTPUT_VERSION, "grid": settings(grid), "model": [model.name, model.stat().st_size]} | frames
 
 
 def compare(before: dict, after: dict) -> tuple[str, int]:
     """A markdown table of two runs, row by row, and the number of rows that regressed (recall
     down by more than :data:`RECALL_TOLERANCE`, or more wrong corners, or more empty frames with
     reports)."""
+    if not isinstance(before, dict) or not isinstance(after, dict):
+        raise ValueError("not a regression.json (a set name -> row mapping)")
     lines = ["| set | row | recall before -> after | wrong before -> after | |", "| --- | --- | --- | --- | --- |"]
     bad = 0
-    for name in [n for n in after if n in before]:
-        b, a = before[name], after[name]
-        for row in a.get("rows", {}):
-            rb, ra = b.get("rows", {}).get(row), a["rows"][row]
-            if rb is None:
+    for name in before:
+        b, a = before[name], after.get(name, {})
+        for row in b.get("rows", {}):
+            rb, ra = b["rows"][row], a.get("rows", {}).get(row)
+            if ra is None:  # a set or a row that is no longer scored hides what it measured
+                bad += 1
+                lines.append(f"| {name} | {row} | {rb['recall']:.4f} -> missing | | **regressed** |")
                 continue
             worse = ra["recall"] < rb["recall"] - RECALL_TOLERANCE or ra.get("wrong", 0) > rb.get("wrong", 0)
             bad += worse
@@ -295,7 +304,7 @@ def compare(before: dict, after: dict) -> tuple[str, int]:
             )
         if a.get("empty_with_reports", 0) > b.get("empty_with_reports", 0):
             bad += 1
-            counts = f"{b['empty_with_reports']} -> {a['empty_with_reports']}"
+            counts = f"{b.get('empty_with_reports', 0)} -> {a['empty_with_reports']}"
             lines.append(f"| {name} | frames without a target, with reports | | {counts} | **regressed** |")
     return "\n".join(lines), bad
 
@@ -329,7 +338,13 @@ def _overridden(name: str, pairs: list[str]):
         key, sep, value = pair.partition("=")
         if not sep or key not in names:
             raise ValueError(f"{pair!r}: not FIELD=VALUE with a field of {name}")
-        values[key] = yaml.safe_load(value)
+        got, default = yaml.safe_load(value), getattr(cls(), key)
+        numeric = isinstance(default, (int, float)) and not isinstance(default, bool)
+        if isinstance(default, bool) and not isinstance(got, bool):
+            raise ValueError(f"{pair!r}: {key} is true or false")
+        if numeric and (isinstance(got, bool) or not isinstance(got, (int, float))):
+            raise ValueError(f"{pair!r}: {key} is a number")
+        values[key] = got
     return cls(**values)
 
 
@@ -352,7 +367,11 @@ def main(argv: list[str] | None = None) -> int:
         if missing:
             print(f"regression: no file {missing[0]}", file=sys.stderr)
             return 2
-        text, bad = compare(*(json.loads(p.read_text()) for p in args.compare))
+        try:
+            text, bad = compare(*(json.loads(p.read_text()) for p in args.compare))
+        except (ValueError, KeyError, TypeError) as e:
+            print(f"regression: {args.compare[0]} / {args.compare[1]}: {e}", file=sys.stderr)
+            return 2
         print(text + f"\n\n{bad} row(s) regressed")
         return 1 if bad else 0
     unknown = sorted(set(args.only or []) - {s.name for s in KEPT_SETS})

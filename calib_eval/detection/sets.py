@@ -151,6 +151,10 @@ TUNING_SETS: tuple[TuningSet, ...] = (
     TuningSet("aprilgrid", 2043, (512, 512), "min_side_px and max_enlarge chosen on it"),
     TuningSet("aprilgrid", 2043, (1920, 1080), "gates every tag-pass change since the sixteenth session"),
     TuningSet("aprilgrid", 2044, (848, 800), "min_side_px 720 (no enlargement at 800 px) chosen on it"),
+    # Redrawn on REDRAWN and then used the same day to judge a change: the checkerboard's
+    # half-resolution gate (half_min_side) was removed where these sets showed no row regressing.
+    TuningSet("checkerboard", 2026, (640, 480), "the removal of half_min_side judged on it (2026-12-07)", old_seeds=False),
+    TuningSet("checkerboard", 31, (640, 480), "the removal of half_min_side judged on it (2026-12-07)", old_seeds=False),
 )
 
 

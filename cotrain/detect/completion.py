@@ -613,7 +613,7 @@ def _next_rounds(st: _Rounds) -> bool:
 
 
 def _final_positions(s: _Scene, st: _Rounds) -> None:
-    """Final positions as the tag pass's (lattice.final_fits): the corners added fitted once more
+    """Final positions as the tag pass's (refinement.final_fits): the corners added fitted once more
     in a small window; where that fails the corner keeps the position it was found at."""
     grid = s.grid
     add = np.array(sorted(st.gaps))

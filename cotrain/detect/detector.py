@@ -144,6 +144,10 @@ class Detector:
         if isinstance(target, AprilGrid):
             if mode == "slots":
                 raise ValueError("slot mode reads a checkerboard network's per-slot corners; an AprilGrid is read by its tags")
+            if mode != "grid":
+                raise ValueError(f"mode must be 'grid' or 'slots', not {mode!r}")
+            if grid is not None:
+                raise ValueError("grid settings are the checkerboard's; an AprilGrid's tag pass takes TagConfig (tags=...)")
             self._init_tags(target, tags)
             return
         if target is not None and not isinstance(target, Checkerboard):
@@ -205,6 +209,7 @@ class Detector:
 
     def letterbox(self, grey: np.ndarray) -> Letterbox:
         """The letterbox of an (h, w) image into the model's processing size."""
+        self._checkerboard_only("the network's letterbox")
         h, w = grey.shape
         return Letterbox(w, h, self.input_size)
 
@@ -255,13 +260,19 @@ class Detector:
         strict = replace(cfg, min_margin=cfg.retry_min_margin, min_geometry_margin=cfg.retry_min_geometry_margin)
         return self._grid(gained, box, self._dense_maps(gained, box), strict)
 
+    def _checkerboard_only(self, what: str) -> None:
+        if self.tags is not None:
+            raise ValueError(f"{what} is the checkerboard's grid pass; an AprilGrid is read by the tag pass (detect)")
+
     def _dense_maps(self, grey: np.ndarray, box: Letterbox) -> dict[str, np.ndarray]:
         """The network's outputs the grid pass reads, on ``grey`` letterboxed by ``box``."""
+        self._checkerboard_only("the network's dense maps")
         return self.net.run(box.apply(grey)[None, None], self.dense)
 
     def grid_result(self, image: np.ndarray, grid: GridConfig | None = None) -> GridResult:
         """The grid pass's whole result on one image (with its identity margin), under ``grid``
         (default the detector's own settings)."""
+        self._checkerboard_only("grid_result")
         grey = self._grey(image)
         box = self.letterbox(grey)
         return self._grid_or_gained(grey, box, self._dense_maps(grey, box), grid or self.grid)
@@ -319,10 +330,13 @@ def slot_readout(out: dict[str, np.ndarray], box: Letterbox, threshold: float) -
 
 
 def make_detector(target: Target | None, model: str | Path | None = None, **options) -> Detector:
-    """``Detector(model, target=target, **options)``: the tag pass for an AprilGrid (which runs no
-    network and takes none of a checkerboard's ``options``), the network and the grid pass otherwise."""
+    """``Detector(model, target=target, **options)``: the tag pass for an AprilGrid (it runs no
+    network, so ``model`` is not used; slot mode and grid settings are one-line errors, the
+    checkerboard's thresholds, threads and consistency options are not used), the network and the
+    grid pass otherwise."""
     if isinstance(target, AprilGrid):
-        return Detector(target=target)
+        kept = {k: options[k] for k in ("mode", "grid", "tags") if k in options}
+        return Detector(target=target, **kept)
     return Detector(model, target=target, **options)
 
 

@@ -37,7 +37,7 @@ class GridConfig:
     seed_bend_px: float = 40.0  # px: ... (the sides of large squares near a fisheye's rim bend by tens of degrees between corners)
     min_seed_axes_sin: float = 0.2  # |sin| of the angle between the seed's two steps (nearly parallel ones are no lattice)
     diag_offset: float = 0.3  # colour test samples the four quadrants this fraction of (step a +- step b) from the corner
-    min_seed_contrast: float = 0.05  # |quadrant contrast| (intensity) the seed needs (see lattice.diag_contrast)
+    min_seed_contrast: float = 0.05  # |quadrant contrast| (intensity) the seed needs (see sampling.diag_contrast)
     min_alternation: float = 0.25  # a new corner's quadrant contrast must flip sign with at least this share of its parent's
     step_edge_depth: float = 0.15  # a step's edge test samples this fraction of the step (or of the step across, if shorter) to either side
     min_step_edge_contrast: float = 0.15  # ... and needs this share of the parent's quadrant contrast at 1/4, 1/2 and 3/4 of the step

@@ -27,7 +27,7 @@ This pass turns them into identities the way a person would (docs/detector.md ha
    margin evidence (:func:`cut_at_margins`: a growth that stepped across the margin onto a
    distractor); other lattices of the same board, placed surely on their own and agreeing
    with the best one where they overlap, add the corners it lacks (:func:`merge_lattices`);
-4. positions (:func:`cotrain.detect.lattice.refine_positions`): the reported corners are fitted
+4. positions (:func:`cotrain.detect.refinement.refine_positions`): the reported corners are fitted
    once more in a small window (at most 3 px half-size), close to the junction, where bent edges
    and the blooming of real prints pull least;
 5. completion (docs/detector.md, grid pass step 7; :func:`cotrain.detect.completion.complete_board`, as for the AprilGrid): the

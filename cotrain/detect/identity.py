@@ -214,7 +214,7 @@ def board_goes_on(
     smear of small squares makes junctions in the margin): one of ``candidates`` (M, 2) lies
     ``cfg.goes_on_min_steps`` to ``cfg.goes_on_max_steps`` steps out within ``cfg.goes_on_angle``
     of the step's direction, and the segment to it runs along the edge of the two squares beside it
-    (:func:`cotrain.detect.lattice.edge_contrasts` a tenth of its length to either side: the side
+    (:func:`cotrain.detect.sampling.edge_contrasts` a tenth of its length to either side: the side
     of ``bright`` (2,), where the brighter square lies, brighter by ``cfg.goes_on_min_contrast`` of
     their ``contrast`` at a quarter, half and three quarters of the way), and its checker colours
     alternate against p's, by ``cfg.goes_on_min_alternation`` of p's quadrant contrast (``across``

@@ -148,7 +148,7 @@ class _Candidates(NamedTuple):
     smoothed: dict[int, np.ndarray]  # the image's blurs (saddle.smooth_cached)
     xy: np.ndarray  # (K, 2) fitted saddle points, strongest first (tag_candidates)
     tree: cKDTree | None  # of xy; None where there are fewer than cfg.min_corners
-    rays: np.ndarray | None  # (K, 4, 2) their edge rays (lattice.corner_rays)
+    rays: np.ndarray | None  # (K, 4, 2) their edge rays (sampling.corner_rays)
 
 
 # The fit windows' half-sizes whose blurs (saddle.smooth_for) a view takes before its candidates

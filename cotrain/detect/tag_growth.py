@@ -47,7 +47,7 @@ def edge_contrast(img: np.ndarray, p: np.ndarray, q: np.ndarray, normal: np.ndar
     """Mean brightness on the ``+normal`` side of segment p -> q minus the ``-normal`` side, sampled
     at a quarter, half and three quarters of the way, ``depth`` px to each side; NaN where no
     sample pair lies inside the image circle (``rim_dist`` (H, W) > 1). The readable form of
-    :func:`cotrain.detect.lattice.edge_contrast_kernel`, which the growth runs (compiled) and which a test holds to it."""
+    :func:`cotrain.detect.sampling.edge_contrast_kernel`, which the growth runs (compiled) and which a test holds to it."""
     pts = edge_sample_points(p, q, normal, depth)
     vals = values_at(img, pts)
     rd = values_at(rim_dist, pts)

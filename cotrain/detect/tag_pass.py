@@ -44,7 +44,7 @@ checkerboard's: tags and crossing squares are dark, the gap strips between them 
    parts too) are merged where they agree, and of two that claim the same ids elsewhere, or the
    same place with other ids, the surer placement stays (:func:`consistent_boards`);
 7. positions: every corner fitted once more in a small window
-   (:func:`cotrain.detect.lattice.final_fits`); one whose fit fails is dropped, except in gaps
+   (:func:`cotrain.detect.refinement.final_fits`); one whose fit fails is dropped, except in gaps
    narrower than ``keep_unfitted_px``, where the window reaches across the crossing square and
    its failure says nothing (the corner keeps its lattice position);
 8. completion (:mod:`cotrain.detect.completion`): first every corner is checked against the

@@ -210,6 +210,15 @@ def test_real_detector_is_measured_sanely():
     json.dumps(fig)  # plain data
 
 
+def test_the_detector_keeps_its_shape():
+    """Issue 64's shape, held: no file in cotrain/detect over 700 lines, no function over 80, and
+    docs/detector.md at most 400 lines (the tuned numbers are still over their 80: not held yet)."""
+    fig = measure(REPO / "cotrain" / "detect", REPO / "docs" / "detector.md")
+    assert fig["files_over_700"] == []
+    assert fig["functions_over_80"] == []
+    assert fig["doc_lines"] <= 400
+
+
 def test_bench_target_runs_it():
     bench = (REPO / "Makefile").read_text().split("\nbench:")[1].split("\n\n")[0]
     assert "-m calib_eval.benchmark.detector_shape --json docs/results/detector_shape.json" in bench

@@ -521,7 +521,7 @@ def test_compiled_seed_quads_are_the_readable_search(with_lens):
 
 
 def test_compiled_edge_contrast_is_the_readable_one():
-    """The growth's edge test, compiled (``lattice.edge_contrast_kernel``), gives :func:`edge_contrast`'s
+    """The growth's edge test, compiled (``sampling.edge_contrast_kernel``), gives :func:`edge_contrast`'s
     value exactly: on random segments over a noisy image with an image circle, cut by the rim, off
     the image, and with one, two or three sample pairs inside."""
     rng = np.random.default_rng(8)

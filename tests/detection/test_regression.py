@@ -20,6 +20,10 @@ def test_compare_flags_recall_drops_beyond_the_tolerance_and_any_new_wrong_corne
     assert bad == 3  # b (recall down 0.0051), c (a wrong corner more), d (an empty frame with reports)
     lines = {line.split(" | ")[0].strip("| "): line for line in text.splitlines()[2:]}
     assert "regressed" not in lines["a"] and "regressed" in lines["b"] and "regressed" in lines["c"]
+    _, bad = reg.compare({"a": _row(0.9, 0), "gone": _row(0.9, 0)}, {"a": _row(0.9, 0)})
+    assert bad == 1  # a set no longer scored hides what it measured
+    with pytest.raises(ValueError, match="not a regression.json"):
+        reg.compare([], {})
 
 
 def test_overrides_are_fields_of_the_configs_and_bad_ones_are_one_line_errors(capsys):

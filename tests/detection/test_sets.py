@@ -49,7 +49,9 @@ def test_the_tuning_sets_are_named_and_never_held_out():
     assert is_tuning("checkerboard", 7, 1280, 720) and is_tuning("checkerboard", 11, 1280, 720)
     assert is_tuning("checkerboard", 2026, 1280, 720)  # the evaluation set: thresholds were set on it too
     assert is_tuning("aprilgrid", 2027, 1280, 720)  # the AprilGrid evaluation set, likewise
-    assert not is_tuning("checkerboard", 31, 640, 480)  # drawn anew: not the frames seen before
+    assert not is_tuning("checkerboard", 99, 1024, 1024)  # drawn anew: not the frames seen before
+    # Drawn anew, then used on the same day to judge a change: a tuning set again, at that size only.
+    assert is_tuning("checkerboard", 31, 640, 480) and not is_tuning("checkerboard", 31, 800, 600)
     assert not is_tuning("checkerboard", 7, 1920, 1080)  # was seed 7's scenes again; now other frames
     assert not is_tuning("aprilgrid", 7, 1280, 720) and not is_tuning("checkerboard", 2027, 1280, 720)
     # Seed 67 was tuned on at 1920x1080, when a seed drew the same scenes at every size: those
@@ -59,8 +61,8 @@ def test_the_tuning_sets_are_named_and_never_held_out():
     assert t.startswith("checkerboard tuning set (seed 7, 1280x720)") and "not held out" in t and "min_margin" in t
     assert "evaluation set" in describe("checkerboard", 2026, 1280, 720) and "tuning set" in describe("checkerboard", 2026, 1280, 720)
     assert "its scenes at 1920x1080 before 2026-12-07" in describe("checkerboard", 67, 1280, 720)
-    h = describe("checkerboard", 31, 640, 480)
-    assert h.startswith("checkerboard held-out set (seed 31, 640x480)") and "tuning set (" not in h
+    h = describe("checkerboard", 31, 800, 600)
+    assert h.startswith("checkerboard held-out set (seed 31, 800x600)") and "tuning set (" not in h
     for r in TUNING_SETS:
         assert r.kind in ("checkerboard", "aprilgrid") and r.why and is_tuning(r.kind, r.seed, *KEPT_SIZE)
         assert r.size is None or (len(r.size) == 2 and all(isinstance(v, int) for v in r.size))
