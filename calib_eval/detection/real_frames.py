@@ -15,8 +15,6 @@ removal of the half-resolution gate (2026-12-07) was made for.
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +22,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from cotrain.io.detections import write_json_atomic
 from cotrain.progress import progress_bar
 
 HERE = Path(__file__).resolve().parents[2]
@@ -128,9 +127,7 @@ def main(argv: list[str] | None = None) -> int:
     results = [evaluate_set(s) for s in sets]
     print(_table(results))
     if args.out:
-        tmp = args.out.with_suffix(".tmp")
-        tmp.write_text(json.dumps(results, indent=1))
-        os.replace(tmp, args.out)
+        write_json_atomic(results, args.out)
     return 0
 
 

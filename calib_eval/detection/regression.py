@@ -25,13 +25,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
+from cotrain.io.detections import write_json_atomic
 from cotrain.progress import progress_bar
 
 RECALL_TOLERANCE = 0.005  # a row's recall may fall by this much before it counts as a regression (the issue's figure)
@@ -219,13 +219,6 @@ def _run_real(s: KeptSet, out: Path, detector_for) -> dict:
 RUNNERS = {"rendered": _run_rendered, "tags": _run_tags, "foreign": _run_foreign, "real": _run_real}
 
 
-def _write_atomic(path: Path, obj) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(obj, indent=1))
-    os.replace(tmp, path)
-
-
 def run(out: Path, only: list[str] | None = None, sets: Path | None = None, grid=None, tags=None) -> dict:
     """Every kept set (or those named in ``only``) through the detector of its target, under
     ``grid`` (a checkerboard's :class:`GridConfig`) and ``tags`` (an AprilGrid's
@@ -256,11 +249,11 @@ def run(out: Path, only: list[str] | None = None, sets: Path | None = None, grid
             continue
         row = RUNNERS[s.source](s, sets / s.name, detector_for) | {"tuning": s.tuning}
         if "missing" not in row:  # a set that could not be read is looked for again next time
-            _write_atomic(done, {"key": key, "row": row})
+            write_json_atomic({"key": key, "row": row}, done)
         results[s.name] = row
         rows = ", ".join(f"{k} {v['recall']:.4f}/{v.get('wrong', 0)}" for k, v in row.get("rows", {}).items())
         print(f"{s.name}: {rows}", file=sys.stderr)
-    _write_atomic(out / "regression.json", results)
+    write_json_atomic(results, out / "regression.json")
     return results
 
 
