@@ -20,7 +20,7 @@ Reading images: :mod:`cotrain.detect.images`; the model and its named outputs:
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -31,6 +31,7 @@ from cotrain.detect.grid_pass import GridResult, grid_pass, merge_half_resolutio
 from cotrain.detect.half_resolution import halve
 from cotrain.detect.images import MIN_SIDE, ImageError, brighten, local_gain, to_grey_float
 from cotrain.detect.onnx_model import OnnxModel, default_grid_model_path
+from cotrain.detect.retries import FIRST, Look, checkerboard_looks, first_found
 from cotrain.detect.saddle import saddle_fit, smooth_for, window_half
 from cotrain.detect.tag_config import TagConfig
 from cotrain.detect.tag_pass import tag_pass
@@ -78,6 +79,7 @@ class Detection:
     height: int = 0
     all_xy: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # (N, 2) every slot, input pixels
     all_visibility: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (N,)
+    look: str = FIRST  # the look of the target's retry schedule that found the corners (cotrain.detect.retries)
 
 
 @dataclass
@@ -220,12 +222,12 @@ class Detector:
             raise ImageError(f"image too small ({w}x{h}); need at least {MIN_SIDE} px per side")
         return brighten(grey)
 
-    def _grid(self, grey: np.ndarray, box: Letterbox, out: dict[str, np.ndarray], cfg: GridConfig) -> GridResult:
-        """The grid pass on ``grey`` (its letterbox ``box``, the network's outputs ``out``); where
-        it finds fewer than ``cfg.half_below`` corners (at any image size) and the network sees a board over
-        ``cfg.half_min_board_share`` of its map, also at half resolution with the same network
-        outputs (:func:`cotrain.detect.grid_pass.merge_half_resolution`: a board whose corners are
-        too blurred at full resolution)."""
+    def _grid(self, grey: np.ndarray, box: Letterbox, out: dict[str, np.ndarray], cfg: GridConfig, half: bool = True) -> GridResult:
+        """The grid pass on ``grey`` (its letterbox ``box``, the network's outputs ``out``); with
+        ``half``, where it finds fewer than ``cfg.half_below`` corners (at any image size) and the
+        network sees a board over ``cfg.half_min_board_share`` of its map, also at half resolution
+        with the same network outputs (:func:`cotrain.detect.grid_pass.merge_half_resolution`: a
+        board whose corners are too blurred at full resolution)."""
         out = dense_maps(out)
         logp_col, logp_row = out["col_logp"][0], out["row_logp"][0]
         if not self.board_votes:
@@ -234,7 +236,7 @@ class Detector:
         maps = (out["corner_prob"][0, 0], out["mask_prob"][0, 0], logp_col, logp_row)
         g = grid_pass(grey, box, *maps, self.target, cfg)
         h, w = grey.shape
-        if len(g.ids) >= cfg.half_below or min(h, w) // 2 < MIN_SIDE:
+        if not half or len(g.ids) >= cfg.half_below or min(h, w) // 2 < MIN_SIDE:
             return g
         if np.mean(maps[1] > 0.5) < cfg.half_min_board_share:
             return g  # measured: no board under 0.4 % of the map was found at half resolution alone
@@ -242,23 +244,22 @@ class Detector:
         g_half = grid_pass(halve(grey), half_box, *maps, self.target, cfg, extent_rim_px=cfg.half_rim_px / 2)
         return merge_half_resolution(grey, g, g_half, self.target, cfg)
 
-    def _grid_or_gained(self, grey: np.ndarray, box: Letterbox, out: dict[str, np.ndarray], cfg: GridConfig) -> GridResult:
-        """:meth:`_grid`; where it finds nothing, the same on ``grey`` with its contrast raised
+    def _grid_looks(self, grey: np.ndarray, box: Letterbox, out: dict[str, np.ndarray], cfg: GridConfig) -> tuple[GridResult, Look]:
+        """The grid pass by the checkerboard's retry schedule
+        (:func:`cotrain.detect.retries.checkerboard_looks`): :meth:`_grid`, and where it finds
+        nothing and ``cfg.retry_gain`` > 1, the same on ``grey`` with its contrast raised
         ``cfg.retry_gain`` times about its local mean (:func:`cotrain.detect.images.local_gain`),
         the network run again on it: a grey print, or a board in the shade or dim light, whose
         saddles and edges fall under the thresholds (set in intensity) and whose board the
-        network does not see. Only there: frames where something is found stay as they are. On the
-        raised frame a board is reported only where the geometry places it
-        (``cfg.retry_min_margin``, ``cfg.retry_min_geometry_margin``)."""
-        g = self._grid(grey, box, out, cfg)
-        if len(g.ids) or cfg.retry_gain <= 1:
-            return g
-        gained = local_gain(grey, cfg.retry_gain, cfg.retry_gain_sigma * min(grey.shape))
-        # Placed surely by the geometry only: on the evaluation set (one of the eight rendered sets),
-        # a board cut by two occluders was placed half a turn wrong there with the geometry 15 nats
-        # ahead (the 19 right ones over the eight sets: 15-90; at 20, 14 of them stay).
-        strict = replace(cfg, min_margin=cfg.retry_min_margin, min_geometry_margin=cfg.retry_min_geometry_margin)
-        return self._grid(gained, box, self._dense_maps(gained, box), strict)
+        network does not see. The result of the first look that finds a corner, and that look."""
+
+        def read(look: Look) -> GridResult:
+            if not look.gained:
+                return self._grid(grey, box, out, look.config(cfg), look.half_resolution)
+            gained = local_gain(grey, cfg.retry_gain, cfg.retry_gain_sigma * min(grey.shape))
+            return self._grid(gained, box, self._dense_maps(gained, box), look.config(cfg), look.half_resolution)
+
+        return first_found(checkerboard_looks(cfg), read)
 
     def _checkerboard_only(self, what: str) -> None:
         if self.tags is not None:
@@ -275,7 +276,7 @@ class Detector:
         self._checkerboard_only("grid_result")
         grey = self._grey(image)
         box = self.letterbox(grey)
-        return self._grid_or_gained(grey, box, self._dense_maps(grey, box), grid or self.grid)
+        return self._grid_looks(grey, box, self._dense_maps(grey, box), grid or self.grid)[0]
 
     def detect(self, image: np.ndarray) -> Detection:
         """Detect corners in one image (any size, 8/16-bit or float, grey or colour)."""
@@ -294,15 +295,15 @@ class Detector:
     def finish(self, pending: Pending) -> Detection:
         """The second half of :meth:`detect`: the grid pass (or the per-slot read-out); with
         ``grid.retry_gain`` set, a frame giving nothing runs the network again here, on the frame
-        with its contrast raised (:meth:`_grid_or_gained`)."""
+        with its contrast raised (:meth:`_grid_looks`)."""
         grey, box, out = pending.grey, pending.box, pending.out
         h, w = grey.shape
         if self.tags is not None:
             r = tag_pass(grey, self.target, self.tags)
-            return Detection(r.ids, r.xy, r.confidence, np.ones(len(r.ids)), w, h)
+            return Detection(r.ids, r.xy, r.confidence, np.ones(len(r.ids)), w, h, look=r.look)
         if self.mode == "grid":
-            g = self._grid_or_gained(grey, box, out, self.grid)
-            return Detection(g.ids, g.xy, g.confidence, np.ones(len(g.ids)), w, h)
+            g, look = self._grid_looks(grey, box, out, self.grid)
+            return Detection(g.ids, g.xy, g.confidence, np.ones(len(g.ids)), w, h, look=look.name)
         det = self._postprocess(out, box, consistency=self.consistency)
         if self.polish and len(det.ids):
             det.xy = polish_corners(grey, det.xy, local_square_px(det.ids, det.xy, self.nx))

@@ -101,3 +101,4 @@ class TagResult:
     foreign_tags: int = 0  # decoded tag36h11 tags that are not on the target (wild tags, other boards)
     scale: float = 1.0  # the factor the frame was read enlarged by (TagConfig.min_side_px); xy are in the frame's pixels
     unfound: int | None = None  # corners completion left unfound in view (the full-resolution pass); None: no completion ran
+    look: str = "first"  # the look of the retry schedule that found them (cotrain.detect.retries)

@@ -81,6 +81,7 @@ from cotrain.detect.image_circle import EquidistantLens, guess_lens
 from cotrain.detect.images import MIN_SIDE, local_gain
 from cotrain.detect.lattice import Lattice
 from cotrain.detect.refinement import final_fits, shortest_steps
+from cotrain.detect.retries import Look, aprilgrid_looks, first_found
 from cotrain.detect.saddle import outside_circle, smooth_cached
 from cotrain.detect.tag_candidates import RayNeighbours, _Candidates, _candidates_of, axis_neighbours
 from cotrain.detect.tag_config import TagConfig, TagResult
@@ -132,51 +133,28 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
     (:func:`cotrain.detect.verification.print_moved`); not where completion found every corner
     it predicted in view (``TagResult.unfound`` 0: a partial view found whole).
 
-    A frame where nothing is found is read once more at full resolution with seeds whose
-    neighbours lie within ``cfg.retry_seed_angle`` of their edge rays, and where that finds
-    nothing, once more with seeds of tags whose data cells are ``cfg.retry_min_cell_px`` wide
-    (instead of ``cfg.min_cell_px``); where that finds nothing too, the frame with its contrast
-    raised ``cfg.retry_gain`` times about its local mean (:func:`cotrain.detect.images.local_gain`;
-    a grey print, a board in the shade) is read as the first look reads a frame, at half
-    resolution too. The corners of the first look that finds any are reported."""
+    A frame where nothing is found is read again by the next look of the tag pass's retry schedule
+    (:func:`cotrain.detect.retries.aprilgrid_looks`: a wider cone for the seeds' ray neighbours,
+    then seeds of smaller data cells, then the frame with its contrast raised); the corners of the
+    first look that finds any are reported, and ``TagResult.look`` names it."""
     cfg = cfg or TagConfig()
     view = _view_of(grey, cfg)
-    r = _tag_pass_both(grey, board, cfg, view)
-    if len(r.ids) or cfg.retry_seed_angle <= 0:
-        return r
-    # Nothing found: once more with a wider cone for the ray neighbours. Where tags are small the
-    # edge rays are read on circles of a few pixels, their angles coarse, and the neighbours fall
-    # outside the cone: the lattices stop after a tag or two and no placement holds. Widened in
-    # every frame, the cone changes which seeds grow first elsewhere and lost whole frames
-    # (the tuning log in CHANGELOG.md, tag pass step 12). Full resolution only: the tags it is for are small,
-    # and the half-resolution reading has had its look. The frame as the first look read it (the
-    # crop, the lens, the candidates and their rays) is the same.
-    wider = replace(cfg, seed_axis_angle=cfg.retry_seed_angle)
-    looks = [wider]
-    if cfg.retry_min_cell_px < cfg.min_cell_px:
-        # Then with seeds, and tags read, whose data cells are smaller than a pixel (a board of
-        # 8-10 px tags seen whole offers no other seed), in the wider cone still. Only here: where larger tags show, a quad of a large
-        # tag's data junctions that small can seed first and cover the board's corners.
-        looks.append(replace(wider, min_cell_px=cfg.retry_min_cell_px))
-    for look in looks:
-        again = _tag_pass_circle(grey, board, look, view)
-        if len(again.ids):
-            return again
-    if cfg.retry_gain > 1:
-        # A print whose white is grey, in the shade or dim light: its saddles' responses and
-        # contrasts fall under the pass's thresholds (set in intensity), and no seed holds. Its
-        # contrast raised about the local mean, the frame is read anew. Only here: raised in every
-        # frame, the clean independent renderer's frames lost corners (0.994 -> 0.991), and a
-        # gain of 2 placed one wrongly.
-        gained = local_gain(grey, cfg.retry_gain, cfg.retry_gain_sigma * min(grey.shape))
-        again = _tag_pass_both(gained, board, cfg)  # at half resolution too: there most of these boards are found
-        if len(again.ids):
-            return again
-    return r
+
+    def read(look: Look) -> TagResult:
+        look_cfg = look.config(cfg)
+        if look.gained:  # a frame of its own: its crop, lens and candidates read anew
+            gained = local_gain(grey, cfg.retry_gain, cfg.retry_gain_sigma * min(grey.shape))
+            return _tag_pass_both(gained, board, look_cfg) if look.half_resolution else _tag_pass_circle(gained, board, look_cfg)
+        if look.half_resolution:
+            return _tag_pass_both(grey, board, look_cfg, view)
+        return _tag_pass_circle(grey, board, look_cfg, view)  # the frame as the first look read it
+
+    r, look = first_found(aprilgrid_looks(cfg), read)
+    return replace(r, look=look.name)
 
 
 def _tag_pass_both(grey: np.ndarray, board: AprilGrid, cfg: TagConfig, view: _View | None = None) -> TagResult:
-    """:func:`tag_pass` without its second look: at full resolution (``view``: the frame as read
+    """One look of :func:`tag_pass` with half resolution: at full resolution (``view``: the frame as read
     for it, :func:`_view_of`, else read here), then at half resolution where few corners were found."""
     view = view or _view_of(grey, cfg)
     r = _tag_pass_circle(grey, board, cfg, view)

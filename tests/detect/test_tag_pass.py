@@ -104,6 +104,7 @@ def test_a_whole_board_of_tags_under_ten_pixels_is_found_by_the_third_look(dista
     r = tag_pass(grey, g, cfg)
     check_ids(r, q, vis)
     assert len(r.ids) >= (144 if print_ == "clean" else 135)
+    assert r.look == "small cells"  # cotrain.detect.retries: the look that found them
 
 
 def test_a_grey_print_in_falling_light_is_found_by_the_fourth_look():
@@ -125,6 +126,7 @@ def test_a_grey_print_in_falling_light_is_found_by_the_fourth_look():
     r = tag_pass(grey, g, cfg)
     check_ids(r, q, vis)
     assert len(r.ids) == g.n_corners
+    assert r.look == "contrast raised"
 
 
 def test_flat_view_finds_every_corner_at_its_label():
