@@ -85,6 +85,8 @@ KEPT_SETS = (
         n_empty=0,
         conditions=_HARD_1920[:1] + _HARD_1920[2:],
     ),
+    _kept("seed5150_1920x1080", "rendered", seed=5150, width=1920, height=1080, **_HELD),
+    _kept("seed5151_640x480", "rendered", seed=5151, width=640, height=480, **_HELD),
     _kept("tags_2027_1280x720", "tags"),
     _kept("tags_2042_640x480", "tags", seed=2042, width=640, height=480, per_fov=12, per_condition=0),
     _kept("tags_2045_640x480", "tags", seed=2045, width=640, height=480, per_fov=15, per_condition=0),

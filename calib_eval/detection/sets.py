@@ -155,6 +155,10 @@ TUNING_SETS: tuple[TuningSet, ...] = (
     # half-resolution gate (half_min_side) was removed where these sets showed no row regressing.
     TuningSet("checkerboard", 2026, (640, 480), "the removal of half_min_side judged on it (2026-12-07)", old_seeds=False),
     TuningSet("checkerboard", 31, (640, 480), "the removal of half_min_side judged on it (2026-12-07)", old_seeds=False),
+    # Rendered on 2026-12-07 to design a check of the parts that cut_at_margins places (the wrong
+    # corners of docs/results/rule_ablations.md) without looking at the held-out sets' frames.
+    TuningSet("checkerboard", 5150, (1920, 1080), "the cut parts' check designed on it (2026-12-07)", old_seeds=False),
+    TuningSet("checkerboard", 5151, (640, 480), "the cut parts' check designed on it (2026-12-07)", old_seeds=False),
 )
 
 
