@@ -23,49 +23,140 @@ from cotrain.targets import Target
 
 @dataclass
 class CompletionConfig:
+    # Each number's comment gives its unit and its origin. Sets are named as calib_eval/detection/sets.py names them, at 1280x720 unless a
+    # size is given; every AprilGrid seed named here (2027: the AprilGrid evaluation set; 2041, 2043, 2045) and every checkerboard set is a
+    # tuning set there. The independent renderer's sets (calib_eval.detection.foreign, seed 5: 6 x 6 and 10 x 8 grids, --photo, --isp) are
+    # outside that list. Figures are as measured then (CHANGELOG.md, the tuning log's "The AprilGrid: the tag pass", step 10, and the commit
+    # named).
+    # count; origin: measured on the AprilGrid evaluation set (seed 2027, 1280x720; a tuning set): a cap of 8 stopped the front on boards
+    # seen whole in small tags; 64 took its FoV rows 0.9797 -> 0.9803 (3c18828; CHANGELOG 2026-11-28, twenty-first session)
     rounds: int = 64  # rounds of prediction, each a grid step further (until one adds no corner, small gaps' and dim fits' too); 0: none
+    # count; origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified corners ..."); the log's
+    # reason: about two tags across, where the fisheye bends little
     neighbours: int = 7  # identified corners nearest on the board that a prediction's homography is fitted to
+    # origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified corners ...")
     max_residual: float = 0.5  # ... which must fit them within this fraction of the local gap
+    # origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified corners ..."); TagConfig.min_gap_px's
+    # 1.6
     min_gap_px: float = 1.6  # no prediction where the local gap (crossing square's side) is narrower (px)
+    # origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified corners ..."); the limit of every
+    # reported corner (GridConfig.min_rim_px 3)
     min_rim_px: float = 3.0  # ... or nearer to the image circle's rim (px); and no corner found nearer
+    # unit: fraction of the local gap; origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified
+    # corners ...")
     reach: float = 0.3  # a saddle fitted at the prediction counts within this fraction of the local gap ...
+    # unit: fraction of the local gap; origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified
+    # corners ...")
     search: float = 0.6  # ... else candidates within this fraction of it are tried
+    # unit: correlation (-1 .. 1); origin: TagConfig.candidate_min_symmetry's 0.5 (measured there), copied in 6c06463
     min_symmetry: float = 0.5  # point symmetry of that saddle fit (as the candidates'; the print check follows) ...
+    # origin: measured on the independent renderer's 10 x 8 grid (its fov220_004: 16 of 17 fits failed 0.5 in 4-6 px gaps), 4 -> 7 px: FoV
+    # rows 0.9357 -> 0.9381, 6 x 6 0.9794 -> 0.9800, the evaluation set (seed 2027) 0.9530 -> 0.9542, seed 2041 0.9349 -> 0.9359, no wrong
+    # corner added; 10 px gained 0.0003 more (3d25156)
     small_gap_px: float = 7.0  # ... or, where the local gap is narrower than this (px; tags under 23 px), where that fails ...
+    # unit: correlation (-1 .. 1); origin: measured on the AprilGrid evaluation set (seed 2027, 1280x720; a tuning set): of the corners
+    # missed beside identified ones in 8-12 px tags, 112 of 113 had a response peak within 2 px, 9 fitted at 0.5, 39 at 0.3; recall 0.943 ->
+    # 0.946 (636dd27)
     small_min_symmetry: float = 0.3  # ... this much
+    # unit: fraction of the local gap; origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified
+    # corners ..."); TagConfig.crowd_radius's 0.5
     crowd: float = 0.5  # a corner this close to an identified one (fraction of the local gap) is refused
+    # unit: board spacing; origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified corners ...")
     patch: float = 0.45  # half-size of the patch compared with the print, in the board's spacing (a tag side, a square)
+    # count per side; origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified corners ...")
     patch_samples: int = 11  # samples across it
+    # unit: correlation (-1 .. 1); origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified corners
+    # ..."); completion as a whole took the AprilGrid evaluation set (seed 2027, 1280x720; a tuning set) 0.866 -> 0.925 (every second frame)
     min_corr: float = 0.5  # correlation of the image with the print around the corner ...
+    # unit: correlation; origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified corners ...")
     min_corr_margin: float = 0.1  # ... better by this than with the print around each grid neighbour
+    # unit: fraction of the local gap; origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified
+    # corners ..."); TagConfig.ray_radius's 0.5
     ray_radius: float = 0.5  # a corner's edge rays are read on a circle of this fraction of the local gap ...
+    # origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified corners ...")
     max_ray_angle: float = 30.0  # ... and the board's axes must leave along them within this (deg) ...
+    # unit: correlation (-1 .. 1); origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified corners
+    # ...")
     sure_corr: float = 0.7  # ... unless the print correlation reaches this ...
+    # origin: measured on the AprilGrid evaluation set (seed 2027, 1280x720; a tuning set): its fov180_013 (tags of 5-12 px) gave 51 of 144
+    # corners with rays asked at every gap, 140 now; FoV rows 0.980 -> 0.982, no wrong corner; 2 px: a circle inside the X's blurred core
+    # (3c18828)
     min_ray_px: float = 2.0  # where that circle is smaller (px; tags under 13 px: the X's blurred core) rays are not read (0: always) ...
+    # unit: correlation; origin: measured with min_ray_px (above); a test: a crossing square's other corner, a gap away, matches its
+    # neighbour's print better
     small_corr_margin: float = 0.3  # ... and the print must beat each grid neighbour's by this instead
+    # unit: share of the patch's samples; origin: measured on the AprilGrid evaluation set (seed 2027, 1280x720; a tuning set): its
+    # large-squares row's one wrong corner (12 px off, a tag's edge against the dark beyond the rim) found where it is, 0.854 -> 0.855; four
+    # AprilGrid and eight checkerboard sets otherwise the same (20a4132)
     sure_inside: float = 0.75  # ... and, among several candidates of the search, over this share of the patch inside the image circle
     check: bool = True  # first, the growth's corners are checked against the print (:func:`print_check`) ...
+    # unit: correlation; origin: measured on the AprilGrid evaluation set (seed 2027, 1280x720; a tuning set, sets.py: "the print check's
+    # margins"), with check_margin_large: its hard rows' wrong corners 9 -> 4 and 14 corners 1.4-2.9 px off dropped, for 3 good ones; seed
+    # 2041 at 1920x1080 blurred 1.5 / 2.5 px: 6 -> 2 and 8 -> 2 wrong (fc01f13; CHANGELOG 2026-11-25, third session)
     check_margin: float = 0.0  # ... and one is dropped where a grid neighbour's print matches it better by more than this ...
+    # px; origin: not recorded (set in fc01f13, "AprilGrid: every corner the lattice reports is checked against the print ...");
+    # TagConfig.small_tag_px's 20
     check_large_px: float = 20.0  # ... or, in tags at least this wide (px) ...
+    # unit: correlation; origin: measured with check_margin (above)
     check_margin_large: float = 0.35  # ... by more than this (a local homography fits a large tag's bend less well) ...
+    # unit: correlation (-1 .. 1); origin: measured on the independent renderer's colour-processing set (foreign --isp, seed 5): its two
+    # wrong corners dropped; 647 frames of four AprilGrid sets, the photographed prints and 1,712 checkerboard frames unchanged (a6fe1b0)
     check_min_corr_large: float = 0.1  # ... or at all, where its own print correlates under this (nothing of it is there)
+    # origin: measured on seed 2045 at 640x480 (a tuning set): its fov220_004 corner slid 12 px down a tag's border, set aside, found 0.04
+    # px from its label; 1 px moved 365 corners closer but lost 5-16 right ones on four sets; over 844 AprilGrid frames 7 set aside, only
+    # that one changed (a1ac597; CHANGELOG 2026-11-28, twenty-third session)
     moved_px: float = 3.0  # then one this far (px, of the frame) or more from where its neighbours' map puts it (print_moved; 0: never) ...
+    # unit: correlation; origin: measured with moved_px (above): that corner's print correlated 0.35 where it lay, 0.79 at its neighbours'
+    # spot
     moved_margin: float = 0.2  # ... where the print matches better there by this, is left to completion to place (else put back)
     lens: bool = True  # homographies of the corners' rays under the tag pass's lens guess, where it has one (tag_config.TagConfig.lens_fov)
+    # origin: measured on the AprilGrid evaluation set (seed 2027, 1280x720; a tuning set): 7 -> 10 px, FoV rows 0.9716 -> 0.9745, motion
+    # blur 5 -> 3 wrong; seed 2041 0.9493 -> 0.9502; 12 px brought a wrong corner on seed 2041's motion blur, 14 px corners up to 3.7 px off
+    # (76c7ce5)
     print_fit_gap_px: float = 10.0  # where the saddle fits fail in a gap under this (px), the print is moved onto the image (print_fit) ...
+    # unit: local gaps; origin: not recorded (set in d136463, "Completion moves the print onto the image where a corner's saddle fits fail
+    # ...")
     print_fit_radius: float = 1.5  # ... over the pixels within this many local gaps of it ...
+    # origin: measured on the evaluation set (seed 2027), seed 2041 and the independent renderer's 6 x 6 and 10 x 8 sets: the same recall,
+    # no wrong corner; 13 checkerboard rim corners 0.123 -> 0.095 px from their labels, rim fits 7.4 -> 5.4 ms (7735f80)
     print_fit_max_radius_px: float = 12.0  # ... and this many px at most (the corner's own squares or tag border fill it) ...
+    # count of pixels; origin: not recorded (set in d136463, "Completion moves the print onto the image where a corner's saddle fits fail
+    # ...")
     print_fit_min_pixels: int = 20  # ... at least this many inside the image circle and the frame ...
+    # unit: share of the disc's area; origin: measured on seed 2041 (a tuning set): the rim look in gaps of any size brought three wrong
+    # corners (3.7-11 px off); with half the disc required one stayed (98b00d9; the tuning log, step 10)
     print_fit_min_share: float = 0.5  # ... and this share of the disc ...
+    # count per blur; origin: not recorded (set in d136463, "Completion moves the print onto the image where a corner's saddle fits fail
+    # ...")
     print_fit_iterations: int = 12  # ... by at most this many Gauss-Newton steps per blur tried ...
+    # unit: fraction of the local gap; origin: not recorded (set in d136463, "Completion moves the print onto the image where a corner's
+    # saddle fits fail ...")
     print_fit_max_blur: float = 0.5  # ... blurs up to this fraction of the gap (a wider one washes the corner out) ...
+    # unit: share of the pixels' variance; origin: noise level (under noise of a tenth of the print's contrast the right place explains
+    # 0.7-0.8; a synthetic grey print: every corner within 0.25 px at 0.7, a third refused at 0.8) and measured on seed 2041: glare 0.965 ->
+    # 0.981, under-exposed 0.900 -> 0.919; the evaluation set (seed 2027) FoV rows 0.9706 -> 0.9716; 0.65: more corners over 0.5 px
+    # (7dfbea1)
     print_fit_min_r2: float = 0.7  # ... and it must explain this share of their variance through the lens ...
+    # unit: share of the pixels' variance; origin: measured on CI's test of OpenCV's fisheye rendering of a close rim view, read without the
+    # lens: at 0.7 a corner 2.26 px off (3bdfb33); 0.8 was the bar everywhere before 7dfbea1
     print_fit_min_r2_pixels: float = 0.8  # ... or this share through a pixel homography (which misses the bend at the rim)
+    # origin: measured on the AprilGrid evaluation set (seed 2027, 1280x720; a tuning set): the rim look at this value took FoV rows 0.9662
+    # -> 0.9700 (strong vignetting 0.940 -> 0.953), seed 2041 0.9451 -> 0.9488, no wrong corner added (98b00d9)
     print_fit_rim_px: float = 1.5  # a prediction nearer the rim than min_rim_px but this far (px; 0: never) is found by print_fit alone ...
+    # origin: measured on seed 2041 (a tuning set): the wrong corner left with half the disc required lay in a gap of 24 px (a tag of 81
+    # px); 20 px keeps it out (98b00d9; the tuning log, step 10)
     print_fit_rim_gap_px: float = 20.0  # ... in a gap under this (px), within reach of it
+    # origin: measured on the AprilGrid evaluation set (seed 2027, 1280x720; a tuning set), with refit_margin and refit_inside: its
+    # fov240_037 72 -> 81 corners, FoV rows 0.9698 -> 0.9706; seed 2043 at 1920x1080 +6 corners; the ordinary margin in every gap: 16 wrong
+    # corners in gaps under 14 px (fde7189)
     refit_gap_px: float = 16.0  # from this gap on (px; 0: never), an option the moved map refuses is judged under the map through it ...
+    # unit: correlation; origin: measured with refit_gap_px (above)
     refit_margin: float = 0.3  # ... where it must match better than each grid neighbour's print by this ...
+    # unit: share of the patch's samples; origin: measured with refit_gap_px (above)
     refit_inside: float = 0.5  # ... over this share of the patch inside the image circle, and have its edge rays along the board's axes
+    # unit: local gaps; origin: measured on the independent renderer's photographed prints (foreign --photo, seed 5): 0.906 -> 0.926 (its
+    # fov220_014 80 -> 108 corners), no wrong corner; the evaluation set (seed 2027) FoV rows 0.9824 -> 0.9825 (a5b9ed7; CHANGELOG
+    # 2026-11-28, twenty-second session)
     dim_gaps: float = 1.0  # last, failed saddle fits again, their threshold scaled to the print's contrast within this many gaps (0: never)
 
     def reads_rays(self, gap_px: float) -> bool:
@@ -168,6 +259,8 @@ def local_maps(P: np.ndarray, q: np.ndarray, lens: EquidistantLens | None = None
     return PlaneMaps(H, R, lens), posed & ok
 
 
+# unit: share of the patch's samples; origin: not recorded (set in 6c06463 as a fifth of the patch, "Tag pass: complete a placed AprilGrid
+# ..."; named in 20a4132)
 MIN_INSIDE = 0.2  # print matches need this share of the patch's samples inside the image circle
 
 
@@ -266,6 +359,9 @@ def local_homographies(P: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.nda
     return H * np.where(w < 0, -1.0, 1.0)[:, None, None], posed
 
 
+# origin: measured on the seven rendered checkerboard sets (2026, 7, 11, 41, 53; 67 at 1920x1080, 31 at 1024x768; tuning sets) and two
+# AprilGrid sets (not named there): +9 and +3 corners, none wrong; a corner 7.8 px below a 240-degree frame's top edge had no rays before
+# (03e0e54)
 MIN_BORDER_RAY_PX = 3.0  # rays_along: the smallest circle read next to the image's border (px; the blurred core of an X is 1-2 px)
 
 

@@ -17,74 +17,184 @@ from cotrain.detect.print_model import CompletionConfig
 
 @dataclass
 class TagConfig:
+    # Each number's comment gives its unit and its origin. Sets are named as calib_eval/detection/sets.py names them, at 1280x720 unless a
+    # size is given; every AprilGrid seed named here is a tuning set there (2027: the AprilGrid evaluation set, 2041: the validation set).
+    # "64 / 200 / 210 frames": the evaluation set's table of 16 / 50 per FoV (210 with its empty frames), as the changes of 2026-11-23/24
+    # were measured. The independent renderer's sets (calib_eval.detection.foreign, seed 5) are outside that list. Figures are as measured
+    # then (CHANGELOG.md, the tuning log's "The AprilGrid: the tag pass", and the commit named).
     # --- candidates ---
+    # origin: measured on the evaluation set (seed 2027; a tuning set): 1.0 -> 0.9 took recall 0.824 -> 0.827 (200 frames) and 0.843 ->
+    # 0.855 (64), no new wrong corner (f738ea1); 0.8, on it and seeds 2031, 2035: no gain or more wrong corners (CHANGELOG 2026-11-24, late)
     response_sigma: float = 0.9  # px: scale of the saddle response (small: gaps of tiny tags are 2-3 px)
+    # unit: intensity^2 (sigma^4 -(Ixx Iyy - Ixy^2) of the [0, 1] image, OpenCV's Sobel scale); origin: not recorded (set in 24194e2,
+    # "AprilGrid tag pass: corners as X-junctions, ..."); lower, on seeds 2027, 2031 and 2035 (tuning sets): no gain or more wrong corners
+    # (CHANGELOG 2026-11-24, late)
     min_response: float = 0.0015  # saddle response a candidate needs (scale-normalised -det Hessian)
+    # unit: correlation (-1 .. 1); origin: measured on seeds 2027, 2031 and 2035 (tuning sets): 0.65 -> 0.5, recall +0.002 / +0.004 /
+    # +0.003, wrong corners 16 -> 14 (4df897e)
     candidate_min_symmetry: float = 0.5  # a candidate's fit needs this point symmetry (the grid pass's min_symmetry for the rest)
+    # count; origin: measured on the evaluation set (seed 2027; a tuning set): every true corner ranks within 1500 (4000 before; 3de7c2b)
     max_candidates: int = 1500  # strongest response maxima kept (all true corners of the evaluation set rank within 1500)
     # --- growth ---
+    # origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ..."); kept in the first look on the evaluation set
+    # (seed 2027; a tuning set): 16 deg in every frame took FoV 200 0.972 -> 0.964 (07fcdf1)
     seed_axis_angle: float = 12.0  # deg: a seed's neighbours lie within this of its edge rays ...
+    # deg; origin: measured on the evaluation set (seed 2027; a tuning set): its fov180_013 (a board of 7-9 px tags) gave nothing at 12, 51
+    # corners at 16; FoV rows 0.9745 -> 0.9769, seed 2041 0.9502 -> 0.9535, no wrong corner; 20 deg: four wrong corners under motion blur
+    # (07fcdf1)
     retry_seed_angle: float = 16.0  # ... or, in a frame where nothing is found, within this in a second and third look (0: neither)
+    # count; origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ..."; a field since 107fdeb)
     ray_search: int = 96  # nearest candidates searched for ray neighbours
+    # count; origin: not recorded (set in 02e95a5, "tag pass: tags read after sharpening, ...; seeds from each corner's four edge rays")
     ray_tries: int = 5  # candidates tried along each edge ray, nearest first, for ones reached along an edge
+    # origin: measured on the evaluation set (seed 2027; a tuning set): recall 0.751 -> 0.762 (210 frames), 0.795 -> 0.806 (64); before,
+    # 0.15 of a long side reached into a foreshortened tag's data (107fdeb)
     ray_edge_depth: float = 0.6  # that edge test samples at most this multiple of the nearest-candidate distance aside
+    # count; origin: not recorded (set in 02e95a5, "tag pass: tags read after sharpening, ...; seeds from each corner's four edge rays")
     ray_options: int = 3  # candidates reached along an edge kept per ray: a seed's tag sides are tried among them
+    # origin: not recorded (set in 02e95a5, "tag pass: tags read after sharpening, ...; seeds from each corner's four edge rays")
     ray_radius: float = 0.5  # edge rays are read on a circle of this fraction of the local gap (of a candidate: its nearest candidate)
+    # origin: measured on the evaluation set (seed 2027; a tuning set): 0.35 (match_radius) -> 0.6, recall 0.807 -> 0.824 (200 frames; with
+    # position clashes dropped, 2c5af52; CHANGELOG 2026-11-24, later)
     fourth_radius: float = 0.6  # a seed tag's fourth corner lies within this fraction of its shorter side of the parallelogram's
+    # unit: ratio of lengths in px; origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")
     min_long_short: float = 1.7  # at a seed, tag side / gap (Kalibr: 1 / tagSpacing) must exceed this on both axes
+    # count; origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")
     max_seeds: int = 40  # seeds tried (strongest responses first); covered candidates are not tried again
+    # unit: fraction of the predicted step; origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")
     match_radius: float = 0.35  # a neighbour must lie within this fraction of its predicted step
+    # unit: fraction of the local gap; origin: measured on the evaluation set (seed 2027; a tuning set): with the ray step (e9bc70a) recall
+    # 0.785 -> 0.791 (64 frames), 0.737 -> 0.741 (210), wrong 4 -> 2; 0.8: +0.004 with 2 more wrong corners (200; CHANGELOG 2026-11-24,
+    # later)
     match_gap: float = 0.6  # ... and within this fraction of the local gap: under strong perspective the next row lies a gap away
+    # count; origin: measured on the evaluation set (seed 2027; a tuning set), with candidates offered again and the skipped-corner test
+    # scaled (one commit, 8790253): recall 0.633 -> 0.759 (64 frames)
     match_tries: int = 3  # candidates within reach tried at a predicted spot, nearest first, before a saddle is fitted there
+    # origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ..."); GridConfig.agree_radius's 0.3
     agree_radius: float = 0.3  # predictions from different neighbours must agree within this fraction of the step
+    # unit: ratio to the predicted step; origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")
     min_step_ratio: float = 0.7  # a new step may be this much shorter than predicted ...
+    # unit: ratio to the predicted step; origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")
     max_step_ratio: float = 1.4  # ... or this much longer
+    # origin: measured on seeds 2027, 2031 and 2035 (tuning sets): 25 -> 40 deg, recall +0.004 / +0.006 / +0.004, no more wrong corners
+    # (b25fdd6)
     ray_step_angle: float = 40.0  # deg: where nothing lies at a prediction, a candidate an edge ray leads to within this of the step
+    # unit: multiple of the prediction's reach; origin: not recorded (set in e9bc70a, "tag pass growth: where nothing lies at a prediction,
+    # the candidate a corner's own edge ray leads to ..."; a field since a258657); 3, on seeds 2027, 2031 and 2035 (tuning sets): no gain or
+    # more wrong corners (CHANGELOG 2026-11-24, late)
     ray_step_reach: float = 2.0  # ... and within this multiple of the reach of the prediction
+    # origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")
     max_step_junction: float = 0.1  # a candidate this close to a step's middle part (fraction of the step) refuses it
+    # origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ..."); GridConfig.crowd_radius's 0.5
     crowd_radius: float = 0.5  # a new corner this close (fraction of the local gap) to a placed one is refused
+    # px; origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")
     min_gap_px: float = 1.6  # no growth across gaps smaller than this
+    # origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")
     edge_depth: float = 0.35  # the edge test samples this fraction of the gap to each side of a step
+    # unit: intensity in [0, 1]; origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ..."); halved with the
+    # pass's other contrast thresholds, the evaluation set's low-contrast row went 0.823 -> 0.805 (CHANGELOG 2026-11-24, late morning)
     min_edge_contrast: float = 0.04  # light minus dark side of a step, intensity, mean over the step
     # --- decoding ---
+    # count of bits; origin: print geometry (tag36h11's codes differ in at least 11 bits) and AprilTag's own correction of 2 (the tuning
+    # log, step 6)
     max_hamming: int = 2  # bit errors a tag read alone may have (tag36h11: codes differ in at least 11 bits)
+    # unit: intensity in [0, 1]; origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ..."); halved with the
+    # pass's other contrast thresholds, the evaluation set's low-contrast row went 0.823 -> 0.805 (CHANGELOG 2026-11-24, late morning)
     min_bit_contrast: float = 0.06  # white gap minus black border a tag needs to be read
-    min_data_share: float = 0.15  # a seed's tag has at least this share of white and of black data cells (tag36h11: 0.2 .. 0.8)
+    # unit: share of the 36 data cells; origin: print geometry (each of tag36h11's 587 codes has 10-25 of its 36 data cells white: 0.28 ..
+    # 0.69); the margin under that not recorded (set in d1ad990, "AprilGrid: seeds at any tag corner ...")
+    min_data_share: float = 0.15  # a seed's tag has at least this share of white and of black data cells (tag36h11: 0.28 .. 0.69)
+    # origin: not recorded (set in 02e95a5, "tag pass: tags read after sharpening, ...; seeds from each corner's four edge rays")
     min_data_contrast: float = 0.2  # a seed's white data cells must be lighter than its black ones by this share of the tag's contrast
+    # unit: share of the samples; origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")
     min_clean: float = 0.9  # share of its border's inner-ring samples darker, and gap samples lighter, than their midpoint
+    # origin: measured on seeds 2027 and 2031 (tuning sets): tags read through their sides with this bound, recall 0.832 -> 0.843 and 0.832
+    # -> 0.842, wrong 3 -> 3 and 4 -> 3; without it two slid corners were kept (7ad460c; CHANGELOG 2026-11-24, late)
     max_side_misfit: float = 0.04  # tags are read through a map bent to their sides, where the sides fit it within this (tag widths)
+    # unit: weight (of the Laplacian against the cell); origin: measured on the evaluation set (seed 2027; a tuning set): the sharpened,
+    # standardised, Otsu-split read took recall 0.468 -> 0.581 (64 frames; CHANGELOG 2026-11-24), the weight itself not recorded (set in
+    # 02e95a5; a field since a274c13)
     sharpen: float = 1.5  # weight of the 4-neighbour Laplacian that undoes blur over a tag's cells (rendered tags of 10-30 px)
+    # origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ..."); kept in the first looks on seed 2041: 0.8 px
+    # in every look lost its fov240_003 (31 corners; 01e9e3e)
     min_cell_px: float = 1.0  # tags whose data cells are smaller than this (px) neither seed a lattice nor are read ...
+    # px; origin: measured on the evaluation set (seed 2027; a tuning set): FoV rows 0.9769 -> 0.9797 (fov200_022 0 -> 46 corners), seed
+    # 2041 0.9535 -> 0.9579 (fov220_004 0 -> 40), no wrong corner; 0.8: the same on these sets, but a test's board of 7.8 px tags not found
+    # (01e9e3e)
     retry_min_cell_px: float = 0.7  # ... or than this, in a third look (the second's wider cone too) where the first two find nothing
+    # unit: factor; origin: measured on the independent renderer's photographed prints (foreign --photo, seed 5): 0.845 -> 0.904 (12 per
+    # FoV), 0.820 -> 0.896 (24); on the evaluation set (seed 2027; a tuning set) its low-contrast row 0.857 -> 0.916; a gain of 2 placed a
+    # board wrongly on the renderer's clean frames (1b3f4f3; the tuning log, step 14)
     retry_gain: float = 3.0  # a fourth look where the third finds nothing: contrast raised this much about the local mean (<= 1: never)
+    # unit: share of the shorter side; origin: not recorded (set in 1b3f4f3, "Photographed prints: ...; the tag pass's fourth look ...");
+    # GridConfig.retry_gain_sigma's 0.028, set in the same commit
     retry_gain_sigma: float = 0.028  # the local mean's Gaussian sigma, as a share of the frame's shorter side (20 px at 720)
+    # origin: measured on the evaluation set (seed 2027; a tuning set): 190, 210 and 230 deg give the same recall within 0.001; read through
+    # it, the large-squares row's tags of 40 px and more read 46 -> 75 of 80 times (from true corners), with decoding seeds grown first
+    # recall 0.925 -> 0.930 (11e1eb1)
     lens_fov: float = 210.0  # deg: where an image circle shows, tags are read through an equidistant lens of this FoV filling it (0: never)
     # --- placement ---
+    # origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...", as min_margin; renamed in 2ed497b)
     min_margin_corr: float = 12.0  # the board's placement must beat the runner-up by this (summed tag correlation; a clean tag gives 36)
+    # origin: measured on seed 2041 (the validation set; a tuning set): 0.4 -> 0.3, its fov200_024 (blurred 9 px tags, placed at 0.37) 0 ->
+    # 80 corners, FoV rows 0.9579 -> 0.9647; no wrong corner there nor in 80 random blurred renders (aa63cda)
     min_mean_corr: float = (
         0.3  # ... and its tags must correlate with their codes by this much on average (-1 .. 1; blurred 9 px tags: 0.37)
     )
+    # unit: correlation (-1 .. 1); origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")
     min_tag_corr: float = 0.5  # a tag that was read keeps its corners when it correlates with its code by this much
+    # origin: not recorded (set in 5ddcdeb, "tag pass: the slip-margin rule applies to tags under 20 px only (their cells blur) ..."; recall
+    # on the evaluation set (seed 2027; a tuning set) unchanged)
     small_tag_px: float = 20.0  # tags narrower than this (px; cells of 2 px) blur: for them ...
+    # unit: correlation (-1 .. 1); origin: measured on the evaluation set (seed 2027; a tuning set), with min_slip_margin: recall 0.741 ->
+    # 0.751 (210 frames), 0.791 -> 0.796 (64), the same wrong corners (bde83f5)
     min_tag_corr_local: float = 0.25  # ... this much is enough where it beats the codes a slip by one tag would put there ...
+    # unit: correlation; origin: measured with min_tag_corr_local (above)
     min_slip_margin: float = 0.15  # ... by this much
+    # unit: correlation (-1 .. 1); origin: measured on the evaluation set (seed 2027; a tuning set), with the rays' halfway level (one
+    # commit, 5bd7378): recall 0.774 -> 0.779, wrong corners 2 -> 1 (64 frames)
     min_lend_corr: float = 0.7  # a read tag lends its ids to an unread tag beside it when it correlates with its code by this much
+    # unit: correlation; origin: measured on the evaluation set (seed 2027; a tuning set): recall 0.785 -> 0.790 (210 frames), 0.822 ->
+    # 0.825 (64), the same wrong corners (fbbf2d5)
     min_lend_slip_margin: float = 0.3  # ... or, under small_tag_px, by min_tag_corr_local and beating a slip by one tag by this much
+    # count of tags; origin: measured on the evaluation set (seed 2027; a tuning set): recall 0.827 -> 0.832 (200 frames), 0.855 -> 0.860
+    # (64), no new wrong corner (f1b11a9)
     lend_depth: int = 3  # ... and on through unread tags beside it, up to this many tags away (1: beside it only)
+    # count of lattice steps; origin: measured on the evaluation set (seed 2027; a tuning set): recall 0.798 -> 0.807 (200 frames; f5a9792,
+    # CHANGELOG 2026-11-24, later)
     fringe_steps: int = 2  # an unread tag's corner next to a kept one keeps its id up to this many steps from a min_lend_corr match
+    # origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")
     max_cell_misfit: float = 0.25  # a corner must close one of its cells as a parallelogram within this fraction of its side
+    # origin: measured on the evaluation set (seed 2027; a tuning set): the ray check took wrong corners 3 -> 0 (64 frames; 02e95a5); 25-30
+    # deg there: +0.007 recall but a corner 4.1 px off (CHANGELOG 2026-11-24, later)
     max_ray_angle: float = 20.0  # deg: a corner's steps to its lattice neighbours leave along its own edge rays within this ...
+    # px; origin: measured on seeds 2027, 2031 and 2035 (tuning sets), with max_ray_angle_small: FoV recall +0.004 each, no new wrong
+    # corner; gaps up to 4 px brought wrong ones (d4c9e0e; the tuning log, step 7)
     small_gap_px: float = 3.5  # ... or, where its shortest lattice step is under this (tags under 12 px: no data junctions resolve) ...
+    # deg; origin: measured with small_gap_px (above): 40 or 90 deg brought wrong corners
     max_ray_angle_small: float = 30.0  # ... within this: on a circle of 1.5-1.75 px the rays' angles are coarse
+    # px; origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")
     rim_strict_px: float = 8.0  # corners this close to the rim are reported only in a complete lattice cell
+    # unit: factor; origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")
     max_side_gap_ratio: float = 2.0  # a corner's tag side / gap on a lattice line may differ from the target's by this factor
+    # origin: measured on seeds 2027, 2031 and 2035 (tuning sets): FoV recall +0.004 / +0.004 / +0.001, no new wrong corner; up to 10 px
+    # brought two wrong ones (e09fdfa; the tuning log, step 9); sampling: the smallest fit window (5 px) reaches across such a gap
     keep_unfitted_px: float = 6.0  # px: shortest lattice step under which a failed final fit keeps the lattice position
     # --- small frames ---
+    # px; origin: measured on seeds 2042 and 2045 at 640x480, 2043 at 512x512, 2044 at 848x800 (tuning sets): enlarged, 0.782 -> 0.865,
+    # 0.768 -> 0.795, 0.854 -> 0.876; 848x800 would gain 0.014 at 1.4x, 1280x720 0.023 at 1.5x (bicubic), with four corners given another's
+    # id (a10566c; the tuning log, the tag pass's introduction)
     min_side_px: int = 720  # frames whose shorter side is under this are read enlarged to it (bilinear; 0: never) ...
+    # unit: factor; origin: measured with min_side_px on the same sets (640x480 needs 1.5 to reach 720); bicubic: 0.869 / 0.802 but four
+    # corners given a neighbour's id on seed 2045 (CHANGELOG 2026-11-25, later)
     max_enlarge: float = 1.5  # ... by at most this factor; the thresholds above that judge a tag's size in px scale with it
     # --- blurred and large tags ---
+    # count of corners; origin: measured on seed 2041 at 1920x1080 blurred 2.5 px (a tuning set): 0.650 under 70, 0.686 run in every frame,
+    # which also gives 0.927 on the evaluation set's FoV rows, for 45 ms more on every frame (c9e4ec8; the tuning log, "Limits of the tag
+    # pass")
     half_below: int = 70  # a frame not read enlarged (min_side_px) where fewer corners are found is read at half resolution too (0: never)
     # --- boards ---
+    # count; origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ..."); 4 is one tag's corners
     min_corners: int = 4  # smallest lattice that is reported
     complete: CompletionConfig = field(default_factory=CompletionConfig)  # corners the growth missed, predicted from the placed board
     grid: GridConfig = field(default_factory=GridConfig)  # saddle fit and final positions (the grid pass's)
