@@ -48,12 +48,13 @@ class KeptSet:
 
 
 def _kept(name: str, source: str, **settings) -> KeptSet:
-    """A kept set; a rendered one is a tuning set where :mod:`calib_eval.detection.sets` lists it."""
+    """A kept set; a rendered one, or one of the independent renderer's, is a tuning set where
+    :mod:`calib_eval.detection.sets` lists it (``TUNING_SETS``, ``FOREIGN_TUNING``)."""
     from calib_eval.detection.evaluation import EvalConfig
-    from calib_eval.detection.sets import is_tuning
+    from calib_eval.detection.sets import FOREIGN_TUNING, is_tuning
     from calib_eval.detection.tags import TagEvalConfig
 
-    tuning = False
+    tuning = name in FOREIGN_TUNING
     if source in ("rendered", "tags"):
         cfg = (EvalConfig if source == "rendered" else TagEvalConfig)(**settings)
         tuning = is_tuning("checkerboard" if source == "rendered" else "aprilgrid", cfg.seed, cfg.width, cfg.height)

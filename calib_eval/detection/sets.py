@@ -162,6 +162,20 @@ TUNING_SETS: tuple[TuningSet, ...] = (
 )
 
 
+# The independent renderer's sets (python -m calib_eval.detection.foreign, seed 5) that thresholds
+# were set or judged on, by their regression names (calib_eval.detection.regression), with the
+# evidence; found by reading the tuning log for each threshold's origin (2026-12-07).
+FOREIGN_TUNING = {
+    "foreign_checkerboard": "one of 'the eleven sets' the grid pass's later rules were judged over (the tuning log)",
+    "foreign_checkerboard_photo": "one of 'the eleven sets'; GREY_PRINT_GAIN 3 measured on it",
+    "foreign_checkerboard_isp": "one of 'the eleven sets' (the tuning log)",
+    "foreign_aprilgrid": "CompletionConfig.small_gap_px 4 -> 7 from its fov220_004",
+    "foreign_aprilgrid_photo": "CompletionConfig.dim_gaps from its fov220_014; TagConfig.retry_gain",
+    "foreign_aprilgrid_isp": "CompletionConfig.check_min_corr_large 0.1 from its two wrong corners",
+    "foreign_aprilgrid_defocus": "print_moved judged on it (6 -> 3 wrong)",
+}
+
+
 def tuning_sets(kind: str, seed: int, width: int, height: int) -> list[TuningSet]:
     """The entries of :data:`TUNING_SETS` that mark the set of ``seed`` at ``width`` x ``height``."""
     return [t for t in TUNING_SETS if t.marks(kind, seed, width, height)]

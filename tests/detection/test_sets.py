@@ -64,7 +64,7 @@ def test_the_tuning_sets_are_named_and_never_held_out():
     h = describe("checkerboard", 31, 800, 600)
     assert h.startswith("checkerboard held-out set (seed 31, 800x600)") and "tuning set (" not in h
     for r in TUNING_SETS:
-        assert r.kind in ("checkerboard", "aprilgrid") and r.why and is_tuning(r.kind, r.seed, *KEPT_SIZE)
+        assert r.kind in ("checkerboard", "aprilgrid") and r.why and is_tuning(r.kind, r.seed, *(KEPT_SIZE if r.old_seeds else r.size))
         assert r.size is None or (len(r.size) == 2 and all(isinstance(v, int) for v in r.size))
     with pytest.raises(dataclasses.FrozenInstanceError):
         TUNING_SETS[0].seed = 8
@@ -162,3 +162,16 @@ def test_aprilgrid_frames_depend_on_the_size_too(tmp_path):
     cfg = TagEvalConfig(fovs=[200], per_fov=1, n_empty=0, per_condition=0, width=320, height=240)
     render_set(cfg, g, tmp_path)
     assert json.loads((tmp_path / "labels.json").read_text())["key"]["seed_scheme"] == 2
+
+
+def test_the_independent_renderers_tuning_sets_are_never_reported_as_held_out():
+    """Every set FOREIGN_TUNING names is a set the regression keeps, of the independent renderer,
+    and the regression marks it tuning; the one it does not name stays reported."""
+    from calib_eval.detection.regression import KEPT_SETS
+    from calib_eval.detection.sets import FOREIGN_TUNING
+
+    kept = {s.name: s for s in KEPT_SETS}
+    assert set(FOREIGN_TUNING) <= set(kept)
+    for name in FOREIGN_TUNING:
+        assert kept[name].source == "foreign" and kept[name].tuning
+    assert not kept["foreign_checkerboard_defocus"].tuning
