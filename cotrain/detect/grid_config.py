@@ -275,7 +275,7 @@ class GridConfig:
     # -> 50.8 ms over files, 1b3f4f3)
     retry_gain: float = 0.0  # by this factor (<= 1: never; cotrain detect --grey-print: GREY_PRINT_GAIN; ~40 ms a frame giving nothing)
     # unit: share of the shorter side; origin: not recorded (set in 1b3f4f3, "Photographed prints: ...; cotrain detect --grey-print does
-    # the same for the checkerboard ..."); TagConfig.retry_gain_sigma's value
+    # the same for the checkerboard ..."); the tag pass's raised contrast uses it too (TagConfig.grid.retry_gain_sigma)
     retry_gain_sigma: float = 0.028  # the local mean's Gaussian sigma, as a share of the frame's shorter side (20 px at 720)
     # unit: nats; origin: measured on the evaluation set (1b3f4f3; the tuning log, "Known limits"): with the votes deciding too, a board
     # cut by two occluders was placed half a turn wrong
@@ -301,13 +301,13 @@ class GridConfig:
     worst_misfit_rounds: int = 3  # ... at most this many times (a wrong corner at a row's end bends its neighbour's map: both near 0.2)
     # unit: count; origin: not recorded (set in be2d8e0, "Checkerboards completed from their identified corners ..."; the AprilGrid
     # completion's rounds then, CompletionConfig.rounds, now 64)
+    # Completed corners lie min_rim_px from the image circle's rim or the crop's edge at least (its own number until 2026-12-07,
+    # 3 px: measured on the seven sets, 05a8f70: 8 -> 3, +116 corners, none lost, median error 0.09 px; the growth's own 3-5 px from
+    # the rim: 0.12).
     complete_rounds: int = 8  # rounds in which the corners the growth missed are predicted from the identified ones (0: none) ...
-    # origin: measured on the seven sets (05a8f70): 8 -> 3, +116 corners, none lost, median error 0.09 px (the growth's own 3-5 px from
-    # the rim: 0.12); min_rim_px's value
-    complete_rim_px: float = 3.0  # ... no nearer than this to the image circle's rim or the crop's edge (px; min_rim_px's limit) ...
     # unit: correlation; origin: measured on seven rendered sets of 2026-11-25, the evaluation set among them (be2d8e0): at 0.5, without
     # the edge rays and 3 px from the rim, 2-4 more wrong corners a set (at occluders' edges, 1.4-2.7 px off)
     complete_min_corr: float = 0.7  # ... matching the print around them this well, their edge rays along the axes ...
     # unit: deg; origin: measured on the AprilGrid evaluation set (seed 2027, 1280x720; a tuning set): 190, 210 and 230 deg give the same
-    # recall within 0.001 (11e1eb1); TagConfig.lens_fov's value
+    # recall within 0.001 (11e1eb1); the tag pass reads its tags through the same lens (TagConfig.grid.lens_fov)
     lens_fov: float = 210.0  # ... through an equidistant lens of this FoV filling the image circle, where one shows (0: pixel homographies)

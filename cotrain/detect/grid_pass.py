@@ -503,7 +503,7 @@ def _completed(c: _Crop, xy: np.ndarray, ids: np.ndarray, q: np.ndarray, conf: n
     # over the eight checkerboard sets).
     complete = CompletionConfig(
         rounds=cfg.complete_rounds,
-        min_rim_px=cfg.complete_rim_px,
+        min_rim_px=cfg.min_rim_px,
         min_corr=cfg.complete_min_corr,
         check=False,
         sure_corr=math.inf,

@@ -109,7 +109,7 @@ class CompletionConfig:
     # unit: correlation; origin: measured with moved_px (above): that corner's print correlated 0.35 where it lay, 0.79 at its neighbours'
     # spot
     moved_margin: float = 0.2  # ... where the print matches better there by this, is left to completion to place (else put back)
-    lens: bool = True  # homographies of the corners' rays under the tag pass's lens guess, where it has one (tag_config.TagConfig.lens_fov)
+    lens: bool = True  # homographies of the corners' rays under the tag pass's lens guess, where it has one (TagConfig.grid.lens_fov)
     # origin: measured on the AprilGrid evaluation set (seed 2027, 1280x720; a tuning set): 7 -> 10 px, FoV rows 0.9716 -> 0.9745, motion
     # blur 5 -> 3 wrong; seed 2041 0.9493 -> 0.9502; 12 px brought a wrong corner on seed 2041's motion blur, 14 px corners up to 3.7 px off
     # (76c7ce5)

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cotrain.detect.grid_config import GridConfig
+from cotrain.detect.grid_config import GREY_PRINT_GAIN, GridConfig
 from cotrain.detect.print_model import CompletionConfig
 
 
@@ -125,14 +125,14 @@ class TagConfig:
     # unit: factor; origin: measured on the independent renderer's photographed prints (foreign --photo, seed 5): 0.845 -> 0.904 (12 per
     # FoV), 0.820 -> 0.896 (24); on the evaluation set (seed 2027; a tuning set) its low-contrast row 0.857 -> 0.916; a gain of 2 placed a
     # board wrongly on the renderer's clean frames (1b3f4f3; the tuning log, step 14)
-    retry_gain: float = 3.0  # a fourth look where the third finds nothing: contrast raised this much about the local mean (<= 1: never)
-    # unit: share of the shorter side; origin: not recorded (set in 1b3f4f3, "Photographed prints: ...; the tag pass's fourth look ...");
-    # GridConfig.retry_gain_sigma's 0.028, set in the same commit
-    retry_gain_sigma: float = 0.028  # the local mean's Gaussian sigma, as a share of the frame's shorter side (20 px at 720)
-    # origin: measured on the evaluation set (seed 2027; a tuning set): 190, 210 and 230 deg give the same recall within 0.001; read through
-    # it, the large-squares row's tags of 40 px and more read 46 -> 75 of 80 times (from true corners), with decoding seeds grown first
-    # recall 0.925 -> 0.930 (11e1eb1)
-    lens_fov: float = 210.0  # deg: where an image circle shows, tags are read through an equidistant lens of this FoV filling it (0: never)
+    # A fourth look where the third finds nothing: contrast raised this much about the local mean (<= 1: never); cotrain detect
+    # --grey-print's gain for the checkerboard too
+    retry_gain: float = GREY_PRINT_GAIN
+    # The raised contrast's local mean (sigma GridConfig.retry_gain_sigma) and the lens tags are read through (an equidistant lens of
+    # GridConfig.lens_fov filling the image circle; 0: never) are the grid settings' (TagConfig.grid): one number each for both targets
+    # (until 2026-12-07 each target had its own copy of 0.028 and 210 deg; lens_fov: on the evaluation set, seed 2027, a tuning set,
+    # 190, 210 and 230 deg give the same recall within 0.001; read through it, the large-squares row's tags of 40 px and more read
+    # 46 -> 75 of 80 times, 11e1eb1).
     # --- placement ---
     # origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...", as min_margin; renamed in 2ed497b)
     min_margin_corr: float = 12.0  # the board's placement must beat the runner-up by this (summed tag correlation; a clean tag gives 36)

@@ -143,7 +143,7 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
     def read(look: Look) -> TagResult:
         look_cfg = look.config(cfg)
         if look.gained:  # a frame of its own: its crop, lens and candidates read anew
-            gained = local_gain(grey, cfg.retry_gain, cfg.retry_gain_sigma * min(grey.shape))
+            gained = local_gain(grey, cfg.retry_gain, cfg.grid.retry_gain_sigma * min(grey.shape))
             return _tag_pass_both(gained, board, look_cfg) if look.half_resolution else _tag_pass_circle(gained, board, look_cfg)
         if look.half_resolution:
             return _tag_pass_both(grey, board, look_cfg, view)
@@ -220,7 +220,7 @@ def _view_of(grey: np.ndarray, cfg: TagConfig) -> _View:
     H, W = grey.shape
     y0, y1 = (max(0, ys[0] - CIRCLE_PAD_PX), min(H, ys[-1] + 1 + CIRCLE_PAD_PX)) if len(ys) else (0, H)
     x0, x1 = (max(0, xs[0] - CIRCLE_PAD_PX), min(W, xs[-1] + 1 + CIRCLE_PAD_PX)) if len(xs) else (0, W)
-    lens = guess_lens(outside, cfg.lens_fov, (x0, y0))
+    lens = guess_lens(outside, cfg.grid.lens_fov, (x0, y0))
     crop, inside = grey[y0:y1, x0:x1], allowed[y0:y1, x0:x1]
     return _View(f, (x0, y0), crop, inside, lens, _candidates_of(crop, inside, cfg))
 

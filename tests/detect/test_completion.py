@@ -423,7 +423,7 @@ def _circle_view(grey: np.ndarray):
     """What the tag pass sets up for a fisheye frame ``grey``: the lens guessed from its image
     circle (TagConfig's FoV, 210 deg), the distance to the rim, the blur cache and the candidates."""
     outside = outside_circle(grey)
-    lens = EquidistantLens.from_circle(*fit_image_circle(outside), TagConfig().lens_fov)
+    lens = EquidistantLens.from_circle(*fit_image_circle(outside), GridConfig().lens_fov)
     rim = cv2.distanceTransform((~outside).astype(np.uint8), cv2.DIST_L2, 3)
     smoothed: dict[int, np.ndarray] = {}
     cand, _ = tag_candidates(grey, ~outside, TagConfig(), smoothed, rim)

@@ -323,7 +323,7 @@ def _large_tags_read(model: str) -> int:
     assert circle is not None
     np.testing.assert_allclose(circle[0], [640, 360], atol=1.0)  # the renderer's circle: 380 px about the centre
     assert circle[1] == pytest.approx(380, abs=2.0)
-    lens = EquidistantLens.from_circle(circle[0], circle[1], cfg.lens_fov)
+    lens = EquidistantLens.from_circle(circle[0], circle[1], cfg.grid.lens_fov)
     through_lens, through_pixels, n = 0, 0, 0
     for t in range(g.n_tags):
         corners = q[np.asarray(g.tag_corners(t))[[0, 3, 2, 1]]]  # lattice order (0, 0), (1, 0), (1, 1), (0, 1)

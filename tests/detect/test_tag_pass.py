@@ -11,6 +11,7 @@ import torch
 from scipy.spatial import cKDTree
 
 from cotrain.detect.detector import Detector
+from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.image_circle import EquidistantLens
 from cotrain.detect.lattice import Lattice
 from cotrain.detect.print_model import CompletionConfig
@@ -688,7 +689,7 @@ def test_another_renderer_close_boards_at_the_rim_read_through_the_guessed_lens(
         rvec, tvec = cv2.Rodrigues(R)[0].ravel(), np.array(at) - R @ c
         img, q, inside = opencv_fisheye_view(g, rvec, tvec, K, D)
         grey = img.astype(np.float32) / 255
-        for name, cfg in (("lens", TagConfig()), ("pixels", TagConfig(lens_fov=0.0))):
+        for name, cfg in (("lens", TagConfig()), ("pixels", TagConfig(grid=GridConfig(lens_fov=0.0)))):
             r = tag_pass(grey, g, cfg)
             err = np.linalg.norm(r.xy - q[r.ids], axis=1)
             assert err.max() < 1.0, f"{name}: corner {r.ids[err.argmax()]} is {err.max():.2f} px off"
@@ -1092,7 +1093,7 @@ def test_the_pass_on_the_image_circle_finds_what_it_finds_on_the_whole_frame():
     assert xs[0] > CIRCLE_PAD_PX and xs[-1] < img.shape[1] - 1 - CIRCLE_PAD_PX  # the crop cuts the frame
     cropped = tag_pass(grey, g)
     circle = fit_image_circle(outside_circle(grey))
-    whole = _tag_pass_in(grey, allowed, g, TagConfig(), EquidistantLens.from_circle(*circle, TagConfig().lens_fov))
+    whole = _tag_pass_in(grey, allowed, g, TagConfig(), EquidistantLens.from_circle(*circle, GridConfig().lens_fov))
     assert len(whole.ids) > 20
     np.testing.assert_array_equal(cropped.ids, whole.ids)
     np.testing.assert_allclose(cropped.xy, whole.xy, atol=1e-3)  # float32 sampling at other coordinates
@@ -1180,7 +1181,7 @@ def test_a_views_lens_in_the_frames_pixels_is_the_frames_image_circle(size, cent
     assert view.scale == scale and view.lens is not None and view.origin != (0, 0)
     lens = view.frame_lens()
     assert np.allclose(lens.centre, centre, atol=1.5)
-    assert np.isclose(lens.focal * np.radians(TagConfig().lens_fov / 2), radius, rtol=0.02)
+    assert np.isclose(lens.focal * np.radians(GridConfig().lens_fov / 2), radius, rtol=0.02)
     v = np.array([[0.0, 0.0, 1.0], [0.6, 0.1, 0.79], [-0.9, 0.3, -0.2], [0.2, -0.95, 0.1]])
     v /= np.linalg.norm(v, axis=1, keepdims=True)
     q_frame = (view.lens.project(v) + np.array(view.origin) + 0.5) / view.scale - 0.5
