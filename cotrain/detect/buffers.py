@@ -21,7 +21,7 @@ from __future__ import annotations
 import ctypes
 import sys
 
-# mallopt(3) parameters (glibc's malloc.h).
+# mallopt(3) parameters (glibc's malloc.h): parameter numbers, not values; origin: code/table, not a threshold.
 M_TRIM_THRESHOLD = -1
 M_MMAP_THRESHOLD = -3
 

@@ -24,6 +24,7 @@ from cotrain.detect.saddle import fit_saddles, outside_circle, pixel_index, smoo
 from cotrain.detect.verification import print_check, print_moved
 from cotrain.targets import Target
 
+# origin: not recorded (set in 771ed0f, "Checkerboard: a frame where the grid pass finds no board is read again at half resolution")
 AGREE_PX = 1.5  # a corner both resolutions report must lie this close (px) in both, else the half-resolution result is not used
 
 

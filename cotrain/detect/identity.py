@@ -97,6 +97,8 @@ def cell_darkness(blur: np.ndarray, lat: Lattice) -> dict[tuple[int, int], float
     return out
 
 
+# origin: sampling (0.3-1.95 steps out, 0.05 apart, around the 0.7-1.6 steps where the last squares end under perspective and the
+# fisheye: the tuning log, grid pass, the white margin; set in d242238, "Grid pass: margin evidence from two outward profiles")
 EDGE_T = np.arange(0.3, 2.0, 0.05)  # outward profile positions, in lattice steps
 
 

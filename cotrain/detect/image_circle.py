@@ -33,16 +33,29 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-MIN_ARC_PX = 200  # edge pixels of the black frame a circle needs (about 30 degrees of a 720 px circle)
-MIN_CONTOUR_PX = 40  # contours of the black frame shorter than this are specks of noise, not its edge
+# MIN_ARC_PX, MIN_INLIERS: origin: not recorded (set in 11e1eb1, "AprilGrid tags read through an equidistant lens guessed from the
+# image circle")
+MIN_ARC_PX = 200  # a count: edge pixels of the black frame a circle needs (about 30 degrees of a 720 px circle)
+# origin: not recorded (set in ee8df3a, "Review mends: the image circle's fit narrows its inlier band ... and ignores noise specks")
+MIN_CONTOUR_PX = 40  # a count of contour pixels: contours of the black frame shorter than this are specks of noise, not its edge
+# origin: sampling (a pixel of the half-resolution image the frame's edge is found on is 2 px here; set in 11e1eb1)
 INLIER_PX = 2.0  # px: edge pixels this close to the circle are on it (the frame's edge is found at half resolution)
 MIN_INLIERS = 0.6  # share of the black frame's edge on the narrowing fit's circle (else a dark scene joins it: the consensus fit)
-CONSENSUS_TRIES = 128  # circles through three edge pixels that the consensus fit tries ...
-CONSENSUS_RETRY_TRIES = 1024  # ... and where its circle fails, in a second, larger draw (a dark scene joined to most of the edge) ...
-CONSENSUS_RESCORED = 32  # ... whose circles are scored on a quarter of the points, and these best on all of them
-CONSENSUS_POINTS = 600  # ... each scored on about this many of the edge pixels (every n-th)
+# CONSENSUS_TRIES, CONSENSUS_POINTS, MIN_RING_OUTSIDE: origin: not recorded (set in 71b40b3, "Image circle: where the narrowing fit leaves
+# too little of the edge on its circle ...")
+CONSENSUS_TRIES = 128  # a count: circles through three edge pixels that the consensus fit tries ...
+# origin: measured on the AprilGrid evaluation set (seed 2027, 1280x720; a tuning set): a circle in 315 of its 322 frames, 300 with the
+# first 128 draws alone (fov200_017 had none); no other count recorded (set in 166e6a2)
+CONSENSUS_RETRY_TRIES = 1024  # a count: ... and where its circle fails, in a second, larger draw (a dark scene joined to most of the edge)
+# origin: measured on checkerboard seed 31 at 1024x768 (the bench's set; a tuning set): the fit 2.65 -> 1.48 ms a frame (24 of its 52
+# frames have a black frame but no circle), the same detections on every set; no other count recorded (set in 4bbc145)
+CONSENSUS_RESCORED = 32  # a count: ... whose circles are scored on a quarter of the points, and these best on all of them
+CONSENSUS_POINTS = 600  # a count: ... each scored on about this many of the edge pixels (every n-th)
+# origin: measured (CHANGELOG, fifth session, "Tried and not kept"): the ring sampled at 6, 10 or 15 px found circles in 17 of the 26
+# real BoofCV frames instead of 11, but admitted a motion-blurred frame's wrong circle and 3 corners 3.2-3.9 px off (its set not named)
 RING_PX = 6.0  # the black frame must lie this far outside the circle (px; its edge, found at half resolution, is 2-4 px soft) ...
-MIN_RING_OUTSIDE = 0.95  # ... on this share of the ring there inside the image
+# (a real lens's halo leaves 80-95 % of the ring black: 15 of the 26 real BoofCV frames are read without the lens)
+MIN_RING_OUTSIDE = 0.95  # ... on this share of the ring's samples there inside the image
 
 
 @dataclass(frozen=True)
@@ -157,7 +170,8 @@ def lens_of_circle(
     return EquidistantLens.from_circle(circle[0] - np.asarray(offset, np.float64), circle[1], fov_deg)
 
 
-CIRCLE_INSIDE_PX = 2.0  # beyond_circle: the black frame's region is kept this far inside the fitted circle (the fit's tolerance)
+# origin: the fit's inlier band (INLIER_PX), not measured (set in 9a264a5, "Grid pass: the black frame ends at the fitted image circle")
+CIRCLE_INSIDE_PX = 2.0  # px: beyond_circle: the black frame's region is kept this far inside the fitted circle (the fit's tolerance)
 
 
 def beyond_circle(outside: np.ndarray, circle: tuple[np.ndarray, float] | None) -> np.ndarray:

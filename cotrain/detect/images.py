@@ -12,7 +12,8 @@ import cv2
 import numpy as np
 
 IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp"}
-MIN_SIDE = 16  # smaller images are rejected with an error entry
+# origin: not recorded (set in 257b4ca, "ONNX export ...; onnxruntime detector (cotrain detect) with error entries")
+MIN_SIDE = 16  # px, the shorter side: smaller images are rejected with an error entry
 
 
 class ImageError(ValueError):

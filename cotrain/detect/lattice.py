@@ -36,7 +36,7 @@ from cotrain.detect.image_circle import CIRCLE_INSIDE_PX
 from cotrain.detect.saddle import fit_saddles, pixel_index, smooth_cached, window_half, window_reach
 from cotrain.detect.sampling import diag_contrast, step_has_edge, values_at
 
-STEPS = ((1, 0), (-1, 0), (0, 1), (0, -1))  # the four lattice neighbours (da, db)
+STEPS = ((1, 0), (-1, 0), (0, 1), (0, -1))  # the four lattice neighbours (da, db); origin: code/table, not a threshold
 
 
 @dataclass(frozen=True)

@@ -108,9 +108,12 @@ def edge_contrast_kernel(img, rim_dist, px, py, qx, qy, nx, ny, depth):
     return float(np.float32(total / np.float32(n))) if pos or neg else 0.0
 
 
-RAY_SAMPLES = 48  # samples on the circle around a candidate that finds its four edge rays
+# origin: not recorded (set in 02e95a5, "tag pass: ... seeds from each corner's four edge rays"); 7.5 deg apart: 0.2 px on a 1.5 px
+# circle, 1.05 px on an 8 px one
+RAY_SAMPLES = 48  # a count: samples on the circle around a candidate that finds its four edge rays
 
 
+# origin: not recorded (set in 02e95a5 as above, named in a274c13, "tag pass tidy-up after review")
 RAY_RADIUS_PX = (1.5, 8.0)  # the circle's radius is kept within these (px): enough samples per edge, inside the X
 
 

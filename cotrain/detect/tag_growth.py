@@ -320,7 +320,7 @@ def grow_tag_lattice(
 
 
 # Lattice-to-lattice turns: two growths of one board share its orientation (a x b > 0 in the
-# image), so their coordinates differ by a rotation and an offset.
+# image), so their coordinates differ by a rotation and an offset. origin: code/table, not a threshold (the four quarter turns).
 ROTATIONS = (np.array([[1, 0], [0, 1]]), np.array([[0, -1], [1, 0]]), np.array([[-1, 0], [0, -1]]), np.array([[0, 1], [-1, 0]]))
 
 

@@ -32,6 +32,7 @@ def shortest_side(corners: np.ndarray) -> float:
 
 # Lattice-to-board turns: board corner-grid (c, r) = M (a, b) + offset. The lattice is oriented
 # a x b > 0 in the image (y down) and Kalibr's page has y up, so M is a reflection (det -1).
+# origin: code/table, not a threshold (the four reflections that map the lattice's axes onto the board's).
 TURNS = (
     np.array([[1, 0], [0, -1]]),
     np.array([[-1, 0], [0, 1]]),
@@ -273,7 +274,7 @@ def tag_map(
 
 
 # A tag's sides in its unit square: (the coordinate fixed on it, its value), in the order
-# v = 0 (a), u = 1, v = 1, u = 0; the unit normal into the tag follows.
+# v = 0 (a), u = 1, v = 1, u = 0; the unit normal into the tag follows. origin: code/table, not a threshold (the unit square's sides).
 SIDES = np.array([[1, 0.0], [0, 1.0], [1, 1.0], [0, 0.0]])
 _SIDE_INWARD = np.array([[0.0, 1.0], [-1.0, 0.0], [0.0, -1.0], [1.0, 0.0]])
 
@@ -538,7 +539,9 @@ class TagCell:
     hamming: int  # bits that differ from it
     clean: bool  # a black border inside white gaps: only such cells place and verify the board
     side: float  # px, the tag's shortest side
-    centre: tuple[float, float] = (0.0, 0.0)  # px, the mean of its four corners (one tag read in several lattices is one tag)
+    # px, the mean of its four corners (one tag read in several lattices is one tag); origin: code, not a threshold (a placeholder:
+    # read_cells always gives it)
+    centre: tuple[float, float] = (0.0, 0.0)
 
     @property
     def key(self) -> tuple[int, int, int]:
