@@ -627,7 +627,7 @@ def _final_positions(s: _Scene, st: _Rounds) -> None:
         sel = np.nonzero(halves == h)[0]
         q_old = np.array([st.known[t] for t in add[sel]])
         q, ok, _ = fit_saddles(s.grey, s.smoothed, q_old, int(h), grid, s.rim_dist)
-        good = ok & (np.linalg.norm(q - q_old, axis=1) < grid.max_final_shift * g[sel])
+        good = ok & (np.linalg.norm(q - q_old, axis=1) < grid.max_refit_shift * g[sel])
         for k, t in enumerate(add[sel]):
             if good[k]:
                 st.known[t] = q[k]

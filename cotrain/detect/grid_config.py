@@ -93,8 +93,8 @@ class GridConfig:
     walk_max_steps: float = 1.6  # ... and at most this many ...
     # origin: not recorded (set with the walk in 4e02862, "Grid pass: lattice growth follows squares that grow or shrink fast ...")
     walk_angle: float = 30.0  # ... within this (deg) of the predicted direction ...
-    # origin: not recorded (set with the walk in 4e02862, "Grid pass: lattice growth follows squares that grow or shrink fast ...")
-    walk_axis_angle: float = 20.0  # ... with one of its own edge directions within this (deg) of the step
+    # ... with one of its own edge directions within seed_axis_angle of the step (the seed's test; a number of its own, 20 deg too,
+    # until 2026-12-07: walk_axis_angle, not recorded, set with the walk in 4e02862)
     # unit: share of the parent's quadrant contrast; origin: measured on the evaluation set and the real BoofCV frames (4627ba0): the same
     # corners; the searches it skips (most of the growth's time) found none
     fill_min_alternation: float = 0.15  # a saddle search where no candidate was predicted needs colours alternating this much there
@@ -124,7 +124,9 @@ class GridConfig:
     # squares (sides over 2:1) with a smaller window ...")
     oblique_ratio: float = 2.0  # squares with sides over this ratio are "oblique": a failed refit is retried with a smaller window
     # unit: fraction of the square's smaller side; origin: not recorded (set in 5c3691a, "Detector grid pass: ...")
-    max_refit_shift: float = 0.15  # a verifying refit must land within this fraction of the square on the corner
+    # (the final refit of the reported positions too: it had its own max_final_shift, 0.15 as well, until 2026-12-07; not recorded,
+    # set in 67077f0, "Detector: other checkerboards ...; ... the reported positions refitted within 3 px ...")
+    max_refit_shift: float = 0.15  # a verifying or final refit must land within this fraction of the square on the corner
     # origin: measured on the seven sets (e17c0e8): 30 deg here as at the border took +186 corners, 23 of them wrong (a whole board among
     # them); set in a94aa89 without a figure
     max_rim_edge_angle: float = 15.0  # deg: a corner fitted in a window cut by the rim must have its edges along the lattice lines
@@ -143,9 +145,6 @@ class GridConfig:
     # 0.35 up to 5, 0.31 with this final fit (ucm; OpenCV's corners 0.31); on half the evaluation set the median error 0.061 -> 0.043 px
     # (67077f0)
     final_max_half: int = 3  # px: largest fit window half-size for the reported positions (see refine_positions)
-    # unit: fraction of the square's smaller side; origin: not recorded (set in 67077f0, "Detector: other checkerboards ...; ... the
-    # reported positions refitted within 3 px ...")
-    max_final_shift: float = 0.15  # the final refit may move a corner by at most this fraction of its square
     # --- which lattice is a board (grid_pass) ---
     # unit: count; origin: not recorded (set in 5c3691a, "Detector grid pass: ...")
     min_corners: int = 6  # smallest lattice that is reported

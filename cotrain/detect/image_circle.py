@@ -171,7 +171,7 @@ def lens_of_circle(
 
 
 # origin: the fit's inlier band (INLIER_PX), not measured (set in 9a264a5, "Grid pass: the black frame ends at the fitted image circle")
-CIRCLE_INSIDE_PX = 2.0  # px: beyond_circle: the black frame's region is kept this far inside the fitted circle (the fit's tolerance)
+CIRCLE_INSIDE_PX = INLIER_PX  # px: beyond_circle: the black frame's region is kept this far inside the fitted circle (the fit's tolerance)
 
 
 def beyond_circle(outside: np.ndarray, circle: tuple[np.ndarray, float] | None) -> np.ndarray:

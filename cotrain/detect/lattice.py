@@ -149,7 +149,7 @@ def edge_neighbour(
     still apply to what this returns."""
     len_v = math.hypot(v[0], v[1])
     lo, hi = cfg.walk_min_steps, cfg.walk_max_steps
-    cos_step, cos_axis = math.cos(math.radians(cfg.walk_angle)), math.cos(math.radians(cfg.walk_axis_angle))
+    cos_step, cos_axis = math.cos(math.radians(cfg.walk_angle)), math.cos(math.radians(cfg.seed_axis_angle))
     best = None
     for j in tree.query_ball_point(p, hi * len_v):
         w = xy[j] - p

@@ -59,7 +59,7 @@ class CompletionConfig:
     # 0.946 (636dd27)
     small_min_symmetry: float = 0.3  # ... this much
     # unit: fraction of the local gap; origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified
-    # corners ..."); TagConfig.crowd_radius's 0.5
+    # corners ..."); GridConfig.crowd_radius's 0.5
     crowd: float = 0.5  # a corner this close to an identified one (fraction of the local gap) is refused
     # unit: board spacing; origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified corners ...")
     patch: float = 0.45  # half-size of the patch compared with the print, in the board's spacing (a tag side, a square)

@@ -32,7 +32,7 @@ def final_fits(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Every corner fitted once more in a window of at most ``cfg.final_max_half`` (about a third
     of its shortest lattice step below that). Returns xy (K, 2), the fit where it succeeded and
-    moved by at most ``cfg.max_final_shift`` of that step, the old position elsewhere, and which
+    moved by at most ``cfg.max_refit_shift`` of that step, the old position elsewhere, and which
     corners those are (K,) bool."""
     short = shortest_steps(lat)
     short = np.where(np.isfinite(short), short, 3 * cfg.min_step_px)
@@ -41,7 +41,7 @@ def final_fits(
     for h in np.unique(halves):
         idx = np.nonzero(halves == h)[0]
         q, ok, _ = fit_saddles(grey, smoothed, lat.xy[idx], int(h), cfg, rim_dist)
-        good = ok & (np.linalg.norm(q - lat.xy[idx], axis=1) < cfg.max_final_shift * short[idx])
+        good = ok & (np.linalg.norm(q - lat.xy[idx], axis=1) < cfg.max_refit_shift * short[idx])
         xy[idx[good]] = q[good]
         fitted[idx[good]] = True
     return xy, fitted

@@ -70,8 +70,8 @@ class TagConfig:
     # count; origin: measured on the evaluation set (seed 2027; a tuning set), with candidates offered again and the skipped-corner test
     # scaled (one commit, 8790253): recall 0.633 -> 0.759 (64 frames)
     match_tries: int = 3  # candidates within reach tried at a predicted spot, nearest first, before a saddle is fitted there
-    # origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ..."); GridConfig.agree_radius's 0.3
-    agree_radius: float = 0.3  # predictions from different neighbours must agree within this fraction of the step
+    # Predictions from different neighbours agree within grid.agree_radius of the step, and a new corner keeps grid.crowd_radius of the
+    # local gap from every placed one (the grid pass's numbers; until 2026-12-07 copies of them here, 0.3 and 0.5, not recorded, 24194e2).
     # unit: ratio to the predicted step; origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")
     min_step_ratio: float = 0.7  # a new step may be this much shorter than predicted ...
     # unit: ratio to the predicted step; origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")
@@ -85,8 +85,6 @@ class TagConfig:
     ray_step_reach: float = 2.0  # ... and within this multiple of the reach of the prediction
     # origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")
     max_step_junction: float = 0.1  # a candidate this close to a step's middle part (fraction of the step) refuses it
-    # origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ..."); GridConfig.crowd_radius's 0.5
-    crowd_radius: float = 0.5  # a new corner this close (fraction of the local gap) to a placed one is refused
     # px; origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")
     min_gap_px: float = 1.6  # no growth across gaps smaller than this
     # origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")

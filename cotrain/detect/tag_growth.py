@@ -24,6 +24,7 @@ from cotrain.detect.saddle import fit_saddles, smooth_cached, window_half
 from cotrain.detect.sampling import edge_contrast_kernel, edge_sample_points, values_at
 from cotrain.detect.tag_candidates import RayNeighbours
 from cotrain.detect.tag_config import TagConfig
+from cotrain.targets.checkerboard import ROTATIONS
 
 
 def _norm(v: np.ndarray) -> float:
@@ -138,7 +139,7 @@ def step_taken(
     n_q = math.hypot(q[0] - s.p[0], q[1] - s.p[1])
     if not cfg.min_step_ratio * s.length <= n_q <= cfg.max_step_ratio * s.length:
         return False
-    if np.linalg.norm(placed - q, axis=1).min() < cfg.crowd_radius * s.gap:
+    if np.linalg.norm(placed - q, axis=1).min() < cfg.grid.crowd_radius * s.gap:
         return False
     c = edge_contrast_kernel(
         sm, rim_dist, *map(float, (s.p[0], s.p[1], q[0], q[1], s.normal[0], s.normal[1])), float(cfg.edge_depth * s.gap)
@@ -213,7 +214,7 @@ def _predict(
         sx, sy = sx + float(p_[0]), sy + float(p_[1])
     pred = np.array([sx / len(preds), sy / len(preds)])
     step = _norm(v)
-    if max(_norm(p_ - pred) for p_ in preds) > cfg.agree_radius * step:
+    if max(_norm(p_ - pred) for p_ in preds) > cfg.grid.agree_radius * step:
         return None
     gap = min(_norm(fr[0, 1]), _norm(fr[1, 1]))  # the local gap (short step)
     if not (0 <= pred[0] < W and 0 <= pred[1] < H) or gap < cfg.min_gap_px:
@@ -319,13 +320,10 @@ def grow_tag_lattice(
     return Lattice(np.array(g.pts), np.array(g.lab, int), np.array(g.filled))
 
 
-# Lattice-to-lattice turns: two growths of one board share its orientation (a x b > 0 in the
-# image), so their coordinates differ by a rotation and an offset. origin: code/table, not a threshold (the four quarter turns).
-ROTATIONS = (np.array([[1, 0], [0, 1]]), np.array([[0, -1], [1, 0]]), np.array([[-1, 0], [0, -1]]), np.array([[0, 1], [-1, 0]]))
-
-
 def lattice_link(A: Lattice, B: Lattice, radius: float) -> tuple[np.ndarray, np.ndarray, int] | None:
-    """The map ab_A = M ab_B + offset (M (2, 2), one of :data:`ROTATIONS`; offset (2,) int) that most of the
+    """The map ab_A = M ab_B + offset (M (2, 2), one of the quarter turns
+    :data:`cotrain.targets.checkerboard.ROTATIONS`: two growths of one board share its orientation,
+    a x b > 0 in the image, so their coordinates differ by a rotation and an offset; offset (2,) int) that most of the
     corners B shares with A (within ``radius`` px) agree on, with B's tags on A's tag cells, and
     the number of corners in conflict under it: a shared corner at another coordinate, or a corner
     of B on a coordinate where A holds another corner (a seed tag's wrong corner, a slip at the
