@@ -222,6 +222,17 @@ def _run_real(s: KeptSet, out: Path, detector_for) -> dict:
 RUNNERS = {"rendered": _run_rendered, "tags": _run_tags, "foreign": _run_foreign, "real": _run_real}
 
 
+def target_detector(board, grid, tags):
+    """The detector of ``board`` (one thread), under its own pass's settings: ``tags`` (a
+    :class:`TagConfig`) for an AprilGrid, ``grid`` (a :class:`GridConfig`) for a checkerboard (an
+    AprilGrid's Detector refuses grid settings)."""
+    from cotrain.detect.detector import Detector
+    from cotrain.targets import AprilGrid
+
+    own = {"tags": tags} if isinstance(board, AprilGrid) else {"grid": grid}
+    return Detector(target=board, threads=1, **own)
+
+
 def run(out: Path, only: list[str] | None = None, sets: Path | None = None, grid=None, tags=None) -> dict:
     """Every kept set (or those named in ``only``) through the detector of its target, under
     ``grid`` (a checkerboard's :class:`GridConfig`) and ``tags`` (an AprilGrid's
@@ -238,7 +249,7 @@ def run(out: Path, only: list[str] | None = None, sets: Path | None = None, grid
     def detector_for(board) -> Detector:
         key = json.dumps(board.to_json(), sort_keys=True)
         if key not in detectors:
-            detectors[key] = Detector(target=board, threads=1, grid=grid, tags=tags)
+            detectors[key] = target_detector(board, grid, tags)
         return detectors[key]
 
     results = {}

@@ -57,3 +57,17 @@ def test_rows_of_a_rendered_set_are_scored_kept_and_reused(tmp_path, monkeypatch
     assert len(calls) == 1  # another detector key: detected again, on the same frames
     saved = json.loads((tmp_path / "out" / "regression.json").read_text())
     assert saved == json.loads(json.dumps(first))
+
+
+def test_each_target_gets_its_own_passs_settings():
+    """The regression runs both targets under one pair of settings: the AprilGrid's detector gets
+    the tag pass's (the grid settings it would refuse are not passed), the checkerboard's the
+    grid pass's."""
+    from calib_eval.detection.regression import target_detector
+    from cotrain.detect.grid_config import GridConfig
+    from cotrain.detect.tag_config import TagConfig
+    from cotrain.targets import AprilGrid, Checkerboard, TargetConfig
+
+    grid, tags = GridConfig(min_margin=30.0), TagConfig(max_seeds=7)
+    assert target_detector(AprilGrid(), grid, tags).tags.max_seeds == 7
+    assert target_detector(Checkerboard(TargetConfig()), grid, tags).grid.min_margin == 30.0
