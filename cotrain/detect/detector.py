@@ -52,7 +52,8 @@ from cotrain.targets import AprilGrid, Checkerboard, Target
 # 9: completion's print fit in gaps under 10 px, at 0.7 of the variance through the lens, compiled; AprilGrid
 #    candidates judged again under the map through them; AprilGrid frames that give nothing read a second time.
 # 10: checkerboard frames of any size (not only a shorter side of 700 px) read at half resolution where nothing is found.
-OUTPUT_VERSION = 10
+# 11: a checkerboard lattice's part cut at its margin is placed only where it adds evidence (grid_pass.cut_adds_evidence).
+OUTPUT_VERSION = 11
 
 
 def settings(cfg) -> dict:

@@ -235,6 +235,9 @@ class GridConfig:
     # origin: measured on the seven sets, at this value only (6053f32): the cut took +80 corners in 4 frames, none lost, no new wrong one
     # (evaluation glare 0.874 -> 0.924)
     cut_min_evidence: float = 0.5  # ... with this much evidence (corners' worth) along it
+    # ... and a part is taken only where its placement adds evidence to the whole lattice's (grid_pass.cut_adds_evidence; no number):
+    # measured on the eight tuning sets of docs/results/cut_parts.md, 17 wrong ids -> 0 and no other change
+    cut_needs_evidence: bool = True
     join_lattices: bool = True  # lattices of other seeds that share corners under one turn and offset are joined before the placement
     merge_lattices: bool = True  # join the corners of other surely placed lattices that agree with the best one
     # unit: count; origin: measured at this value only: merges took the evaluation set's FoV rows 0.8949 -> 0.8956, large squares 0.778 ->

@@ -462,3 +462,14 @@ def test_a_lattice_stepped_across_the_margin_is_placed_again_cut_there():
     assert placed.violated == 0 and placed.geometry_margin >= cfg.min_geometry_margin
     assert placement_is_sure(placed.margin, placed.geometry_margin, len(part.ab), cfg)
     assert cut_at_margins(lat, edges, GridConfig(cut_min_evidence=5.0)) == []
+    # The cut adds evidence: the same ids as the whole placed the view with, but the geometry now
+    # behind them (cut_adds_evidence). Had only the margin moved, the part would not be taken.
+    from cotrain.detect.grid_pass import cut_adds_evidence
+
+    np.testing.assert_array_equal(whole.ids[rows], placed.ids)
+    assert cut_adds_evidence(whole, True, lat, part, placed)
+    no_news = placed._replace(margin=whole.margin + 0.4, geometry_margin=whole.geometry_margin)
+    assert not cut_adds_evidence(whole, True, lat, part, no_news)
+    assert cut_adds_evidence(whole, False, lat, part, no_news)  # the whole contradicted its margins: the cut answers that
+    moved = no_news._replace(ids=np.where(placed.ids >= 0, placed.ids + 1, -1))  # other ids: another placement
+    assert cut_adds_evidence(whole, True, lat, part, moved)
