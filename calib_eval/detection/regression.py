@@ -64,6 +64,9 @@ def _kept(name: str, source: str, **settings) -> KeptSet:
 _HELD = dict(per_fov=25, n_empty=5, per_condition=24)  # the sets of docs/results/held_out_checkerboard.md
 _HARD_1920 = ["large squares at the rim", "glare", "under-exposed", "over-exposed"]
 _EXPOSED_1920 = ["large squares at the rim", "under-exposed", "over-exposed"]
+# The rows of the held-out sets with the most wrong corners, drawn again with other seeds (tuning sets).
+_HARD_ROWS = dict(fovs=[180], per_fov=1, n_empty=0, conditions=["glare", "strong vignetting", "motion blur"], per_condition=48)
+_BLUR_ROWS = dict(fovs=[180], per_fov=1, n_empty=0, conditions=["motion blur"], per_condition=96)
 
 KEPT_SETS = (
     _kept("evaluation_2026_1280x720", "rendered"),
@@ -88,6 +91,8 @@ KEPT_SETS = (
     ),
     _kept("seed5150_1920x1080", "rendered", seed=5150, width=1920, height=1080, **_HELD),
     _kept("seed5151_640x480", "rendered", seed=5151, width=640, height=480, **_HELD),
+    _kept("seed5152_1920x1080", "rendered", seed=5152, width=1920, height=1080, **_HARD_ROWS),
+    _kept("seed5153_1024x1024", "rendered", seed=5153, width=1024, height=1024, **_BLUR_ROWS),
     _kept("tags_2027_1280x720", "tags"),
     _kept("tags_2042_640x480", "tags", seed=2042, width=640, height=480, per_fov=12, per_condition=0),
     _kept("tags_2045_640x480", "tags", seed=2045, width=640, height=480, per_fov=15, per_condition=0),

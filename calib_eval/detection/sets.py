@@ -159,6 +159,10 @@ TUNING_SETS: tuple[TuningSet, ...] = (
     # corners of docs/results/rule_ablations.md) without looking at the held-out sets' frames.
     TuningSet("checkerboard", 5150, (1920, 1080), "the cut parts' check designed on it (2026-12-07)", old_seeds=False),
     TuningSet("checkerboard", 5151, (640, 480), "the cut parts' check designed on it (2026-12-07)", old_seeds=False),
+    # Rendered on 2026-12-07 to look for wrong placements of the kinds the held-out sets show (glare,
+    # strong vignetting and motion blur at 1920x1080 and 1024x1024) without looking at those frames.
+    TuningSet("checkerboard", 5152, (1920, 1080), "identity failures under glare, vignetting, blur sought (2026-12-07)", old_seeds=False),
+    TuningSet("checkerboard", 5153, (1024, 1024), "identity failures under motion blur looked for (2026-12-07)", old_seeds=False),
 )
 
 
