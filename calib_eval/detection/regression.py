@@ -327,7 +327,8 @@ def table(results: dict) -> str:
     for name, r in results.items():
         tag = " (tuning)" if r.get("tuning") else ""
         for row, v in r.get("rows", {}).items():
-            lines.append(f"| {name}{tag} | {row} | {v['recall']:.4f} | {v['hits']} / {v['detectable']} | {v.get('wrong', '')} |")
+            recall = f"{v['recall']:.4f}" if v["detectable"] else "no corner to find"  # e.g. FoV rows of a set of hard rows only
+            lines.append(f"| {name}{tag} | {row} | {recall} | {v['hits']} / {v['detectable']} | {v.get('wrong', '')} |")
         if r.get("empty_frames"):
             lines.append(f"| {name}{tag} | frames without a target, with reports | | {r['empty_with_reports']} / {r['empty_frames']} | |")
     return "\n".join(lines)
@@ -335,7 +336,9 @@ def table(results: dict) -> str:
 
 def _overridden(name: str, pairs: list[str]):
     """The config class ``name`` (GridConfig or TagConfig) with ``FIELD=VALUE`` pairs set (values
-    read as YAML: numbers, true / false, .inf); ValueError (one line) for an unknown field."""
+    read as YAML: numbers, true / false, .inf); ValueError (one line) for an unknown field. For
+    TagConfig, ``grid.FIELD=VALUE`` sets a field of the grid settings the tag pass shares
+    (``TagConfig.grid``: its lens FoV, ``agree_radius``, ...)."""
     import dataclasses
 
     import yaml
@@ -345,18 +348,23 @@ def _overridden(name: str, pairs: list[str]):
 
     cls = {"GridConfig": GridConfig, "TagConfig": TagConfig}[name]
     names = {f.name for f in dataclasses.fields(cls)}
-    values = {}
+    if cls is TagConfig:
+        names |= {f"grid.{f.name}" for f in dataclasses.fields(GridConfig)}
+    values, shared = {}, {}
     for pair in pairs:
         key, sep, value = pair.partition("=")
         if not sep or key not in names:
             raise ValueError(f"{pair!r}: not FIELD=VALUE with a field of {name}")
-        got, default = yaml.safe_load(value), getattr(cls(), key)
+        owner, field_name = (GridConfig, key[5:]) if key.startswith("grid.") else (cls, key)
+        got, default = yaml.safe_load(value), getattr(owner(), field_name)
         numeric = isinstance(default, (int, float)) and not isinstance(default, bool)
         if isinstance(default, bool) and not isinstance(got, bool):
             raise ValueError(f"{pair!r}: {key} is true or false")
         if numeric and (isinstance(got, bool) or not isinstance(got, (int, float))):
             raise ValueError(f"{pair!r}: {key} is a number")
-        values[key] = got
+        (shared if owner is not cls else values)[field_name] = got
+    if shared:
+        values["grid"] = GridConfig(**shared)
     return cls(**values)
 
 

@@ -31,7 +31,7 @@ from cotrain.detect.grid_pass import GridResult, grid_pass, merge_half_resolutio
 from cotrain.detect.half_resolution import halve
 from cotrain.detect.images import MIN_SIDE, ImageError, brighten, local_gain, to_grey_float
 from cotrain.detect.onnx_model import OnnxModel, default_grid_model_path
-from cotrain.detect.retries import FIRST, Look, checkerboard_looks, first_found
+from cotrain.detect.retries import Look, checkerboard_looks, first_found
 from cotrain.detect.saddle import saddle_fit, smooth_for, window_half
 from cotrain.detect.tag_config import TagConfig
 from cotrain.detect.tag_pass import tag_pass
@@ -80,7 +80,9 @@ class Detection:
     height: int = 0
     all_xy: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # (N, 2) every slot, input pixels
     all_visibility: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (N,)
-    look: str = FIRST  # the look of the target's retry schedule that found the corners (cotrain.detect.retries)
+    # The look of the target's retry schedule whose corners these are (cotrain.detect.retries): the one that found any, else the
+    # first ("first" where nothing is found); "" in slot mode, which has no schedule.
+    look: str = ""
 
 
 @dataclass

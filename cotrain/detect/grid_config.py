@@ -12,8 +12,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 # unit: factor (contrast about the local mean); origin: measured at 3 only, on the independent renderer's photographed prints (foreign
-# --photo, seed 5; not a sets.py set): 0.749 -> 0.898, and on the eight sets: 14 frames more, no wrong corner (1b3f4f3; the tuning log,
-# "Known limits"); TagConfig.retry_gain's value
+# --photo, seed 5; a tuning set, sets.FOREIGN_TUNING): 0.749 -> 0.898, and on the eight sets: 14 frames more, no wrong corner (1b3f4f3; the
+# tuning log, "Known limits"); TagConfig.retry_gain's value
 GREY_PRINT_GAIN = 3.0  # GridConfig.retry_gain of cotrain detect --grey-print (and of the evaluations' '--grey-print' rows)
 
 
@@ -23,7 +23,7 @@ class GridConfig:
     # tuning sets: "the evaluation set" is seed 2026 at 1280x720; "the six sets" it, seeds 7 and 11 (1280x720) and seed 2026's frames at
     # 640x480, 1024x1024 and 1920x1080 (drawn before 2026-12-07); "the seven sets" seeds 2026, 7, 11, 41, 53 (1280x720), 31 (1024x768) and
     # 67 (1920x1080); "the eight sets" those and seed 71 at 640x480; "the eleven sets" the tuning log's 2,041 frames (the evaluation set,
-    # seeds 7, 11, 31, 97, 99 at five sizes, and the independent renderer's three, which are not in sets.py). "The tuning log":
+    # seeds 7, 11, 31, 97, 99 at five sizes, and the independent renderer's three, sets.FOREIGN_TUNING). "The tuning log":
     # CHANGELOG.md's section of that name. "Not recorded": no figure found for the value.
     # --- region and candidates (grid_pass, saddle) ---
     # origin: not recorded (set in 5c3691a, "Detector grid pass: ..."; named so in 0e9879c)

@@ -26,10 +26,10 @@ class CompletionConfig:
     # Each number's comment gives its unit and its origin. Sets are named as calib_eval/detection/sets.py names them, at 1280x720 unless a
     # size is given; every AprilGrid seed named here (2027: the AprilGrid evaluation set; 2041, 2043, 2045) and every checkerboard set is a
     # tuning set there. The independent renderer's sets (calib_eval.detection.foreign, seed 5: 6 x 6 and 10 x 8 grids, --photo, --isp) are
-    # outside that list. Figures are as measured then (CHANGELOG.md, the tuning log's "The AprilGrid: the tag pass", step 10, and the commit
-    # named).
-    # count; origin: measured on the AprilGrid evaluation set (seed 2027, 1280x720; a tuning set): a cap of 8 stopped the front on boards
-    # seen whole in small tags; 64 took its FoV rows 0.9797 -> 0.9803 (3c18828; CHANGELOG 2026-11-28, twenty-first session)
+    # tuning sets too (sets.FOREIGN_TUNING). Figures are as measured then (CHANGELOG.md, the tuning log's "The AprilGrid: the tag pass",
+    # step 10, and the commit named). count; origin: measured on the AprilGrid evaluation set (seed 2027, 1280x720; a tuning set): a cap of
+    # 8 stopped the front on boards seen whole in small tags; 64 took its FoV rows 0.9797 -> 0.9803 (3c18828; CHANGELOG 2026-11-28,
+    # twenty-first session)
     rounds: int = 64  # rounds of prediction, each a grid step further (until one adds no corner, small gaps' and dim fits' too); 0: none
     # count; origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified corners ..."); the log's
     # reason: about two tags across, where the fisheye bends little

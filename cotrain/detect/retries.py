@@ -50,7 +50,7 @@ CONTRAST_RAISED = "contrast raised"
 class Look:
     """One reading of a frame in a target's retry schedule."""
 
-    name: str  # what Detection.look, the docs and the evaluations call it
+    name: str  # what Detection.look and the docs call it
     gained: bool = False  # reads the frame with its contrast raised (images.local_gain) instead of the frame as given
     overrides: tuple[tuple[str, float], ...] = ()  # the target config's fields this look sets, (name, value), on top of the detector's
     half_resolution: bool = False  # where it finds few corners, the frame at half resolution too, merged (half_resolution)

@@ -20,7 +20,7 @@ class TagConfig:
     # Each number's comment gives its unit and its origin. Sets are named as calib_eval/detection/sets.py names them, at 1280x720 unless a
     # size is given; every AprilGrid seed named here is a tuning set there (2027: the AprilGrid evaluation set, 2041: the validation set).
     # "64 / 200 / 210 frames": the evaluation set's table of 16 / 50 per FoV (210 with its empty frames), as the changes of 2026-11-23/24
-    # were measured. The independent renderer's sets (calib_eval.detection.foreign, seed 5) are outside that list. Figures are as measured
+    # were measured. The independent renderer's sets (calib_eval.detection.foreign, seed 5) are in sets.FOREIGN_TUNING. Figures as measured
     # then (CHANGELOG.md, the tuning log's "The AprilGrid: the tag pass", and the commit named).
     # --- candidates ---
     # origin: measured on the evaluation set (seed 2027; a tuning set): 1.0 -> 0.9 took recall 0.824 -> 0.827 (200 frames) and 0.843 ->
@@ -122,9 +122,9 @@ class TagConfig:
     retry_min_cell_px: float = 0.7  # ... or than this, in a third look (the second's wider cone too) where the first two find nothing
     # unit: factor; origin: measured on the independent renderer's photographed prints (foreign --photo, seed 5): 0.845 -> 0.904 (12 per
     # FoV), 0.820 -> 0.896 (24); on the evaluation set (seed 2027; a tuning set) its low-contrast row 0.857 -> 0.916; a gain of 2 placed a
-    # board wrongly on the renderer's clean frames (1b3f4f3; the tuning log, step 14)
-    # A fourth look where the third finds nothing: contrast raised this much about the local mean (<= 1: never); cotrain detect
-    # --grey-print's gain for the checkerboard too
+    # board wrongly on the renderer's clean frames (1b3f4f3; the tuning log, step 14) The last look, where the ones before find nothing
+    # (cotrain.detect.retries): contrast raised this much about the local mean (<= 1: never); cotrain detect --grey-print's gain for the
+    # checkerboard too
     retry_gain: float = GREY_PRINT_GAIN
     # The raised contrast's local mean (sigma GridConfig.retry_gain_sigma) and the lens tags are read through (an equidistant lens of
     # GridConfig.lens_fov filling the image circle; 0: never) are the grid settings' (TagConfig.grid): one number each for both targets
@@ -195,7 +195,8 @@ class TagConfig:
     # count; origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ..."); 4 is one tag's corners
     min_corners: int = 4  # smallest lattice that is reported
     complete: CompletionConfig = field(default_factory=CompletionConfig)  # corners the growth missed, predicted from the placed board
-    grid: GridConfig = field(default_factory=GridConfig)  # saddle fit and final positions (the grid pass's)
+    # The grid pass's settings the tag pass shares: saddle fit, final positions, lens_fov, retry_gain_sigma, agree_radius, crowd_radius
+    grid: GridConfig = field(default_factory=GridConfig)
 
 
 @dataclass

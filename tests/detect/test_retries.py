@@ -63,10 +63,13 @@ def test_first_found_reads_no_look_after_the_one_that_finds():
     looks = aprilgrid_looks(TagConfig())
     read = []
 
+    results = {}
+
     def reader(finds_at: str):
         def read_look(look):
             read.append(look.name)
-            return _Found(np.arange(3) if look.name == finds_at else np.zeros(0, int))
+            results[look.name] = _Found(np.arange(3) if look.name == finds_at else np.zeros(0, int))
+            return results[look.name]
 
         return read_look
 
@@ -75,3 +78,15 @@ def test_first_found_reads_no_look_after_the_one_that_finds():
     read.clear()
     result, look = first_found(looks, reader("none"))
     assert look.name == FIRST and len(result.ids) == 0 and read == [x.name for x in looks]
+    assert result is results[FIRST]  # the first look's own result, not a later look's
+
+
+def test_a_detection_names_its_look():
+    """A frame where nothing is found reports the first look; the slot read-out, which has no
+    schedule, no look."""
+    from cotrain.detect.detector import Detector
+
+    flat = (0.5 + 0.02 * np.random.default_rng(0).standard_normal((360, 480))).astype(np.float32)
+    grid = Detector(threads=1).detect(flat)
+    assert len(grid.ids) == 0 and grid.look == FIRST
+    assert Detector(threads=1, mode="slots").detect(flat).look == ""

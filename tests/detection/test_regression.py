@@ -31,6 +31,13 @@ def test_overrides_are_fields_of_the_configs_and_bad_ones_are_one_line_errors(ca
     assert grid.half_below == 0 and grid.min_margin == float("inf")
     with pytest.raises(ValueError, match="not FIELD=VALUE with a field of TagConfig"):
         reg._overridden("TagConfig", ["no_such_field=1"])
+    # The grid settings the tag pass shares are set through TagConfig.grid.
+    tags = reg._overridden("TagConfig", ["grid.lens_fov=0", "max_seeds=7"])
+    assert tags.grid.lens_fov == 0 and tags.max_seeds == 7 and tags.grid.agree_radius == 0.3
+    with pytest.raises(ValueError, match="is a number"):
+        reg._overridden("TagConfig", ["grid.lens_fov=wide"])
+    with pytest.raises(ValueError, match="not FIELD=VALUE"):
+        reg._overridden("GridConfig", ["grid.lens_fov=0"])
     assert reg.main(["--grid", "nonsense", "--out", "unused"]) == 2
     assert capsys.readouterr().err.startswith("regression: ")
     assert reg.main(["--only", "no_such_set"]) == 2
@@ -71,3 +78,20 @@ def test_each_target_gets_its_own_passs_settings():
     grid, tags = GridConfig(min_margin=30.0), TagConfig(max_seeds=7)
     assert target_detector(AprilGrid(), grid, tags).tags.max_seeds == 7
     assert target_detector(Checkerboard(TargetConfig()), grid, tags).grid.min_margin == 30.0
+
+
+def test_a_row_with_nothing_to_find_says_so():
+    """A row without a detectable corner (the FoV rows of a set of hard rows only) reads "no corner
+    to find", not a recall of 0."""
+    from calib_eval.detection.regression import table
+
+    rows = {
+        "s": {
+            "rows": {
+                "FoV rows": {"recall": 0.0, "hits": 0, "detectable": 0, "wrong": 0},
+                "glare": {"recall": 0.5, "hits": 1, "detectable": 2, "wrong": 0},
+            }
+        }
+    }
+    out = table(rows)
+    assert "| s | FoV rows | no corner to find | 0 / 0 | 0 |" in out and "| s | glare | 0.5000 | 1 / 2 | 0 |" in out
