@@ -50,8 +50,8 @@ def degrade(grey: np.ndarray, how: str, seed: int = 0) -> np.ndarray:
     raise ValueError(f"degradation must be one of {DEGRADATIONS}, not {how!r}")
 
 
-# The acceptance thresholds the table sweeps (min_margin) or turns off (every placement is scored).
-SWEPT = {"min_margin": -np.inf, "min_margin_votes_alone": -np.inf, "min_votes_per_corner": 0.0}
+# The acceptance threshold the table sweeps (min_margin), and the votes alone let place a board (every placement is scored).
+SWEPT = {"min_margin": -np.inf, "votes_alone": True}
 
 
 def grid_overrides(pairs: list[str]) -> dict[str, float | int]:

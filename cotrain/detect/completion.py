@@ -311,13 +311,14 @@ def best_option(
     gap_px: float,
     known_q: np.ndarray,
     rim_px: float,
+    crowd: float,
     cfg: CompletionConfig,
     refit: Callable[[np.ndarray], PlaneMaps | None] | None = None,
 ) -> tuple[np.ndarray | None, float]:
     """The position among ``options`` (each (2,) px) that corner ``t``, predicted at q0 (2,)
     through ``to_image`` (one map) from its board point p (2,) with a local gap of ``gap_px``
     (the board's ``gap`` metres, :func:`smallest_step`), is found at (step 3 of the module's
-    docstring), and its print correlation; (None, -inf) where none holds. An option nearer than ``cfg.crowd`` of the gap to
+    docstring), and its print correlation; (None, -inf) where none holds. An option nearer than ``crowd`` of the gap to
     a known corner (``known_q`` (K, 2)) or nearer than ``rim_px`` to the rim (``rim_dist`` (H, W))
     is refused; the others must match the print around t by ``cfg.min_corr``, by
     ``cfg.min_corr_margin`` more than a grid neighbour's, and have their edge rays along the
@@ -332,7 +333,7 @@ def best_option(
     inside the image circle, and with its edge rays along that map's axes."""
     best, best_key = None, (False, -np.inf)
     for q in options:
-        if np.linalg.norm(known_q - q, axis=1).min() < cfg.crowd * gap_px or nearest_value(rim_dist, q) < rim_px:
+        if np.linalg.norm(known_q - q, axis=1).min() < crowd * gap_px or nearest_value(rim_dist, q) < rim_px:
             continue
         m = print_correlation(sm, rim_dist, board, to_image, q - q0, t, cfg)
         refitted = False
@@ -491,8 +492,8 @@ def _predictions(s: _Scene, st: _Rounds, kP: np.ndarray, kq: np.ndarray) -> list
         res = again[n]
         in_frame = bool(0 <= q0[0] <= Ww - 1 and 0 <= q0[1] <= Hh - 1)
         rim_q0 = nearest_value(s.rim_dist, q0)
-        at_rim = in_frame and g_px < cfg.print_fit_rim_gap_px and 0 < cfg.print_fit_rim_px <= rim_q0 < cfg.min_rim_px
-        if not in_frame or (rim_q0 < cfg.min_rim_px and not at_rim):
+        at_rim = in_frame and g_px < cfg.print_fit_rim_gap_px and 0 < cfg.print_fit_rim_px <= rim_q0 < s.grid.min_rim_px
+        if not in_frame or (rim_q0 < s.grid.min_rim_px and not at_rim):
             st.failed[t] = beside  # out of view (NaN: behind the horizon)
             st.unfound.discard(t)
             continue
@@ -543,14 +544,14 @@ def _found(s: _Scene, st: _Rounds, item: tuple, q_fit, ok_k: bool, fit_k: bool, 
     cfg = s.cfg
     t, q0, g_px, to_image, beside, at_rim, near = item
     options, searched = _options(s, item, q_fit, ok_k)
-    rim_px = cfg.print_fit_rim_px if at_rim else cfg.min_rim_px
+    rim_px = cfg.print_fit_rim_px if at_rim else s.grid.min_rim_px
     allq = np.array(list(st.known.values()))
     # The map through an option, for a second look (best_option); in gaps of refit_gap_px on.
     refit = None
     if 0 < cfg.refit_gap_px <= g_px:
         refit = functools.partial(map_through, kP[near], kq[near], s.P[t], lens=s.lens, max_px=cfg.max_residual * g_px)
     look = functools.partial(best_option, s.sm, s.rim_dist, s.board, to_image, q0, t, s.P[t], s.gap)
-    best, best_corr = look(options, searched, g_px, allq, rim_px, round_cfg, refit)
+    best, best_corr = look(options, searched, g_px, allq, rim_px, s.grid.crowd_radius, round_cfg, refit)
     if best is None and fit_k and not ok_k and not st.dim_rounds:
         if dim_contrast(s.grey, q0, g_px, s.grid, cfg) < 1:
             st.dim_failed.add(t)
@@ -565,7 +566,7 @@ def _found(s: _Scene, st: _Rounds, item: tuple, q_fit, ok_k: bool, fit_k: bool, 
         # there: the same noise moves a saddle of s times the contrast 1/s times as far.
         dim = dim_fit(s.grey, s.smoothed, q0, g_px, int(h), s.small_cfg if g_px < cfg.small_gap_px else s.fit_cfg, s.rim_dist, cfg)
         if dim is not None:
-            best, best_corr = look([dim[0]], False, g_px, allq, rim_px, round_cfg, refit)
+            best, best_corr = look([dim[0]], False, g_px, allq, rim_px, s.grid.crowd_radius, round_cfg, refit)
             best_corr *= dim[1] ** 2
     if best is None:
         st.failed[t] = beside

@@ -58,7 +58,7 @@ OUTPUT_VERSION = 11
 
 def settings(cfg) -> dict:
     """A settings dataclass as plain values for a cache key written as strict JSON: a limit that
-    is off (an infinite threshold, ``GridConfig.min_margin_votes_alone``) is its string, "inf"."""
+    is off (an infinite threshold, ``GridConfig.retry_min_margin``) is its string, "inf"."""
 
     def plain(v):
         if isinstance(v, dict):

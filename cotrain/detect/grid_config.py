@@ -82,9 +82,16 @@ class GridConfig:
     # unit: share of the parent's quadrant contrast; origin: measured on the evaluation set, at this value only (4e02862): the edge test
     # took the motion-blur row's 8 wrong corners to 0
     min_step_edge_contrast: float = 0.15  # ... and needs this share of the parent's quadrant contrast at 1/4, 1/2 and 3/4 of the step
-    # px (a square's smaller side); origin: measured on the evaluation set, seeds 7 and 11, at this value only (4e02862, with the edge
-    # test and the scaled step across): large squares at the rim 0.632 -> 0.749 / 0.549 -> 0.636 / 0.635 -> 0.671
-    walk_min_square_px: float = 15.0  # where a prediction finds nothing in squares this large, the edge leaving the corner is followed ...
+    # Squares from this size on are large: the lens bends their sides between corners, and their X-junctions survive motion blur. Three
+    # rules read it: the edge walk (here), the board going on (board_goes_on, below) and margin evidence along the predicted step
+    # (edge_predict, below); each had its own 15 until the thirtieth session.
+    # px (a square's smaller side, or the step out); origin: measured three times at this value only: the walk on the evaluation set,
+    # seeds 7 and 11 (4e02862, with the edge test and the scaled step across): large squares at the rim 0.632 -> 0.749 / 0.549 -> 0.636 /
+    # 0.635 -> 0.671; the board going on on seed 31 at 640x480 (0829808): without the floor a motion-blurred board was placed wrongly (12
+    # px squares smeared into junctions in the margin); the predicted step on seed 2026's frames at 640x480 (drawn before 2026-12-07;
+    # 0a4d9a1): with motion blur a prediction from blurred corners under 15 px placed a board wrongly, and the rule took the evaluation
+    # set's large squares 0.811 -> 0.840
+    large_square_px: float = 15.0  # where a prediction finds nothing in squares this large, the edge leaving the corner is followed ...
     # unit: predicted steps; origin: not recorded (set with the walk in 4e02862, "Grid pass: lattice growth follows squares that grow or
     # shrink fast ..."; one range 0.4-1.6 until c6caa6a)
     walk_min_steps: float = 0.4  # ... to the nearest candidate at least this many predicted steps away ...
@@ -98,7 +105,7 @@ class GridConfig:
     # unit: share of the parent's quadrant contrast; origin: measured on the evaluation set and the real BoofCV frames (4627ba0): the same
     # corners; the searches it skips (most of the growth's time) found none
     fill_min_alternation: float = 0.15  # a saddle search where no candidate was predicted needs colours alternating this much there
-    remeasure_steps: bool = True  # a corner's steps (walk_min_square_px or more) are measured to its neighbours placed by the time it grows
+    remeasure_steps: bool = True  # a corner's steps (large_square_px or more) are measured to its neighbours placed by the time it grows
     # unit: fraction of the step; origin: not recorded (set in 5c3691a, "Detector grid pass: ...")
     match_radius: float = 0.45  # a neighbour must lie within this fraction of the grid step of its prediction
     # unit: fraction of the step; origin: not recorded (set in 5c3691a, "Detector grid pass: ...")
@@ -173,13 +180,12 @@ class GridConfig:
     # margin of 0, one at 7.2 nats had 15; seeds 7 / 11: +70 / 0 corners, none wrong; 15.5 lost 64 right corners over the eleven sets
     # (CHANGELOG, twenty-fourth session)
     min_geometry_margin: float = 15.0  # ... by this much (colours, margin evidence, extent; see identity.Placement)
-    # Where the geometry cannot tell the placement from another, the votes must win by this (inf: nothing is reported there).
-    # unit: nats; origin: measured on seeds 11 and 53 (1280x720) and seed 2026 at 640x480: the votes alone placed boards wrongly at 27.7,
-    # 32.4 and 35.2 nats, right ones at 35.6 and 36.0, so no threshold separates them (30, 35, inf: 39f6d1a, 87ccd6d, f548109)
-    min_margin_votes_alone: float = float("inf")
-    # unit: nats per lattice corner; origin: measured on the evaluation set, seeds 7 and 11, clean and degraded (4e02862): the votes alone
-    # were wrong at 31.8 nats on 35 corners (0.9 a corner), no right placement lost; inert while min_margin_votes_alone is inf
-    min_votes_per_corner: float = 1.2  # ... and by this much per lattice corner (a network biased on a whole view adds up with its size)
+    # Where the geometry cannot tell the placement from another, nothing is reported (False), however sure the network's votes: on
+    # seeds 11 and 53 (1280x720) and seed 2026 at 640x480 the votes alone placed boards wrongly at 27.7, 32.4 and 35.2 nats, right
+    # ones at 35.6 and 36.0, so no threshold separates them (30, 35, then off: 39f6d1a, 87ccd6d, f548109; the threshold and its
+    # per-corner companion went in the thirtieth session, CHANGELOG). True: the votes alone place a board by min_margin, as
+    # calib_eval.detection.tuning scores every placement.
+    votes_alone: bool = False
     # unit: nats; origin: not recorded (set in 0cd3a4e, "Grid pass: the board's white margin as identity evidence, off-board penalty,
     # conservative margin ..."; was -7)
     logp_floor: float = -3.0  # network log-probabilities are clamped here (one corner cannot veto a board)
@@ -198,9 +204,7 @@ class GridConfig:
     # unit: steps; origin: not recorded (set in d242238, "Grid pass: margin evidence from two outward profiles (the square row's end ...
     # 0.7-1.6 steps out; ...)"); 2.0-2.5 tried: no change (CHANGELOG 2026-11-24, late morning)
     edge_end_max: float = 1.6  # ... and no farther
-    # origin: measured on seed 31 at 640x480: without the floor a motion-blurred board was placed wrongly (12 px squares smeared into
-    # junctions in the margin; 0829808)
-    goes_on_min_step_px: float = 15.0  # where the step out is this long (px) at least, there is no margin evidence ...
+    # Where the step out is large_square_px long at least, there is no margin evidence ...
     # unit: predicted steps; origin: not recorded as a value (set in 0829808, "Margin evidence is void where the board visibly goes on
     # ...", for seed 31's frame 9 at 1920x1080: a board half a turn wrong, 21 wrong ids; the eleven sets otherwise the same but one
     # corner)
@@ -214,9 +218,7 @@ class GridConfig:
     # unit: share of the corner's quadrant contrast; origin: measured on seed 31 at 1920x1080 (frame 9; 0829808): 0.25 fixed a glare frame
     # too but voided true evidence where a square's side meets the margin (its colours flip by half; a test)
     goes_on_min_alternation: float = 0.7  # ... and its quadrant contrast flipped with this share of the corner's
-    # origin: measured on seed 2026's frames at 640x480 (drawn before 2026-12-07; 0a4d9a1): with motion blur a prediction from blurred
-    # corners under 15 px placed a board wrongly; the rule took the evaluation set's large squares 0.811 -> 0.840
-    edge_predict_min_px: float = 15.0  # margin evidence reads along the predicted next step if this long (else the last step)
+    # Margin evidence reads along the predicted next step where that is large_square_px long (else along the last step).
     # unit: steps; origin: measured on the evaluation set (CHANGELOG 2026-11-24, late morning): a band at 0.05-0.15 took large squares
     # 0.778 -> 0.807 but the FoV rows 0.895 -> 0.890; set in d242238 without a figure
     margin_band_start: float = 0.1  # steps beyond the squares' end where the white margin is sampled ...

@@ -170,19 +170,18 @@ def extent_weight(lat: Lattice, rim_dist: np.ndarray, rim_px: float) -> np.ndarr
     return np.where(rim_dist[y, x] < rim_px, 0.0, 1.0)
 
 
-def placement_is_sure(margin: float, geometry_margin: float, n_corners: int, cfg: GridConfig) -> bool:
+def placement_is_sure(margin: float, geometry_margin: float, cfg: GridConfig) -> bool:
     """Whether a placement that beats the runner-up by ``margin`` nats, ``geometry_margin`` of them
     from the geometry alone (:class:`cotrain.detect.identity.Placement`), is reported: by
     ``cfg.min_margin``, or ``cfg.min_margin_backed`` where the geometry puts it
     ``cfg.min_geometry_margin`` ahead; where the geometry cannot tell it from another placement at
-    all, only the network's votes decide, and they must win by ``cfg.min_margin_votes_alone`` and
-    by ``cfg.min_votes_per_corner`` for each of the lattice's ``n_corners`` (a network wrong about a
-    whole view is wrong at every corner, so its margin grows with the lattice)."""
+    all, only the network's votes could decide, and nothing is reported unless ``cfg.votes_alone``
+    (then by ``cfg.min_margin``)."""
     if margin >= cfg.min_margin_backed and geometry_margin >= cfg.min_geometry_margin:
         return True
     if geometry_margin > 0:
         return margin >= cfg.min_margin
-    return margin >= max(cfg.min_margin_votes_alone, cfg.min_votes_per_corner * n_corners)
+    return cfg.votes_alone and margin >= cfg.min_margin
 
 
 def _joined(big: Lattice, small: Lattice, cfg: GridConfig) -> Lattice | None:
@@ -298,7 +297,7 @@ def merge_lattices(
     union = {(int(v % board.nx), int(v // board.nx)): p for v, p in zip(out_ids, xy)}
     joined: list[tuple[int, np.ndarray, bool]] = []
     for margin, other, oids, geo in sorted(others, key=lambda x: -x[0]):
-        if not placement_is_sure(margin, geo, len(other.ab), cfg):
+        if not placement_is_sure(margin, geo, cfg):
             continue
         o_on = oids >= 0
         oxy, oid0, ofilled = other.xy[o_on], oids[o_on], other.filled[o_on]
@@ -489,11 +488,11 @@ def _identify(
         if res is None:
             continue
         placed, edges, stands = res
-        if cfg.cut_at_margins and edges and not (stands and placement_is_sure(placed.margin, placed.geometry_margin, len(lat.ab), cfg)):
+        if cfg.cut_at_margins and edges and not (stands and placement_is_sure(placed.margin, placed.geometry_margin, cfg)):
             cuts = []
             for part in cut_at_margins(lat, edges, cfg):
                 r = _place(c, part, v, board, smoothed)
-                if r is None or not r[2] or not placement_is_sure(r[0].margin, r[0].geometry_margin, len(part.ab), cfg):
+                if r is None or not r[2] or not placement_is_sure(r[0].margin, r[0].geometry_margin, cfg):
                     continue
                 if cfg.cut_needs_evidence and not cut_adds_evidence(placed, stands, lat, part, r[0]):
                     continue
@@ -525,7 +524,6 @@ def _completed(c: _Crop, xy: np.ndarray, ids: np.ndarray, q: np.ndarray, conf: n
     # over the eight checkerboard sets).
     complete = CompletionConfig(
         rounds=cfg.complete_rounds,
-        min_rim_px=cfg.min_rim_px,
         min_corr=cfg.complete_min_corr,
         check=False,
         sure_corr=math.inf,
@@ -597,7 +595,7 @@ def grid_pass(
         return empty
     # The lattice whose identity is surest wins (the first of equal margins).
     margin, lat, ids, geometry_margin = max(scored, key=lambda s: s[0])
-    if not placement_is_sure(margin, geometry_margin, len(lat.ab), cfg):
+    if not placement_is_sure(margin, geometry_margin, cfg):
         return GridResult(np.zeros(0, int), np.zeros((0, 2)), np.zeros(0), float(margin))
     if cfg.merge_lattices:
         lat, ids = merge_lattices(lat, ids, [x for x in scored if x[1] is not lat], board, cfg)

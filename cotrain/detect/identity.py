@@ -124,7 +124,7 @@ def _edge_jobs(lat: Lattice, cfg: GridConfig) -> list[tuple]:
                 back2 = where.get((a - 2 * da, b - 2 * db))
                 if back2 is not None:  # the step the squares would take next (they shrink fast towards a rim)
                     pred = next_step(lat.xy[back] - lat.xy[back2], out_step)
-                    if np.hypot(pred[0], pred[1]) >= cfg.edge_predict_min_px:
+                    if np.hypot(pred[0], pred[1]) >= cfg.large_square_px:
                         out_step = pred
             if any(m is not None for m in side):
                 m = next(m for m in side if m is not None)
@@ -154,7 +154,7 @@ def edge_evidence(
     the profiles keep differing, or turn dark, and there is no evidence. The outward step is the
     one the lattice line would take next (:func:`cotrain.detect.lattice.next_step` from the two
     steps behind: towards a fisheye's rim the last square can be 0.6 of the step before it, and the
-    line bends) where that is ``cfg.edge_predict_min_px`` long at least (the ratio of shorter,
+    line bends) where that is ``cfg.large_square_px`` long at least (the ratio of shorter,
     blurred steps is noise), else the last step; the sideways step comes from a neighbour across.
     Where one of them is missing (a lattice one corner deep, a corner at a tip) it is the other
     turned by 90 degrees (lattice axes have a x b > 0 in the image).
@@ -212,7 +212,7 @@ def board_goes_on(
     cfg: GridConfig,
 ) -> bool:
     """Whether the checker board goes on from corner p (2,) along ``step`` (2,), the step its
-    lattice line would take next (``cfg.goes_on_min_step_px`` long at least: under motion blur the
+    lattice line would take next (``cfg.large_square_px`` long at least: under motion blur the
     smear of small squares makes junctions in the margin): one of ``candidates`` (M, 2) lies
     ``cfg.goes_on_min_steps`` to ``cfg.goes_on_max_steps`` steps out within ``cfg.goes_on_angle``
     of the step's direction, and the segment to it runs along the edge of the two squares beside it
@@ -225,7 +225,7 @@ def board_goes_on(
     pattern behind the board) keeps no checker colours with p; where the last squares' side meets
     the margin, two of the four quadrants are margin, and the colours alternate by half."""
     step_len = float(np.hypot(step[0], step[1]))
-    if not len(candidates) or step_len < cfg.goes_on_min_step_px:
+    if not len(candidates) or step_len < cfg.large_square_px:
         return False
     w = candidates - p
     dist = np.hypot(w[:, 0], w[:, 1])

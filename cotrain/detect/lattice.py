@@ -224,7 +224,7 @@ def _remeasured(where: dict, pts: list, a: int, b: int, sa: np.ndarray, sb: np.n
     for axis, (m_f, m_b) in enumerate(pairs):
         if m_f is not None or m_b is not None:
             s_ = pts[m_f] - pts[k] if m_f is not None else pts[k] - pts[m_b]
-            if math.hypot(s_[0], s_[1]) >= cfg.walk_min_square_px:
+            if math.hypot(s_[0], s_[1]) >= cfg.large_square_px:
                 sa, sb = (s_, sb) if axis == 0 else (sa, s_)
     return sa, sb
 
@@ -316,7 +316,7 @@ def _neighbour(g: _Growing, p, pred, v, len_v: float, short: float, dab, sab, br
     worth_fitting = functools.partial(_fill_alternates, g.sm1, pred, pa, pb, parent, cfg)
     r = cfg.match_radius * len_v
     found, was_filled = match_corner(pred, r, g.xy, g.used, g.grey, g.smoothed, window_half(short), cfg, g.rim_dist, worth_fitting)
-    if found is None and short >= cfg.walk_min_square_px:
+    if found is None and short >= cfg.large_square_px:
         found = edge_neighbour(g.sm1, p, v, bright, parent, g.xy, g.axes, g.tree, g.used, cfg)
         if found is not None:
             was_filled = False

@@ -38,18 +38,19 @@ class CompletionConfig:
     max_residual: float = 0.5  # ... which must fit them within this fraction of the local gap
     # origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified corners ..."); TagConfig.min_gap_px's
     # 1.6
-    min_gap_px: float = 1.6  # no prediction where the local gap (crossing square's side) is narrower (px)
-    # origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified corners ..."); the limit of every
-    # reported corner (GridConfig.min_rim_px 3)
-    min_rim_px: float = 3.0  # ... or nearer to the image circle's rim (px); and no corner found nearer
+    min_gap_px: float = 1.6  # no prediction where the local gap (crossing square's side) is narrower (px); nor tag growth (TagConfig)
+    # (the rim: no prediction nor corner nearer than GridConfig.min_rim_px, the limit of every reported corner)
     # unit: fraction of the local gap; origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified
     # corners ...")
     reach: float = 0.3  # a saddle fitted at the prediction counts within this fraction of the local gap ...
     # unit: fraction of the local gap; origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified
     # corners ...")
     search: float = 0.6  # ... else candidates within this fraction of it are tried
-    # unit: correlation (-1 .. 1); origin: TagConfig.candidate_min_symmetry's 0.5 (measured there), copied in 6c06463
-    min_symmetry: float = 0.5  # point symmetry of that saddle fit (as the candidates'; the print check follows) ...
+    # unit: correlation (-1 .. 1); origin: measured for the tag pass's candidates on seeds 2027, 2031 and 2035 (tuning sets): 0.65 -> 0.5,
+    # recall +0.002 / +0.004 / +0.003, wrong corners 16 -> 14 (4df897e); copied here in 6c06463, one number since the thirtieth session
+    min_symmetry: float = (
+        0.5  # point symmetry of that saddle fit, and of the tag pass's candidates (its grid's min_symmetry for the rest) ...
+    )
     # origin: measured on the independent renderer's 10 x 8 grid (its fov220_004: 16 of 17 fits failed 0.5 in 4-6 px gaps), 4 -> 7 px: FoV
     # rows 0.9357 -> 0.9381, 6 x 6 0.9794 -> 0.9800, the evaluation set (seed 2027) 0.9530 -> 0.9542, seed 2041 0.9349 -> 0.9359, no wrong
     # corner added; 10 px gained 0.0003 more (3d25156)
@@ -58,9 +59,6 @@ class CompletionConfig:
     # missed beside identified ones in 8-12 px tags, 112 of 113 had a response peak within 2 px, 9 fitted at 0.5, 39 at 0.3; recall 0.943 ->
     # 0.946 (636dd27)
     small_min_symmetry: float = 0.3  # ... this much
-    # unit: fraction of the local gap; origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified
-    # corners ..."); GridConfig.crowd_radius's 0.5
-    crowd: float = 0.5  # a corner this close to an identified one (fraction of the local gap) is refused
     # unit: board spacing; origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified corners ...")
     patch: float = 0.45  # half-size of the patch compared with the print, in the board's spacing (a tag side, a square)
     # count per side; origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified corners ...")
@@ -71,8 +69,8 @@ class CompletionConfig:
     # unit: correlation; origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified corners ...")
     min_corr_margin: float = 0.1  # ... better by this than with the print around each grid neighbour
     # unit: fraction of the local gap; origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified
-    # corners ..."); TagConfig.ray_radius's 0.5
-    ray_radius: float = 0.5  # a corner's edge rays are read on a circle of this fraction of the local gap ...
+    # corners ..."); TagConfig.ray_radius's 0.5, one number since the thirtieth session
+    ray_radius: float = 0.5  # a corner's edge rays are read on a circle of this fraction of the local gap (the tag pass's too) ...
     # origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified corners ...")
     max_ray_angle: float = 30.0  # ... and the board's axes must leave along them within this (deg) ...
     # unit: correlation (-1 .. 1); origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified corners
@@ -142,7 +140,9 @@ class CompletionConfig:
     print_fit_min_r2_pixels: float = 0.8  # ... or this share through a pixel homography (which misses the bend at the rim)
     # origin: measured on the AprilGrid evaluation set (seed 2027, 1280x720; a tuning set): the rim look at this value took FoV rows 0.9662
     # -> 0.9700 (strong vignetting 0.940 -> 0.953), seed 2041 0.9451 -> 0.9488, no wrong corner added (98b00d9)
-    print_fit_rim_px: float = 1.5  # a prediction nearer the rim than min_rim_px but this far (px; 0: never) is found by print_fit alone ...
+    print_fit_rim_px: float = (
+        1.5  # a prediction nearer the rim than GridConfig.min_rim_px but this far (px; 0: never) is found by print_fit alone ...
+    )
     # origin: measured on seed 2041 (a tuning set): the wrong corner left with half the disc required lay in a gap of 24 px (a tag of 81
     # px); 20 px keeps it out (98b00d9; the tuning log, step 10)
     print_fit_rim_gap_px: float = 20.0  # ... in a gap under this (px), within reach of it

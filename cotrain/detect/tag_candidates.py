@@ -50,7 +50,7 @@ def tag_candidates(
     xy, ok = np.zeros_like(xy0), np.zeros(len(xy0), bool)
     # The point-symmetry test looser than the grid pass's: in a tag of 8-12 px the crossing square
     # (2-4 px) ends inside the smallest window, and its far corner breaks the symmetry.
-    gcfg = replace(cfg.grid, min_symmetry=cfg.candidate_min_symmetry)
+    gcfg = replace(cfg.grid, min_symmetry=cfg.complete.min_symmetry)
     for h in np.unique(halves):
         m = halves == h
         xy[m], ok[m], _ = fit_saddles(grey, smoothed, xy0[m], int(h), gcfg, rim_dist)
@@ -184,5 +184,5 @@ def _candidates_of(grey: np.ndarray, allowed: np.ndarray, cfg: TagConfig) -> _Ca
         return _Candidates(rim_dist, smoothed, xy, None, None)
     tree = cKDTree(xy)
     near = tree.query(xy, k=2)[0][:, 1]
-    rays = corner_rays(smooth_cached(smoothed, grey, 1), xy, cfg.ray_radius * near)
+    rays = corner_rays(smooth_cached(smoothed, grey, 1), xy, cfg.complete.ray_radius * near)
     return _Candidates(rim_dist, smoothed, xy, tree, rays)

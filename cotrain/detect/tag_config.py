@@ -30,9 +30,6 @@ class TagConfig:
     # "AprilGrid tag pass: corners as X-junctions, ..."); lower, on seeds 2027, 2031 and 2035 (tuning sets): no gain or more wrong corners
     # (CHANGELOG 2026-11-24, late)
     min_response: float = 0.0015  # saddle response a candidate needs (scale-normalised -det Hessian)
-    # unit: correlation (-1 .. 1); origin: measured on seeds 2027, 2031 and 2035 (tuning sets): 0.65 -> 0.5, recall +0.002 / +0.004 /
-    # +0.003, wrong corners 16 -> 14 (4df897e)
-    candidate_min_symmetry: float = 0.5  # a candidate's fit needs this point symmetry (the grid pass's min_symmetry for the rest)
     # count; origin: measured on the evaluation set (seed 2027; a tuning set): every true corner ranks within 1500 (4000 before; 3de7c2b)
     max_candidates: int = 1500  # strongest response maxima kept (all true corners of the evaluation set rank within 1500)
     # --- growth ---
@@ -52,8 +49,6 @@ class TagConfig:
     ray_edge_depth: float = 0.6  # that edge test samples at most this multiple of the nearest-candidate distance aside
     # count; origin: not recorded (set in 02e95a5, "tag pass: tags read after sharpening, ...; seeds from each corner's four edge rays")
     ray_options: int = 3  # candidates reached along an edge kept per ray: a seed's tag sides are tried among them
-    # origin: not recorded (set in 02e95a5, "tag pass: tags read after sharpening, ...; seeds from each corner's four edge rays")
-    ray_radius: float = 0.5  # edge rays are read on a circle of this fraction of the local gap (of a candidate: its nearest candidate)
     # origin: measured on the evaluation set (seed 2027; a tuning set): 0.35 (match_radius) -> 0.6, recall 0.807 -> 0.824 (200 frames; with
     # position clashes dropped, 2c5af52; CHANGELOG 2026-11-24, later)
     fourth_radius: float = 0.6  # a seed tag's fourth corner lies within this fraction of its shorter side of the parallelogram's
@@ -85,8 +80,6 @@ class TagConfig:
     ray_step_reach: float = 2.0  # ... and within this multiple of the reach of the prediction
     # origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")
     max_step_junction: float = 0.1  # a candidate this close to a step's middle part (fraction of the step) refuses it
-    # px; origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")
-    min_gap_px: float = 1.6  # no growth across gaps smaller than this
     # origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")
     edge_depth: float = 0.35  # the edge test samples this fraction of the gap to each side of a step
     # unit: intensity in [0, 1]; origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ..."); halved with the

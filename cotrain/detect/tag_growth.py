@@ -197,7 +197,7 @@ def _predict(
     """Where the neighbour ``ab + dab`` of lattice corner k (at ``ab``, step frame ``fr``) should lie:
     one long or short step along the axis (the frame's), averaged with the parallelograms of the
     neighbours placed across; None where those disagree, the prediction leaves the image
-    ``shape`` (H, W) or the local gap is under ``cfg.min_gap_px``."""
+    ``shape`` (H, W) or the local gap is under ``cfg.complete.min_gap_px``."""
     (a, b), (da, db), (H, W) = ab, dab, shape
     pts, where = g.pts, g.where
     t = (a + da, b + db)
@@ -217,7 +217,7 @@ def _predict(
     if max(_norm(p_ - pred) for p_ in preds) > cfg.grid.agree_radius * step:
         return None
     gap = min(_norm(fr[0, 1]), _norm(fr[1, 1]))  # the local gap (short step)
-    if not (0 <= pred[0] < W and 0 <= pred[1] < H) or gap < cfg.min_gap_px:
+    if not (0 <= pred[0] < W and 0 <= pred[1] < H) or gap < cfg.complete.min_gap_px:
         return None
     r = min(cfg.match_radius * step, cfg.match_gap * gap)  # never as far as the next row across (a gap away)
     # The step is an edge: the dark cell on the side the lattice's parity says.

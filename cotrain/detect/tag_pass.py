@@ -208,7 +208,17 @@ class _View(NamedTuple):
 
 def _view_of(grey: np.ndarray, cfg: TagConfig) -> _View:
     """The frame ``grey`` as :func:`_tag_pass_circle` reads it: a small frame enlarged, cropped to
-    the image circle's bounding box, its lens guessed, its candidates found."""
+    the image circle's bounding box, its lens guessed (:func:`circle_crop`), its candidates found."""
+    f, origin, crop, inside, lens = circle_crop(grey, cfg)
+    return _View(f, origin, crop, inside, lens, _candidates_of(crop, inside, cfg))
+
+
+def circle_crop(grey: np.ndarray, cfg: TagConfig) -> tuple[float, tuple[int, int], np.ndarray, np.ndarray, EquidistantLens | None]:
+    """The frame ``grey`` (H, W) enlarged where it is small (:func:`enlargement`) and cropped to the
+    image circle's bounding box grown by :data:`CIRCLE_PAD_PX`: the factor, the crop's top-left
+    corner (x0, y0) in the enlarged frame, the crop (h, w), which of its pixels lie inside the
+    image circle (h, w) bool, and the lens guessed from the circle (in the crop's pixels; None
+    where none shows)."""
     f = enlargement(grey.shape, cfg)
     if f > 1:
         grey = cv2.resize(grey, None, fx=f, fy=f, interpolation=cv2.INTER_LINEAR)
@@ -221,8 +231,7 @@ def _view_of(grey: np.ndarray, cfg: TagConfig) -> _View:
     y0, y1 = (max(0, ys[0] - CIRCLE_PAD_PX), min(H, ys[-1] + 1 + CIRCLE_PAD_PX)) if len(ys) else (0, H)
     x0, x1 = (max(0, xs[0] - CIRCLE_PAD_PX), min(W, xs[-1] + 1 + CIRCLE_PAD_PX)) if len(xs) else (0, W)
     lens = guess_lens(outside, cfg.grid.lens_fov, (x0, y0))
-    crop, inside = grey[y0:y1, x0:x1], allowed[y0:y1, x0:x1]
-    return _View(f, (x0, y0), crop, inside, lens, _candidates_of(crop, inside, cfg))
+    return f, (x0, y0), grey[y0:y1, x0:x1], allowed[y0:y1, x0:x1], lens
 
 
 def _tag_pass_circle(grey: np.ndarray, board: AprilGrid, cfg: TagConfig, view: _View | None = None) -> TagResult:

@@ -153,7 +153,7 @@ def cells_close(lat: Lattice, tol: float, strict: np.ndarray | None = None) -> n
 def rays_agree(lat: Lattice, img: np.ndarray, spacing: float, cfg: TagConfig) -> np.ndarray:
     """(K,) bool: lattice corners whose steps to their lattice neighbours each leave along one of
     the corner's own edge rays (:func:`corner_rays` on ``img`` (H, W)), within
-    ``cfg.max_ray_angle``. The rays are read at ``cfg.ray_radius`` of the local gap: the shortest of
+    ``cfg.max_ray_angle``. The rays are read at ``cfg.complete.ray_radius`` of the local gap: the shortest of
     the corner's gap steps and of its tag sides times ``spacing`` (a corner on the board's outer
     edge has no gap step), and of its lattice neighbours' local gaps. A junction between a tag's
     data cells and its border, taken for a corner, sees its neighbours off its rays; a corner
@@ -179,7 +179,7 @@ def rays_agree(lat: Lattice, img: np.ndarray, spacing: float, cfg: TagConfig) ->
             m = where.get((a + da, b + db))
             if m is not None:
                 gap[k] = min(gap[k], own[m])
-    rays = corner_rays(img, lat.xy, cfg.ray_radius * np.where(np.isfinite(gap), gap, 0.0))
+    rays = corner_rays(img, lat.xy, cfg.complete.ray_radius * np.where(np.isfinite(gap), gap, 0.0))
     cos = np.einsum("knd,krd->knr", steps / np.where(np.isnan(dist), 1.0, dist)[..., None], rays)
     best = np.where(np.isnan(cos), -2.0, cos).max(axis=2)  # (K, 4): the nearest ray of each step
     # In the gaps of small tags the circle is at its smallest (1.5 px) and its rays' angles are

@@ -29,6 +29,8 @@ from cotrain.detect.verification import neighbour_check, print_check, print_move
 from cotrain.targets import TargetConfig, make_target
 from tests.detect.test_tag_pass import centre, render
 
+GRID = GridConfig()  # the rim and crowding limits completion reads from the pass's grid settings
+
 
 def test_local_homography_recovers_a_known_map_and_refuses_a_line():
     rng = np.random.default_rng(0)
@@ -129,7 +131,23 @@ def test_a_candidate_where_the_board_meets_the_dark_beyond_the_rim_is_not_taken_
     assert m_x.corr > m_t.corr > cfg.sure_corr and max(m_x.inside, m_t.inside) < cfg.sure_inside
     far = np.array([[0.0, 0.0]])  # no known corner near
     chosen = [
-        best_option(sm, rim, g, to_image, at, t, g.board_xy()[t], gap, [x_junction, at], True, gap * scale, far, cfg.min_rim_px, c)[0]
+        best_option(
+            sm,
+            rim,
+            g,
+            to_image,
+            at,
+            t,
+            g.board_xy()[t],
+            gap,
+            [x_junction, at],
+            True,
+            gap * scale,
+            far,
+            GRID.min_rim_px,
+            GRID.crowd_radius,
+            c,
+        )[0]
         for c in (cfg, CompletionConfig(sure_inside=0.0))
     ]
     np.testing.assert_allclose(chosen[0], at)
@@ -326,9 +344,9 @@ def test_in_gaps_too_small_for_edge_rays_the_prints_margin_decides():
     for t in (27, 38, 77):  # page columns 3, 2, 5: corner t + 1 is the other corner of its crossing square
         for cfg, taken in cases:  # the margin decides: none of these corners' prints beats its neighbours' by 0.9
             args = (sm, rim, g, PlaneMaps(H[None]), q[t], t, P[t], gap)
-            own = best_option(*args, [q[t]], False, gap * scale, far, cfg.min_rim_px, cfg)[0]
+            own = best_option(*args, [q[t]], False, gap * scale, far, GRID.min_rim_px, GRID.crowd_radius, cfg)[0]
             assert (own is not None) == taken, (t, cfg.min_ray_px, cfg.small_corr_margin)
-            assert best_option(*args, [q[t + 1]], False, gap * scale, far, cfg.min_rim_px, cfg)[0] is None
+            assert best_option(*args, [q[t + 1]], False, gap * scale, far, GRID.min_rim_px, GRID.crowd_radius, cfg)[0] is None
 
 
 def test_completion_reaches_the_small_tags_of_a_grazing_view():

@@ -84,9 +84,7 @@ def test_board_margin_pins_a_partial_view():
     lc = np.where(np.arange(-1, NX + 1)[:, None, None] == col[None], 0.2, 0.8 / (NX + 1))
     lr = np.where(np.arange(-1, NY + 1)[:, None, None] == row[None], 0.2, 0.8 / (NY + 1))
     ones = np.ones((h, w))
-    with_edges = grid_pass(
-        img, box, ones, ones, np.log(lc), np.log(lr), BOARD, GridConfig(min_margin=-np.inf, min_margin_votes_alone=-np.inf)
-    )
+    with_edges = grid_pass(img, box, ones, ones, np.log(lc), np.log(lr), BOARD, GridConfig(min_margin=-np.inf, votes_alone=True))
     assert set(with_edges.ids) == set(np.nonzero(inside)[0])
     # Corners whose fit window is cut by the image border are fitted from the part that is seen:
     # a small bias, bounded here; the others are exact.
@@ -94,7 +92,7 @@ def test_board_margin_pins_a_partial_view():
     cut = (H - 1 - q[with_edges.ids, 1] < 16) | (W - 1 - q[with_edges.ids, 0] < 16)  # window + blur reach the border
     assert cut.any() and err[cut].max() < 0.3 and err[~cut].max() < 0.1
     no_edges = grid_pass(
-        img, box, ones, ones, np.log(lc), np.log(lr), BOARD, GridConfig(edge_weight=0.0, min_margin=-np.inf, min_margin_votes_alone=-np.inf)
+        img, box, ones, ones, np.log(lc), np.log(lr), BOARD, GridConfig(edge_weight=0.0, min_margin=-np.inf, votes_alone=True)
     )
     assert with_edges.margin > no_edges.margin + 10
 
@@ -398,18 +396,17 @@ def test_extent_weight_is_zero_nearer_the_rim_than_the_limit():
 
 def test_cache_keys_are_strict_json_and_tell_settings_apart():
     """The detectors' cache keys (written to a recording's bag.json) are strict JSON although a
-    shipped limit is off (an infinite ``min_margin_votes_alone``), and a limit turned on gives
-    another key."""
+    shipped limit is off (an infinite ``retry_min_margin``), and a limit set gives another key."""
     import json
 
     from cotrain.detect.detector import Detector
     from cotrain.targets import AprilGrid
 
     off = Detector().cache_key()
-    on = Detector(grid=GridConfig(min_margin_votes_alone=35.0)).cache_key()
+    on = Detector(grid=GridConfig(retry_min_margin=35.0)).cache_key()
     for key in (off, on, Detector(target=AprilGrid()).cache_key()):
         assert json.loads(json.dumps(key, allow_nan=False)) == key
-    assert off["grid"]["min_margin_votes_alone"] == "inf" and on != off
+    assert off["grid"]["retry_min_margin"] == "inf" and on != off
 
 
 def test_a_lattice_stepped_across_the_margin_is_placed_again_cut_there():
@@ -447,7 +444,7 @@ def test_a_lattice_stepped_across_the_margin_is_placed_again_cut_there():
     lc[on, ab[on, 0] + 3 + 1] = lr[on, ab[on, 1] + 1] = np.log(0.5)
     whole = assign_ids(ab, lc, lr, dark, BOARD, cfg, edges)
     np.testing.assert_array_equal(whole.ids[len(view) :], -1)
-    assert whole.geometry_margin < 0 and not placement_is_sure(whole.margin, whole.geometry_margin, len(ab), cfg)
+    assert whole.geometry_margin < 0 and not placement_is_sure(whole.margin, whole.geometry_margin, cfg)
 
     parts = cut_at_margins(lat, edges, cfg)
     # The top and bottom lines cut nothing off; the distractor's top (0.4) is under cut_min_evidence.
@@ -460,7 +457,7 @@ def test_a_lattice_stepped_across_the_margin_is_placed_again_cut_there():
     placed = assign_ids(part.ab, lc[rows], lr[rows], part_dark, BOARD, cfg, part_edges)
     np.testing.assert_array_equal(placed.ids, (part.ab[:, 0] + 3) + NX * part.ab[:, 1])
     assert placed.violated == 0 and placed.geometry_margin >= cfg.min_geometry_margin
-    assert placement_is_sure(placed.margin, placed.geometry_margin, len(part.ab), cfg)
+    assert placement_is_sure(placed.margin, placed.geometry_margin, cfg)
     assert cut_at_margins(lat, edges, GridConfig(cut_min_evidence=5.0)) == []
     # The cut adds evidence: the same ids as the whole placed the view with, but the geometry now
     # behind them (cut_adds_evidence). Had only the margin moved, the part would not be taken.

@@ -154,33 +154,25 @@ def test_geometry_margin_leaves_out_the_network_votes():
     assert swayed.geometry_margin == pytest.approx(plain.geometry_margin)
 
 
-def test_votes_alone_must_be_surer_than_votes_with_geometry():
+def test_votes_alone_place_a_board_only_where_turned_on():
     """The grid pass's acceptance: where the geometry cannot tell the best placement from another
     (a patch that fits the board turned as well), the shipped settings report nothing, however
-    sure the network's votes; turned on, the votes must win by ``min_margin_votes_alone``, and by
-    ``min_votes_per_corner`` per lattice corner (a network biased on a whole view, a dark frame,
-    adds its bias up over every corner); where the geometry backs it, ``min_margin_backed`` is
+    sure the network's votes; with ``votes_alone`` (as the tuning table scores every placement)
+    they place it by ``min_margin``; where the geometry backs it, ``min_margin_backed`` is
     enough, even where the votes lean the other way by a few nats (an over-exposed frame, whose
     white the network was not trained on: geometry 15 ahead, votes 5 behind)."""
     from cotrain.detect.grid_pass import placement_is_sure
 
     shipped = GridConfig()
-    assert placement_is_sure(15.0 - 5.0, 15.0, 16, shipped)
-    assert not placement_is_sure(20.0, shipped.min_geometry_margin - 1, 16, shipped)  # backed too little: min_margin
-    assert not placement_is_sure(1e6, 0.0, 12, shipped) and not placement_is_sure(1e6, -3.0, 40, shipped)
-    assert placement_is_sure(shipped.min_margin + 1, 5.0, 12, shipped)
-    cfg = GridConfig(min_margin_votes_alone=35.0)
-    assert placement_is_sure(cfg.min_margin + 1, 5.0, 12, cfg)
-    assert not placement_is_sure(cfg.min_margin + 1, 0.0, 12, cfg)  # votes alone, under their own threshold
-    assert placement_is_sure(cfg.min_margin_votes_alone + 1, 0.0, 12, cfg)
-    assert placement_is_sure(cfg.min_margin_backed + 1, cfg.min_geometry_margin, 12, cfg)
-    assert not placement_is_sure(cfg.min_margin_backed - 1, 100.0, 12, cfg)
-    # 36 corners: the votes alone need 1.2 nats each, over the flat threshold
-    n = 36
-    assert cfg.min_votes_per_corner * n > cfg.min_margin_votes_alone + 5
-    assert not placement_is_sure(cfg.min_margin_votes_alone + 5, 0.0, n, cfg)
-    assert placement_is_sure(cfg.min_votes_per_corner * n + 1, 0.0, n, cfg)
-    assert placement_is_sure(cfg.min_margin + 1, 5.0, n, cfg)  # the geometry backs it: no per-corner rule
+    assert placement_is_sure(15.0 - 5.0, 15.0, shipped)
+    assert not placement_is_sure(20.0, shipped.min_geometry_margin - 1, shipped)  # backed too little: min_margin
+    assert not placement_is_sure(1e6, 0.0, shipped) and not placement_is_sure(1e6, -3.0, shipped)
+    assert placement_is_sure(shipped.min_margin + 1, 5.0, shipped)
+    cfg = GridConfig(votes_alone=True)
+    assert placement_is_sure(cfg.min_margin + 1, 0.0, cfg)
+    assert not placement_is_sure(cfg.min_margin - 1, 0.0, cfg)  # votes alone, under min_margin
+    assert placement_is_sure(cfg.min_margin_backed + 1, cfg.min_geometry_margin, cfg)
+    assert not placement_is_sure(cfg.min_margin_backed - 1, 100.0, cfg)
 
 
 def test_margin_evidence_where_the_squares_shrink_towards_the_edge():
@@ -233,11 +225,11 @@ def test_one_verified_corner_off_the_board_backs_a_placement():
     np.testing.assert_array_equal(placed.ids, ids)
     assert placed.geometry_margin == pytest.approx(shipped.offboard_penalty)
     assert placed.geometry_margin >= shipped.min_geometry_margin
-    assert placement_is_sure(shipped.min_margin_backed + 1, placed.geometry_margin, len(ab), shipped)
+    assert placement_is_sure(shipped.min_margin_backed + 1, placed.geometry_margin, shipped)
     former = GridConfig(offboard_penalty=10.0)
     before = assign_ids(ab, flat_c, flat_r, dark, BOARD, former, edges)
     assert before.geometry_margin == pytest.approx(10.0)
-    assert not placement_is_sure(former.min_margin_backed + 1, before.geometry_margin, len(ab), former)
+    assert not placement_is_sure(former.min_margin_backed + 1, before.geometry_margin, former)
 
 
 def test_a_corner_without_extent_weight_gives_the_geometry_no_margin():

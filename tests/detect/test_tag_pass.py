@@ -907,7 +907,7 @@ def test_a_fringe_corner_reads_its_rays_at_its_neighbours_gap():
         idx = np.array([b * C + a for a, b in ab])
         assert vis[idx].all()
         own_gap = np.linalg.norm(q[idx[-1]] - q[idx[6]]) * g.cfg.tag_spacing  # its only step is a tag side
-        assert np.isnan(corner_rays(grey, q[idx[-1:]].astype(np.float64), np.array([cfg.ray_radius * own_gap]))).all()
+        assert np.isnan(corner_rays(grey, q[idx[-1:]].astype(np.float64), np.array([cfg.complete.ray_radius * own_gap]))).all()
         ok = rays_agree(Lattice(q[idx].astype(np.float64), np.array(ab), np.zeros(len(idx), bool)), grey, g.cfg.tag_spacing, cfg)
         assert ok[-1]
 
@@ -933,9 +933,9 @@ def test_candidates_of_small_tags_pass_the_looser_symmetry_test():
         xy, _ = tag_candidates(grey, allowed, cfg, {}, rim)
         return float((cKDTree(xy).query(q)[0] < 1.0).mean())
 
-    assert TagConfig().candidate_min_symmetry < TagConfig().grid.min_symmetry
+    assert TagConfig().complete.min_symmetry < TagConfig().grid.min_symmetry
     assert found(TagConfig()) > 0.9
-    assert found(TagConfig(candidate_min_symmetry=TagConfig().grid.min_symmetry)) < 0.75
+    assert found(TagConfig(complete=replace(TagConfig().complete, min_symmetry=TagConfig().grid.min_symmetry))) < 0.75
 
 
 def test_a_views_side_thread_reads_what_one_thread_reads():

@@ -45,12 +45,12 @@ def test_grid_overrides_take_the_fields_type_and_refuse_unknown_keys():
     with pytest.raises(ValueError, match="KEY=VALUE"):
         grid_overrides(["min_margin=10"])  # the table sweeps it
     with pytest.raises(ValueError, match="KEY=VALUE"):
-        grid_overrides(["min_votes_per_corner=2"])  # the table turns it off
+        grid_overrides(["votes_alone=False"])  # the table turns it on
 
 
 def test_the_table_scores_every_placement():
-    """The thresholds the table sweeps or turns off let every placement through, however few nats
-    ahead and whatever the geometry says (the per-corner rule for votes alone included)."""
+    """The threshold the table sweeps, and the votes alone turned on, let every placement through,
+    however few nats ahead and whatever the geometry says (none at all included)."""
     import dataclasses
 
     from calib_eval.detection.tuning import SWEPT
@@ -58,5 +58,5 @@ def test_the_table_scores_every_placement():
     from cotrain.detect.grid_pass import placement_is_sure
 
     cfg = dataclasses.replace(GridConfig(), **SWEPT)
-    for margin, geometry, n in ((0.0, 0.0, 40), (0.5, -10.0, 54), (3.0, 5.0, 6), (1.0, 20.0, 12)):
-        assert placement_is_sure(margin, geometry, n, cfg)
+    for margin, geometry in ((0.0, 0.0), (0.5, -10.0), (3.0, 5.0), (1.0, 20.0)):
+        assert placement_is_sure(margin, geometry, cfg)
