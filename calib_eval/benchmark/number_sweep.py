@@ -15,10 +15,10 @@ only has to be large enough), to be confirmed on every kept set
 (:mod:`calib_eval.detection.regression`). The frames, tuning sets only
 (:data:`calib_eval.detection.sets.TUNING`):
 
-- checkerboard: every ``every``-th frame of the evaluation set and of seed 7 at 1280x720 (as the
-  regression renders them into ``sets``), the network run once per frame;
-- aprilgrid: every ``every``-th frame of the AprilGrid evaluation set's FoV rows as ``make bench``
-  times them (seed 2027, 1280x720, rendered into ``report/``).
+- checkerboard: every ``every``-th frame, by file name, of the evaluation set and of seed 7 at
+  1280x720 (as the regression renders them into ``sets``), the network run once per frame;
+- aprilgrid: every ``every``-th frame, by file name, of the AprilGrid evaluation set's FoV rows that
+  ``make bench`` times (seed 2027, 1280x720, 50 frames per FoV, rendered into ``report/``).
 
 The checkerboard's completion settings are a ``CompletionConfig`` that the grid pass builds
 itself (:func:`cotrain.detect.grid_pass._completed`, a few fields from ``GridConfig``, the rest
@@ -113,9 +113,9 @@ def aprilgrid_runner(every: int) -> tuple[list[str], Callable[[str | None, objec
     board = make_target(TargetConfig(kind="aprilgrid"))
     ecfg = TagEvalConfig(per_fov=50, conditions=[], n_empty=0)  # the frames bench_tags times
     out = Path("report") / f"tags_{ecfg.seed}_{ecfg.per_fov}"
-    labels = [lab for lab in render_set(ecfg, board, out) if lab["fov"]][::every]
+    render_set(ecfg, board, out)
     det = Detector(target=board)
-    greys = [det._grey(cv2.imread(str(out / "images" / lab["image"]), cv2.IMREAD_GRAYSCALE)) for lab in labels]
+    greys = [det._grey(cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)) for p in sorted((out / "images").glob("*.png"))[::every]]
 
     def run(name: str | None, value) -> Outputs:
         cfg = TagConfig() if name is None else with_field(TagConfig(), name, value)
