@@ -153,16 +153,18 @@ class GridConfig:
     # (67077f0)
     final_max_half: int = 3  # px: largest fit window half-size for the reported positions (see refine_positions)
     # --- which lattice is a board (grid_pass) ---
-    # unit: count; origin: not recorded (set in 5c3691a, "Detector grid pass: ...")
-    min_corners: int = 6  # smallest lattice that is reported
+    # unit: count; origin: not recorded (set in 5c3691a, "Detector grid pass: ..."); the tag pass's own was 4 (one tag) until the
+    # thirtieth session: at 6 no row of the eight AprilGrid sets changed
+    min_corners: int = 6  # smallest lattice that is reported (both passes)
     # unit: count; origin: not recorded (set in 54ef7eb, "Grid pass: a reported lattice needs two complete squares (lines of corners along
     # a diagonal are not lattices)")
     min_cells: int = 2  # complete lattice squares (four corners) a reported lattice needs
     # unit: probability; origin: not recorded (set in 5c3691a, "Detector grid pass: ...")
     min_board_prob: float = 0.3  # mean board probability (network mask) at a lattice's corners
     # unit: count; origin: measured on the six sets (614b101): 12 -> 16 took the evaluation set's under-exposed row 0.853 -> 0.891 and
-    # seed 11's FoV rows 0.8957 -> 0.8975 for about 0.5 ms; 24 placed 3 wrong corners in a motion-blurred frame
-    max_seeds: int = 16  # seeds tried (best corner scores first); the lattice with the surest identity wins
+    # seed 11's FoV rows 0.8957 -> 0.8975 for about 0.5 ms; 24 placed 3 wrong corners in a motion-blurred frame. The tag pass's own was
+    # 40 until the thirtieth session: at 16 no row of the eight AprilGrid sets changed
+    max_seeds: int = 16  # seeds grown at most (best first; the tag pass: strongest responses, covered candidates not tried again)
     # --- identity (identity) ---
     # origin: not recorded (set in 6b100e9, "Grid pass: column/row votes averaged over the corner and its four quarter-square points")
     vote_offset: float = 0.25  # network votes are also read this fraction of a step along both lattice axes (the diagonals)
@@ -303,12 +305,13 @@ class GridConfig:
     worst_neighbour_misfit: float = 0.15  # then the worst goes where it misses by over this and another too, by half as much without it ...
     # unit: count; origin: not recorded (set in 1ed5ebf, "Neighbour check: the worst corner goes where it bends another's map ...")
     worst_misfit_rounds: int = 3  # ... at most this many times (a wrong corner at a row's end bends its neighbour's map: both near 0.2)
-    # unit: count; origin: not recorded (set in be2d8e0, "Checkerboards completed from their identified corners ..."; the AprilGrid
-    # completion's rounds then, CompletionConfig.rounds, now 64)
     # Completed corners lie min_rim_px from the image circle's rim or the crop's edge at least (its own number until 2026-12-07,
     # 3 px: measured on the seven sets, 05a8f70: 8 -> 3, +116 corners, none lost, median error 0.09 px; the growth's own 3-5 px from
     # the rim: 0.12).
-    complete_rounds: int = 8  # rounds in which the corners the growth missed are predicted from the identified ones (0: none) ...
+    # The corners the growth missed are predicted from the identified ones (stage 5, completion), for CompletionConfig.rounds rounds, as
+    # in the tag pass (the grid pass had its own 8 until the thirtieth session, copied from the tag pass's then; 64 on every kept set:
+    # seed 2026 at 640x480 glare 0.8920 -> 0.8944, no other row changed) ...
+    completion: bool = True
     # unit: correlation; origin: measured on seven rendered sets of 2026-11-25, the evaluation set among them (be2d8e0): at 0.5, without
     # the edge rays and 3 px from the rim, 2-4 more wrong corners a set (at occluders' edges, 1.4-2.7 px off)
     complete_min_corr: float = 0.7  # ... matching the print around them this well, their edge rays along the axes ...

@@ -523,7 +523,6 @@ def _completed(c: _Crop, xy: np.ndarray, ids: np.ndarray, q: np.ndarray, conf: n
     # checker's print matched a saddle 15 px off at the rim (a new wrong corner, no new right one
     # over the eight checkerboard sets).
     complete = CompletionConfig(
-        rounds=cfg.complete_rounds,
         min_corr=cfg.complete_min_corr,
         check=False,
         sure_corr=math.inf,
@@ -608,7 +607,7 @@ def grid_pass(
     if cfg.misfit_neighbours and cfg.max_neighbour_misfit > 0:
         ok = _neighbours_agree(ids, q, board, cfg, lens)
         ids, q, conf = ids[ok], q[ok], conf[ok]
-    if cfg.complete_rounds and 4 <= len(ids) < board.n_corners:
+    if cfg.completion and 4 <= len(ids) < board.n_corners:
         ids, q, conf = _completed(c, xy, ids, q, conf, margin, board, smoothed, lens)
     order = np.argsort(ids)
     return GridResult(ids[order], q[order] + c.offset, conf[order], float(margin))

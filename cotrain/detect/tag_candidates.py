@@ -147,7 +147,7 @@ class _Candidates(NamedTuple):
     rim_dist: np.ndarray  # (H, W) px to the image circle's rim
     smoothed: dict[int, np.ndarray]  # the image's blurs (saddle.smooth_cached)
     xy: np.ndarray  # (K, 2) fitted saddle points, strongest first (tag_candidates)
-    tree: cKDTree | None  # of xy; None where there are fewer than cfg.min_corners
+    tree: cKDTree | None  # of xy; None where there are fewer than cfg.grid.min_corners
     rays: np.ndarray | None  # (K, 4, 2) their edge rays (sampling.corner_rays)
 
 
@@ -180,7 +180,7 @@ def _candidates_of(grey: np.ndarray, allowed: np.ndarray, cfg: TagConfig) -> _Ca
         rim_dist = cv2.distanceTransform(allowed.astype(np.uint8), cv2.DIST_L2, 3)
         response = None
     xy, _ = tag_candidates(grey, allowed, cfg, smoothed, rim_dist, response)
-    if len(xy) < cfg.min_corners:
+    if len(xy) < cfg.grid.min_corners:
         return _Candidates(rim_dist, smoothed, xy, None, None)
     tree = cKDTree(xy)
     near = tree.query(xy, k=2)[0][:, 1]

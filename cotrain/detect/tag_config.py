@@ -54,8 +54,6 @@ class TagConfig:
     fourth_radius: float = 0.6  # a seed tag's fourth corner lies within this fraction of its shorter side of the parallelogram's
     # unit: ratio of lengths in px; origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")
     min_long_short: float = 1.7  # at a seed, tag side / gap (Kalibr: 1 / tagSpacing) must exceed this on both axes
-    # count; origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")
-    max_seeds: int = 40  # seeds tried (strongest responses first); covered candidates are not tried again
     # unit: fraction of the predicted step; origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")
     match_radius: float = 0.35  # a neighbour must lie within this fraction of its predicted step
     # unit: fraction of the local gap; origin: measured on the evaluation set (seed 2027; a tuning set): with the ray step (e9bc70a) recall
@@ -185,10 +183,9 @@ class TagConfig:
     # pass")
     half_below: int = 70  # a frame not read enlarged (min_side_px) where fewer corners are found is read at half resolution too (0: never)
     # --- boards ---
-    # count; origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ..."); 4 is one tag's corners
-    min_corners: int = 4  # smallest lattice that is reported
     complete: CompletionConfig = field(default_factory=CompletionConfig)  # corners the growth missed, predicted from the placed board
-    # The grid pass's settings the tag pass shares: saddle fit, final positions, lens_fov, retry_gain_sigma, agree_radius, crowd_radius
+    # The grid pass's settings the tag pass shares: saddle fit, final positions, lens_fov, retry_gain_sigma, agree_radius, crowd_radius,
+    # max_seeds, min_corners
     grid: GridConfig = field(default_factory=GridConfig)
 
 

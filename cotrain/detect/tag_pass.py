@@ -307,7 +307,7 @@ def _grow_lattices(
     candidates: _Candidates, nbr: RayNeighbours, grey: np.ndarray, spacing: float, cfg: TagConfig, lens: EquidistantLens | None
 ) -> list[Lattice]:
     """Steps 2 and 3 of :func:`_tag_pass_in`: the lattices grown from the seeds among the
-    ``candidates`` (with their ray neighbours ``nbr``), strongest first, up to ``cfg.max_seeds``;
+    ``candidates`` (with their ray neighbours ``nbr``), strongest first, up to ``cfg.grid.max_seeds``;
     a candidate a lattice covers seeds none."""
     rim_dist, smoothed, xy, tree, _ = candidates
     rays_xyz = None if lens is None else lens.lift(xy)  # the candidates' unit rays (K, 3), for the seeds
@@ -325,7 +325,7 @@ def _grow_lattices(
     # what they reach, so that such a quad does not cover the corners of the tags it cuts.
     later: list[tuple[int, np.ndarray, list[int]]] = []
     for seed in range(len(xy)):
-        if len(grown) >= cfg.max_seeds:
+        if len(grown) >= cfg.grid.max_seeds:
             break
         if covered[seed]:
             continue
@@ -338,7 +338,7 @@ def _grow_lattices(
             continue
         grow(seed, frame, tag_corners)
     for seed, frame, tag_corners in later:
-        if len(grown) >= cfg.max_seeds:
+        if len(grown) >= cfg.grid.max_seeds:
             break
         if covered[seed]:
             continue
@@ -376,7 +376,7 @@ def _placed_boards(
     foreign: set[tuple[int, int, int]] = set()
     joined = [L for L in join_lattices(grown, cfg.grid.merge_radius_px) if not any(L is G for G in grown)]
     for lat in grown + joined:
-        if len(lat.ab) < cfg.min_corners:
+        if len(lat.ab) < cfg.grid.min_corners:
             continue
         cells = read_cells(lat, grey, spacing, cfg, lens)
         foreign |= {c.key for c in cells if c.clean and c.tag >= board.n_tags and c.hamming <= cfg.max_hamming}

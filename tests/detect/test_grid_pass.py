@@ -331,7 +331,7 @@ def test_completion_recovers_corners_the_growth_did_not_reach(monkeypatch):
 
     monkeypatch.setattr(gp, "grow_lattice", stopped)
     monkeypatch.setattr(gp, "find_candidates", candidates)
-    cut = Detector(None, target=g, grid=GridConfig(complete_rounds=0)).detect(img)
+    cut = Detector(None, target=g, grid=GridConfig(completion=False)).detect(img)
     full = Detector(None, target=g).detect(img)
     assert 0 < len(cut.ids) <= 0.6 * vis.sum()
     assert vis[full.ids].all()

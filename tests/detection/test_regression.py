@@ -32,8 +32,8 @@ def test_overrides_are_fields_of_the_configs_and_bad_ones_are_one_line_errors(ca
     with pytest.raises(ValueError, match="not FIELD=VALUE with a field of TagConfig"):
         reg._overridden("TagConfig", ["no_such_field=1"])
     # The grid settings the tag pass shares are set through TagConfig.grid.
-    tags = reg._overridden("TagConfig", ["grid.lens_fov=0", "max_seeds=7"])
-    assert tags.grid.lens_fov == 0 and tags.max_seeds == 7 and tags.grid.agree_radius == 0.3
+    tags = reg._overridden("TagConfig", ["grid.lens_fov=0", "max_hamming=1"])
+    assert tags.grid.lens_fov == 0 and tags.max_hamming == 1 and tags.grid.agree_radius == 0.3
     with pytest.raises(ValueError, match="is a number"):
         reg._overridden("TagConfig", ["grid.lens_fov=wide"])
     with pytest.raises(ValueError, match="not FIELD=VALUE"):
@@ -75,8 +75,8 @@ def test_each_target_gets_its_own_passs_settings():
     from cotrain.detect.tag_config import TagConfig
     from cotrain.targets import AprilGrid, Checkerboard, TargetConfig
 
-    grid, tags = GridConfig(min_margin=30.0), TagConfig(max_seeds=7)
-    assert target_detector(AprilGrid(), grid, tags).tags.max_seeds == 7
+    grid, tags = GridConfig(min_margin=30.0), TagConfig(max_hamming=1)
+    assert target_detector(AprilGrid(), grid, tags).tags.max_hamming == 1
     assert target_detector(Checkerboard(TargetConfig()), grid, tags).grid.min_margin == 30.0
 
 
