@@ -100,7 +100,8 @@ TUNING_SETS: tuple[TuningSet, ...] = (
     # changes of the same sessions (the tuning log in CHANGELOG.md, step 5; docs/results/size_curve.md).
     TuningSet("checkerboard", 2026, (640, 480), "min_margin_votes_alone 35 from its fov180_022"),
     # Seeds 41 and 53 (with the hard rows) and 67 at 1920x1080: a board placed by the votes alone
-    # at 35.2 nats (seed 53, fov180_000) took min_margin_votes_alone to infinity and
+    # at 35.2 nats (seed 53, fov180_000) took min_margin_votes_alone to infinity (since the
+    # thirtieth session the switch GridConfig.votes_alone, off) and
     # offboard_penalty 10 -> 15, judged over these sets (the tuning log in CHANGELOG.md, "How the thresholds
     # were chosen"); with 2026, 7, 11, 31 at 1024x768 they are "the seven rendered sets" later
     # grid-pass changes are kept on (e.g. the lattice split at a margin line, step 5).

@@ -227,7 +227,7 @@ class Detector:
 
     def _grid(self, grey: np.ndarray, box: Letterbox, out: dict[str, np.ndarray], cfg: GridConfig, half: bool = True) -> GridResult:
         """The grid pass on ``grey`` (its letterbox ``box``, the network's outputs ``out``); with
-        ``half``, where it finds fewer than ``cfg.half_below`` corners (at any image size) and the
+        ``half`` and ``cfg.half_resolution``, where it finds no corner (at any image size) and the
         network sees a board over ``cfg.half_min_board_share`` of its map, also at half resolution
         with the same network outputs (:func:`cotrain.detect.grid_pass.merge_half_resolution`: a
         board whose corners are too blurred at full resolution)."""
@@ -239,7 +239,7 @@ class Detector:
         maps = (out["corner_prob"][0, 0], out["mask_prob"][0, 0], logp_col, logp_row)
         g = grid_pass(grey, box, *maps, self.target, cfg)
         h, w = grey.shape
-        if not half or len(g.ids) >= cfg.half_below or min(h, w) // 2 < MIN_SIDE:
+        if not (half and cfg.half_resolution) or len(g.ids) or min(h, w) // 2 < MIN_SIDE:
             return g
         if np.mean(maps[1] > 0.5) < cfg.half_min_board_share:
             return g  # measured: no board under 0.4 % of the map was found at half resolution alone

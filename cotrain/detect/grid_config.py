@@ -252,24 +252,21 @@ class GridConfig:
     # unit: factor on the confidence; origin: not recorded (set in 5c3691a, "Detector grid pass: ...")
     filled_confidence: float = 0.9  # confidence factor of corners found by a saddle search, not among the candidates
     # --- blurred and large squares (detector) ---
-    # A frame where fewer corners are found is read at half resolution too (0: never; 1: where no board
-    # is found; at any size: the growth's min_step_px keeps squares too small at half resolution out) ...
-    # unit: count of corners; origin: measured on the evaluation set (771ed0f; the tuning log, step 8): at 1 about 4 ms a frame (58.8
-    # against 54.6 ms), seeds 7 / 11 motion blur 0.481 -> 0.614 / 0.426 -> 0.795; read under 60 corners: motion blur 0.62 -> 0.70, glare
-    # 0.81 -> 0.85, for 18 ms a frame
-    half_below: int = 1
+    # A frame where no board is found is read at half resolution too (False: never; at any size: the growth's min_step_px keeps squares
+    # too small at half resolution out) ... Measured on the evaluation set (771ed0f; the tuning log, step 8): about 4 ms a frame (58.8
+    # against 54.6 ms), seeds 7 / 11 motion blur 0.481 -> 0.614 / 0.426 -> 0.795; read under 60 corners found, not only none: motion
+    # blur 0.62 -> 0.70, glare 0.81 -> 0.85, for 18 ms a frame (the count was GridConfig.half_below, 1, until the thirtieth session, with
+    # half_min_shared 4 for the case of corners found at both resolutions, inert at 1)
+    half_resolution: bool = True
     # unit: share of the map's cells; origin: measured on the five kept sets of 2026-11-25 (seeds 2026, 7, 11 at 1280x720, the 1920x1080
     # and 1024x1024 ones; 2a4ec01): the 15 boards this pass gave had 105 cells or more (2 %); frames under 20 (0.4 %), 40-57 % of those
     # read again, skipped for 0.8-2.5 ms a frame with the same corners
     half_min_board_share: float = (
         0.004  # ... and the network's board map is over 0.5 on this share of its cells (a board too small for it gains nothing) ...
     )
-    # unit: count; origin: not recorded (set in 771ed0f, "Checkerboard: a frame where the grid pass finds no board is read again at half
-    # resolution ..."); inert at half_below 1 (the full pass then found none)
-    half_min_shared: int = 4  # ... and taken where both find this many corners at the same places ...
     # unit: nats; origin: measured on the seven sets (038a44a): 60 -> 25, the 16 boards only this pass found (28-189 nats) had every id
     # right, 8 frames gained (evaluation FoV 220 0.885 -> 0.894); min_margin's value
-    half_min_margin_alone: float = 25.0  # ... or where only the half-resolution pass finds a board, with this identity margin (min_margin)
+    half_min_margin_alone: float = 25.0  # ... and its board taken at this identity margin (min_margin's value)
     # unit: correlation; origin: not recorded (set in 771ed0f, "Checkerboard: a frame where the grid pass finds no board is read again at
     # half resolution ...")
     half_min_corr: float = 0.5  # a corner only the half-resolution pass finds must correlate with its print this much ...

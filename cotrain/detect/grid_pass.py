@@ -616,19 +616,14 @@ def grid_pass(
 def merge_half_resolution(grey: np.ndarray, full: GridResult, half: GridResult, board: Checkerboard, cfg: GridConfig) -> GridResult:
     """The grid pass's result on the (H, W) image ``grey`` (``full``) completed with its result on
     the image at half resolution (``half``, :func:`cotrain.detect.half_resolution.halve`'s pixels),
-    where that found more. It is taken where the two share at least ``cfg.half_min_shared``
-    corners, or, where ``full`` found nothing, where its identity margin reaches
-    ``cfg.half_min_margin_alone``; the corners only ``half`` reports are added as
+    where ``full`` found nothing (:meth:`cotrain.detect.detector.Detector._grid` reads it only
+    then). It is taken where its identity margin reaches ``cfg.half_min_margin_alone``; its
+    corners are kept as
     :func:`cotrain.detect.half_resolution.corners_at_half_resolution` keeps them (a correlation
     of ``cfg.half_min_corr`` with their print and no better one with an axis neighbour's, the
     other checker parity; ``cfg.half_rim_px`` from the rim, where a board's edge against the dark
     rim makes an X of its own and the full-resolution pass's rim rules were not applied)."""
-    if len(half.ids) <= len(full.ids):
-        return full
-    if len(full.ids):
-        if np.isin(half.ids, full.ids).sum() < cfg.half_min_shared:
-            return full
-    elif not half.margin >= cfg.half_min_margin_alone:
+    if len(full.ids) or not len(half.ids) or not half.margin >= cfg.half_min_margin_alone:
         return full
     # Not held to print_moved (CompletionConfig.moved_px 0): the grid pass guesses no lens, so its
     # maps would be pixel homographies, which bend from the board at the rim (on the checkerboard
