@@ -338,33 +338,36 @@ def _overridden(name: str, pairs: list[str]):
     """The config class ``name`` (GridConfig or TagConfig) with ``FIELD=VALUE`` pairs set (values
     read as YAML: numbers, true / false, .inf); ValueError (one line) for an unknown field. For
     TagConfig, ``grid.FIELD=VALUE`` sets a field of the grid settings the tag pass shares
-    (``TagConfig.grid``: its lens FoV, ``agree_radius``, ...)."""
+    (``TagConfig.grid``: its lens FoV, ``agree_radius``, ...) and ``complete.FIELD=VALUE`` one of
+    its completion settings (``TagConfig.complete``: also its candidates' symmetry, ray circle and
+    smallest gap)."""
     import dataclasses
 
     import yaml
 
     from cotrain.detect.grid_config import GridConfig
+    from cotrain.detect.print_model import CompletionConfig
     from cotrain.detect.tag_config import TagConfig
 
     cls = {"GridConfig": GridConfig, "TagConfig": TagConfig}[name]
-    names = {f.name for f in dataclasses.fields(cls)}
-    if cls is TagConfig:
-        names |= {f"grid.{f.name}" for f in dataclasses.fields(GridConfig)}
-    values, shared = {}, {}
+    nested = {"grid": GridConfig, "complete": CompletionConfig} if cls is TagConfig else {}
+    names = {f.name for f in dataclasses.fields(cls)} - set(nested)
+    names |= {f"{part}.{f.name}" for part, sub in nested.items() for f in dataclasses.fields(sub)}
+    values: dict = {}
+    parts: dict[str, dict] = {part: {} for part in nested}
     for pair in pairs:
         key, sep, value = pair.partition("=")
         if not sep or key not in names:
             raise ValueError(f"{pair!r}: not FIELD=VALUE with a field of {name}")
-        owner, field_name = (GridConfig, key[5:]) if key.startswith("grid.") else (cls, key)
-        got, default = yaml.safe_load(value), getattr(owner(), field_name)
+        part, _, field_name = key.rpartition(".")
+        got, default = yaml.safe_load(value), getattr(nested[part]() if part else cls(), field_name)
         numeric = isinstance(default, (int, float)) and not isinstance(default, bool)
         if isinstance(default, bool) and not isinstance(got, bool):
             raise ValueError(f"{pair!r}: {key} is true or false")
         if numeric and (isinstance(got, bool) or not isinstance(got, (int, float))):
             raise ValueError(f"{pair!r}: {key} is a number")
-        (shared if owner is not cls else values)[field_name] = got
-    if shared:
-        values["grid"] = GridConfig(**shared)
+        (parts[part] if part else values)[field_name] = got
+    values.update({part: nested[part](**got) for part, got in parts.items() if got})
     return cls(**values)
 
 

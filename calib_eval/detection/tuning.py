@@ -65,10 +65,20 @@ def grid_overrides(pairs: list[str]) -> dict[str, float | int]:
         if not sep or key not in fields:
             raise ValueError(f"--grid wants KEY=VALUE with KEY one of {sorted(fields)}, not {pair!r}")
         try:
-            out[key] = fields[key](value)
+            out[key] = _parsed(value, fields[key])
         except ValueError:
             raise ValueError(f"--grid {key}: {value!r} is not a valid {fields[key].__name__}") from None
     return out
+
+
+def _parsed(value: str, kind: type):
+    """``value`` as a ``kind``; a bool from true / false (any case), not from bool(value), which is True for "False"."""
+    if kind is bool:
+        word = value.strip().lower()
+        if word not in ("true", "false"):
+            raise ValueError(value)
+        return word == "true"
+    return kind(value)
 
 
 def margin_table(

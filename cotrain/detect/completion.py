@@ -18,7 +18,7 @@ identified one (a grid step away) is
    there (:func:`print_fit`); else the best of the tag pass's candidates within ``search`` of it
    (the growth stops where the prediction from a lattice's last steps misses by more than its
    reach; here every identified corner around predicts). A prediction closer to the image
-   circle's rim than ``min_rim_px`` (the board's edge against the black frame makes an X of its
+   circle's rim than the pass's ``GridConfig.min_rim_px`` (the board's edge against the black frame makes an X of its
    own there) is out of view, but from ``print_fit_rim_px`` on, in a gap under
    ``print_fit_rim_gap_px``, the print fit alone looks for it, within ``reach``. Where the saddle
    fit fails because its contrast is under the threshold set for a whole print (glare, shade, a

@@ -82,9 +82,10 @@ class GridConfig:
     # unit: share of the parent's quadrant contrast; origin: measured on the evaluation set, at this value only (4e02862): the edge test
     # took the motion-blur row's 8 wrong corners to 0
     min_step_edge_contrast: float = 0.15  # ... and needs this share of the parent's quadrant contrast at 1/4, 1/2 and 3/4 of the step
-    # Squares from this size on are large: the lens bends their sides between corners, and their X-junctions survive motion blur. Three
-    # rules read it: the edge walk (here), the board going on (board_goes_on, below) and margin evidence along the predicted step
-    # (edge_predict, below); each had its own 15 until the thirtieth session.
+    # Squares from this size on are large: the lens bends their sides between corners, and their X-junctions survive motion blur. Read
+    # by the edge walk and the steps measured anew (remeasure_steps, below), the board going on (board_goes_on) and margin evidence
+    # along the predicted step (edge_predict); the walk, the board going on and the predicted step had each its own 15 until the
+    # thirtieth session.
     # px (a square's smaller side, or the step out); origin: measured three times at this value only: the walk on the evaluation set,
     # seeds 7 and 11 (4e02862, with the edge test and the scaled step across): large squares at the rim 0.632 -> 0.749 / 0.549 -> 0.636 /
     # 0.635 -> 0.671; the board going on on seed 31 at 640x480 (0829808): without the floor a motion-blurred board was placed wrongly (12
@@ -163,8 +164,9 @@ class GridConfig:
     min_board_prob: float = 0.3  # mean board probability (network mask) at a lattice's corners
     # unit: count; origin: measured on the six sets (614b101): 12 -> 16 took the evaluation set's under-exposed row 0.853 -> 0.891 and
     # seed 11's FoV rows 0.8957 -> 0.8975 for about 0.5 ms; 24 placed 3 wrong corners in a motion-blurred frame. The tag pass's own was
-    # 40 until the thirtieth session: at 16 no row of the eight AprilGrid sets changed
-    max_seeds: int = 16  # seeds grown at most (best first; the tag pass: strongest responses, covered candidates not tried again)
+    # 40 until the thirtieth session: at 16 no row of the eight AprilGrid sets changed (it counts the lattices it grows, the grid pass
+    # the seeds it tries)
+    max_seeds: int = 16  # the growths a frame gets, best seeds first (the tag pass: strongest responses, covered candidates not tried)
     # --- identity (identity) ---
     # origin: not recorded (set in 6b100e9, "Grid pass: column/row votes averaged over the corner and its four quarter-square points")
     vote_offset: float = 0.25  # network votes are also read this fraction of a step along both lattice axes (the diagonals)

@@ -635,8 +635,5 @@ def merge_half_resolution(grey: np.ndarray, full: GridResult, half: GridResult, 
     if found is None or not len(found[0]):
         return full
     sel, q = found
-    ids = np.concatenate([full.ids, half.ids[sel]])
-    order = np.argsort(ids)
-    xy = np.concatenate([full.xy.reshape(-1, 2), q])[order]
-    conf = np.concatenate([full.confidence, half.confidence[sel]])[order]
-    return GridResult(ids[order], xy, conf, full.margin if len(full.ids) else half.margin)
+    order = np.argsort(half.ids[sel])
+    return GridResult(half.ids[sel][order], q[order], half.confidence[sel][order], half.margin)

@@ -36,8 +36,8 @@ class CompletionConfig:
     neighbours: int = 7  # identified corners nearest on the board that a prediction's homography is fitted to
     # origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified corners ...")
     max_residual: float = 0.5  # ... which must fit them within this fraction of the local gap
-    # origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified corners ..."); TagConfig.min_gap_px's
-    # 1.6
+    # origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified corners ..."), a copy of the tag
+    # growth's 1.6 (set in 24194e2, not recorded either), one number since the thirtieth session
     min_gap_px: float = 1.6  # no prediction where the local gap (crossing square's side) is narrower (px); nor tag growth (TagConfig)
     # (the rim: no prediction nor corner nearer than GridConfig.min_rim_px, the limit of every reported corner)
     # unit: fraction of the local gap; origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified
@@ -69,7 +69,7 @@ class CompletionConfig:
     # unit: correlation; origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified corners ...")
     min_corr_margin: float = 0.1  # ... better by this than with the print around each grid neighbour
     # unit: fraction of the local gap; origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified
-    # corners ..."); TagConfig.ray_radius's 0.5, one number since the thirtieth session
+    # corners ..."), a copy of the tag pass's ray circle's 0.5 (set in 02e95a5, not recorded either), one number since the thirtieth session
     ray_radius: float = 0.5  # a corner's edge rays are read on a circle of this fraction of the local gap (the tag pass's too) ...
     # origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified corners ...")
     max_ray_angle: float = 30.0  # ... and the board's axes must leave along them within this (deg) ...

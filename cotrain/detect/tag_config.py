@@ -184,8 +184,8 @@ class TagConfig:
     half_below: int = 70  # a frame not read enlarged (min_side_px) where fewer corners are found is read at half resolution too (0: never)
     # --- boards ---
     complete: CompletionConfig = field(default_factory=CompletionConfig)  # corners the growth missed, predicted from the placed board
-    # The grid pass's settings the tag pass shares: saddle fit, final positions, lens_fov, retry_gain_sigma, agree_radius, crowd_radius,
-    # max_seeds, min_corners
+    # The grid pass's settings the tag pass shares: saddle fit, final positions, min_rim_px, merge_radius_px, lens_fov, retry_gain_sigma,
+    # agree_radius, crowd_radius, max_seeds, min_corners
     grid: GridConfig = field(default_factory=GridConfig)
 
 

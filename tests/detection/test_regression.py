@@ -27,6 +27,8 @@ def test_compare_flags_recall_drops_beyond_the_tolerance_and_any_new_wrong_corne
 
 
 def test_overrides_are_fields_of_the_configs_and_bad_ones_are_one_line_errors(capsys):
+    from cotrain.detect.tag_config import TagConfig
+
     grid = reg._overridden("GridConfig", ["half_min_corr=0.9", "min_margin=.inf"])
     assert grid.half_min_corr == 0.9 and grid.min_margin == float("inf")
     with pytest.raises(ValueError, match="not FIELD=VALUE with a field of TagConfig"):
@@ -36,6 +38,10 @@ def test_overrides_are_fields_of_the_configs_and_bad_ones_are_one_line_errors(ca
     assert tags.grid.lens_fov == 0 and tags.max_hamming == 1 and tags.grid.agree_radius == 0.3
     with pytest.raises(ValueError, match="is a number"):
         reg._overridden("TagConfig", ["grid.lens_fov=wide"])
+    # ... and its completion settings (its candidates' symmetry among them) through TagConfig.complete.
+    tags = reg._overridden("TagConfig", ["complete.min_symmetry=0.6", "grid.half_resolution=false"])
+    assert tags.complete.min_symmetry == 0.6 and tags.complete.rounds == TagConfig().complete.rounds
+    assert tags.grid.half_resolution is False
     with pytest.raises(ValueError, match="not FIELD=VALUE"):
         reg._overridden("GridConfig", ["grid.lens_fov=0"])
     assert reg.main(["--grid", "nonsense", "--out", "unused"]) == 2

@@ -33,6 +33,10 @@ def test_grid_overrides_take_the_fields_type_and_refuse_unknown_keys():
 
     got = grid_overrides(["offboard_penalty=15", "max_seeds=20"])
     assert got == {"offboard_penalty": 15.0, "max_seeds": 20}
+    # A switch reads true / false, in any case ("False" is not bool("False")).
+    assert grid_overrides(["completion=False", "half_resolution=true"]) == {"completion": False, "half_resolution": True}
+    with pytest.raises(ValueError, match="not a valid bool"):
+        grid_overrides(["completion=0.5"])
     assert isinstance(got["max_seeds"], int) and isinstance(got["offboard_penalty"], float)
     with pytest.raises(ValueError, match="KEY=VALUE"):
         grid_overrides(["no_such_field=1"])
