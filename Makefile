@@ -25,6 +25,7 @@ run: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python -m calib_eval.benchmark.timing
 	$(BIN)/python -m calib_eval.benchmark.detector_shape --json docs/results/detector_shape.json
+	$(BIN)/python -m calib_eval.benchmark.tag_seeding --runs 3 --json docs/results/tag_seeding.json
 
 # Optional AprilGrid evaluation peers (python -m calib_eval.detection.tags). --no-deps: aprilgrid
 # asks for opencv-python, which would overwrite opencv-python-headless's cv2.
