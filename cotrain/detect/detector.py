@@ -20,6 +20,7 @@ Reading images: :mod:`cotrain.detect.images`; the model and its named outputs:
 from __future__ import annotations
 
 import dataclasses
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -27,7 +28,7 @@ import cv2
 import numpy as np
 
 from cotrain.detect.grid_config import GridConfig
-from cotrain.detect.grid_pass import GridResult, grid_pass, merge_half_resolution
+from cotrain.detect.grid_pass import BlackFrame, GridResult, black_frame, grid_pass, merge_half_resolution
 from cotrain.detect.half_resolution import halve
 from cotrain.detect.images import MIN_SIDE, ImageError, brighten, local_gain, to_grey_float
 from cotrain.detect.onnx_model import OnnxModel, default_grid_model_path
@@ -92,6 +93,7 @@ class Pending:
     grey: np.ndarray  # (H, W) float32 input image
     box: Letterbox | None  # its letterbox into the processing size (None: no network)
     out: dict[str, np.ndarray]  # the network's outputs by name (empty: no network)
+    frame: BlackFrame | None = None  # grey's black frame where read beside the network (Detector.detect), else None
 
 
 def _default_grid_model(threads: int) -> OnnxModel:
@@ -225,8 +227,17 @@ class Detector:
             raise ImageError(f"image too small ({w}x{h}); need at least {MIN_SIDE} px per side")
         return brighten(grey)
 
-    def _grid(self, grey: np.ndarray, box: Letterbox, out: dict[str, np.ndarray], cfg: GridConfig, half: bool = True) -> GridResult:
-        """The grid pass on ``grey`` (its letterbox ``box``, the network's outputs ``out``); with
+    def _grid(
+        self,
+        grey: np.ndarray,
+        box: Letterbox,
+        out: dict[str, np.ndarray],
+        cfg: GridConfig,
+        half: bool = True,
+        frame: BlackFrame | None = None,
+    ) -> GridResult:
+        """The grid pass on ``grey`` (its letterbox ``box``, the network's outputs ``out``, its black
+        frame ``frame`` where already read); with
         ``half`` and ``cfg.half_resolution``, where it finds no corner (at any image size) and the
         network sees a board over ``cfg.half_min_board_share`` of its map, also at half resolution
         with the same network outputs (:func:`cotrain.detect.grid_pass.merge_half_resolution`: a
@@ -237,7 +248,7 @@ class Detector:
             logp_col = np.zeros((self.nx + 2, *logp_col.shape[1:]), np.float32)
             logp_row = np.zeros((self.ny + 2, *logp_row.shape[1:]), np.float32)
         maps = (out["corner_prob"][0, 0], out["mask_prob"][0, 0], logp_col, logp_row)
-        g = grid_pass(grey, box, *maps, self.target, cfg)
+        g = grid_pass(grey, box, *maps, self.target, cfg, frame=frame)
         h, w = grey.shape
         if not (half and cfg.half_resolution) or len(g.ids) or min(h, w) // 2 < MIN_SIDE:
             return g
@@ -247,18 +258,21 @@ class Detector:
         g_half = grid_pass(halve(grey), half_box, *maps, self.target, cfg, extent_rim_px=cfg.half_rim_px / 2)
         return merge_half_resolution(grey, g, g_half, self.target, cfg)
 
-    def _grid_looks(self, grey: np.ndarray, box: Letterbox, out: dict[str, np.ndarray], cfg: GridConfig) -> tuple[GridResult, Look]:
+    def _grid_looks(
+        self, grey: np.ndarray, box: Letterbox, out: dict[str, np.ndarray], cfg: GridConfig, frame: BlackFrame | None = None
+    ) -> tuple[GridResult, Look]:
         """The grid pass by the checkerboard's retry schedule
         (:func:`cotrain.detect.retries.checkerboard_looks`): :meth:`_grid`, and where it finds
         nothing and ``cfg.retry_gain`` > 1, the same on ``grey`` with its contrast raised
         ``cfg.retry_gain`` times about its local mean (:func:`cotrain.detect.images.local_gain`),
         the network run again on it: a grey print, or a board in the shade or dim light, whose
         saddles and edges fall under the thresholds (set in intensity) and whose board the
-        network does not see. The result of the first look that finds a corner, and that look."""
+        network does not see. The result of the first look that finds a corner, and that look.
+        ``frame``: ``grey``'s black frame, where already read (the raised frame's is its own)."""
 
         def read(look: Look) -> GridResult:
             if not look.gained:
-                return self._grid(grey, box, out, look.config(cfg), look.half_resolution)
+                return self._grid(grey, box, out, look.config(cfg), look.half_resolution, frame)
             gained = local_gain(grey, cfg.retry_gain, cfg.retry_gain_sigma * min(grey.shape))
             return self._grid(gained, box, self._dense_maps(gained, box), look.config(cfg), look.half_resolution)
 
@@ -282,8 +296,28 @@ class Detector:
         return self._grid_looks(grey, box, self._dense_maps(grey, box), grid or self.grid)[0]
 
     def detect(self, image: np.ndarray) -> Detection:
-        """Detect corners in one image (any size, 8/16-bit or float, grey or colour)."""
-        return self.finish(self.network(image))
+        """Detect corners in one image (any size, 8/16-bit or float, grey or colour).
+
+        A checkerboard's network runs on a second thread (onnxruntime releases the GIL) while this
+        one reads what needs only the image, its black frame (:func:`cotrain.detect.grid_pass.black_frame`);
+        the result is the same as :meth:`finish` of :meth:`network`."""
+        if self.tags is not None or self.mode != "grid":
+            return self.finish(self.network(image))
+        grey = self._grey(image)
+        box = self.letterbox(grey)
+        running = self._beside().submit(self.net.run, box.apply(grey)[None, None])
+        frame = black_frame(grey)
+        return self.finish(Pending(grey, box, running.result(), frame))
+
+    def _beside(self) -> ThreadPoolExecutor:
+        """The one thread :meth:`detect` runs the network on, made on first use."""
+        if getattr(self, "_thread", None) is None:
+            self._thread = ThreadPoolExecutor(max_workers=1, thread_name_prefix="cotrain-network")
+        return self._thread
+
+    def __getstate__(self) -> dict:
+        """Pickled (to a worker process) without the network's thread: it is made there anew."""
+        return {**self.__dict__, "_thread": None}
 
     def network(self, image: np.ndarray) -> Pending:
         """The first half of :meth:`detect`: the image letterboxed and through the network (no
@@ -305,7 +339,7 @@ class Detector:
             r = tag_pass(grey, self.target, self.tags)
             return Detection(r.ids, r.xy, r.confidence, np.ones(len(r.ids)), w, h, look=r.look)
         if self.mode == "grid":
-            g, look = self._grid_looks(grey, box, out, self.grid)
+            g, look = self._grid_looks(grey, box, out, self.grid, pending.frame)
             return Detection(g.ids, g.xy, g.confidence, np.ones(len(g.ids)), w, h, look=look.name)
         det = self._postprocess(out, box, consistency=self.consistency)
         if self.polish and len(det.ids):

@@ -371,6 +371,22 @@ def cut_adds_evidence(whole: Placement, whole_stands: bool, lat: Lattice, part: 
     return not np.array_equal(whole.ids[rows], placed.ids)
 
 
+class BlackFrame(NamedTuple):
+    """The frame's black border beyond the fisheye's image circle (:func:`black_frame`): read from
+    the image alone, so it can be read while the network runs on the same image."""
+
+    outside: np.ndarray  # (H, W) bool: beyond the image circle (the black frame, not the board's black squares that join it)
+    circle: tuple[np.ndarray, float] | None  # the image circle (centre (2,), radius) in input pixels; None where none is
+
+
+def black_frame(grey: np.ndarray) -> BlackFrame:
+    """The black frame of the (H, W) float32 image ``grey`` and its image circle
+    (:func:`cotrain.detect.saddle.outside_and_circle`, cut at the circle by
+    :func:`cotrain.detect.image_circle.beyond_circle`)."""
+    outside, circle = outside_and_circle(grey)
+    return BlackFrame(beyond_circle(outside, circle), circle)
+
+
 class _Crop(NamedTuple):
     """The part of the input image the grid pass works on (crop pixels + offset = input pixels)."""
 
@@ -385,14 +401,14 @@ class _Crop(NamedTuple):
     cfg: GridConfig  # the settings, contrast thresholds scaled to the crop (contrast_scaled)
 
 
-def _crop(grey: np.ndarray, box: Letterbox, corner_prob: np.ndarray, mask_prob: np.ndarray, cfg: GridConfig) -> _Crop | None:
+def _crop(
+    grey: np.ndarray, box: Letterbox, corner_prob: np.ndarray, mask_prob: np.ndarray, cfg: GridConfig, frame: BlackFrame | None
+) -> _Crop | None:
     """Stage 1, the region: the crop around the network's corner / board region (all
-    full-resolution filtering scales with its area), inside the image circle; None where the
-    region is empty."""
+    full-resolution filtering scales with its area), inside the image circle (``frame``, read
+    here where None); None where the region is empty."""
     roi = search_region(np.maximum(corner_prob, mask_prob), box, cfg)
-    # The black frame beyond the image circle: not the board's black squares at the rim that join it.
-    outside, circle = outside_and_circle(grey)
-    outside = beyond_circle(outside, circle)
+    outside, circle = frame or black_frame(grey)
     allowed = ~outside
     allowed[[0, -1], :] = False  # the image's own border is a rim too
     allowed[:, [0, -1]] = False
@@ -564,6 +580,7 @@ def grid_pass(
     board: Checkerboard,
     cfg: GridConfig,
     extent_rim_px: float = 0.0,
+    frame: BlackFrame | None = None,
 ) -> GridResult:
     """Corners with ids from the network's dense outputs and the full-resolution image.
 
@@ -577,9 +594,10 @@ def grid_pass(
         are no evidence of the board's extent (:func:`extent_weight`): the half-resolution
         reading does not report them (``cfg.half_rim_px``), since the board's edge against the
         dark rim makes X-junctions of its own there.
+        frame: ``grey``'s black frame (:func:`black_frame`) where already read; else read here.
     """
     empty = GridResult(np.zeros(0, int), np.zeros((0, 2)), np.zeros(0), float("nan"))
-    c = _crop(grey, box, corner_prob, mask_prob, cfg)
+    c = _crop(grey, box, corner_prob, mask_prob, cfg, frame)
     if c is None:
         return empty
     cfg = c.cfg

@@ -2,6 +2,8 @@
 the same 200-degree fisheye camera, are detected through the same class and give the same
 ``Detection`` type, every reported corner at its own id's exact renderer label."""
 
+import pickle
+
 import cv2
 import numpy as np
 import pytest
@@ -47,6 +49,12 @@ def test_every_target_is_detected_through_the_same_detector(kind, tmp_path):
     assert visible[found.ids].all()
     err = np.linalg.norm(found.xy - labels[found.ids], axis=1)
     assert err.max() < 0.5, f"{kind}: corner {found.ids[err.argmax()]} is {err.max():.2f} px from its label"
+    # detect() reads a checkerboard's black frame while its network runs on a second thread: the
+    # same result, to the bit, as the two halves one after the other; and the detector still
+    # pickles (cotrain detect's worker processes) after that thread is made.
+    halves = det.finish(det.network(img))
+    assert np.array_equal(halves.ids, found.ids) and np.array_equal(halves.xy, found.xy)
+    assert np.array_equal(pickle.loads(pickle.dumps(det)).detect(img).xy, found.xy)
     # Over files (cotrain detect's path: the next image read and through network() while finish()
     # works on this one), the same corners, to the JSON's rounding.
     cv2.imwrite(str(tmp_path / "view.png"), img)
