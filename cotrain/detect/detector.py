@@ -20,7 +20,7 @@ Reading images: :mod:`cotrain.detect.images`; the model and its named outputs:
 from __future__ import annotations
 
 import dataclasses
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -94,6 +94,7 @@ class Pending:
     box: Letterbox | None  # its letterbox into the processing size (None: no network)
     out: dict[str, np.ndarray]  # the network's outputs by name (empty: no network)
     frame: BlackFrame | None = None  # grey's black frame where read beside the network (Detector.detect), else None
+    beside: Executor | None = None  # a thread idle while finish runs (Detector.detect's network thread), else None
 
 
 def _default_grid_model(threads: int) -> OnnxModel:
@@ -235,9 +236,10 @@ class Detector:
         cfg: GridConfig,
         half: bool = True,
         frame: BlackFrame | None = None,
+        beside: Executor | None = None,
     ) -> GridResult:
         """The grid pass on ``grey`` (its letterbox ``box``, the network's outputs ``out``, its black
-        frame ``frame`` where already read); with
+        frame ``frame`` where already read, a thread idle meanwhile ``beside``); with
         ``half`` and ``cfg.half_resolution``, where it finds no corner (at any image size) and the
         network sees a board over ``cfg.half_min_board_share`` of its map, also at half resolution
         with the same network outputs (:func:`cotrain.detect.grid_pass.merge_half_resolution`: a
@@ -248,18 +250,24 @@ class Detector:
             logp_col = np.zeros((self.nx + 2, *logp_col.shape[1:]), np.float32)
             logp_row = np.zeros((self.ny + 2, *logp_row.shape[1:]), np.float32)
         maps = (out["corner_prob"][0, 0], out["mask_prob"][0, 0], logp_col, logp_row)
-        g = grid_pass(grey, box, *maps, self.target, cfg, frame=frame)
+        g = grid_pass(grey, box, *maps, self.target, cfg, frame=frame, beside=beside)
         h, w = grey.shape
         if not (half and cfg.half_resolution) or len(g.ids) or min(h, w) // 2 < MIN_SIDE:
             return g
         if np.mean(maps[1] > 0.5) < cfg.half_min_board_share:
             return g  # measured: no board under 0.4 % of the map was found at half resolution alone
         half_box = Letterbox(w // 2, h // 2, self.input_size)
-        g_half = grid_pass(halve(grey), half_box, *maps, self.target, cfg, extent_rim_px=cfg.half_rim_px / 2)
+        g_half = grid_pass(halve(grey), half_box, *maps, self.target, cfg, extent_rim_px=cfg.half_rim_px / 2, beside=beside)
         return merge_half_resolution(grey, g, g_half, self.target, cfg)
 
     def _grid_looks(
-        self, grey: np.ndarray, box: Letterbox, out: dict[str, np.ndarray], cfg: GridConfig, frame: BlackFrame | None = None
+        self,
+        grey: np.ndarray,
+        box: Letterbox,
+        out: dict[str, np.ndarray],
+        cfg: GridConfig,
+        frame: BlackFrame | None = None,
+        beside: Executor | None = None,
     ) -> tuple[GridResult, Look]:
         """The grid pass by the checkerboard's retry schedule
         (:func:`cotrain.detect.retries.checkerboard_looks`): :meth:`_grid`, and where it finds
@@ -268,13 +276,14 @@ class Detector:
         the network run again on it: a grey print, or a board in the shade or dim light, whose
         saddles and edges fall under the thresholds (set in intensity) and whose board the
         network does not see. The result of the first look that finds a corner, and that look.
-        ``frame``: ``grey``'s black frame, where already read (the raised frame's is its own)."""
+        ``frame``: ``grey``'s black frame, where already read (the raised frame's is its own);
+        ``beside``: a thread idle meanwhile (:func:`cotrain.detect.grid_pass.grid_pass`)."""
 
         def read(look: Look) -> GridResult:
             if not look.gained:
-                return self._grid(grey, box, out, look.config(cfg), look.half_resolution, frame)
+                return self._grid(grey, box, out, look.config(cfg), look.half_resolution, frame, beside)
             gained = local_gain(grey, cfg.retry_gain, cfg.retry_gain_sigma * min(grey.shape))
-            return self._grid(gained, box, self._dense_maps(gained, box), look.config(cfg), look.half_resolution)
+            return self._grid(gained, box, self._dense_maps(gained, box), look.config(cfg), look.half_resolution, beside=beside)
 
         return first_found(checkerboard_looks(cfg), read)
 
@@ -300,14 +309,17 @@ class Detector:
 
         A checkerboard's network runs on a second thread (onnxruntime releases the GIL) while this
         one reads what needs only the image, its black frame (:func:`cotrain.detect.grid_pass.black_frame`);
-        the result is the same as :meth:`finish` of :meth:`network`."""
+        then, while the grid pass runs here, that thread makes the crop's distance to the rim and
+        its blurs (:func:`cotrain.detect.grid_pass.grid_pass`'s ``beside``). The result is the
+        same as :meth:`finish` of :meth:`network`, to the bit; :func:`cotrain.io.detections.detect_files`
+        has its own overlap (the next image's network beside this one's grid pass)."""
         if self.tags is not None or self.mode != "grid":
             return self.finish(self.network(image))
         grey = self._grey(image)
         box = self.letterbox(grey)
         running = self._beside().submit(self.net.run, box.apply(grey)[None, None])
         frame = black_frame(grey)
-        return self.finish(Pending(grey, box, running.result(), frame))
+        return self.finish(Pending(grey, box, running.result(), frame, self._beside()))
 
     def _beside(self) -> ThreadPoolExecutor:
         """The one thread :meth:`detect` runs the network on, made on first use."""
@@ -339,7 +351,7 @@ class Detector:
             r = tag_pass(grey, self.target, self.tags)
             return Detection(r.ids, r.xy, r.confidence, np.ones(len(r.ids)), w, h, look=r.look)
         if self.mode == "grid":
-            g, look = self._grid_looks(grey, box, out, self.grid, pending.frame)
+            g, look = self._grid_looks(grey, box, out, self.grid, pending.frame, pending.beside)
             return Detection(g.ids, g.xy, g.confidence, np.ones(len(g.ids)), w, h, look=look.name)
         det = self._postprocess(out, box, consistency=self.consistency)
         if self.polish and len(det.ids):

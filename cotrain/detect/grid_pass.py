@@ -45,6 +45,7 @@ Pure functions over numpy arrays; pixels follow docs/conventions.md (centre of t
 from __future__ import annotations
 
 import math
+from concurrent.futures import Executor
 from dataclasses import dataclass, replace
 from typing import NamedTuple
 
@@ -67,6 +68,7 @@ from cotrain.detect.saddle import (
     pixel_index,
     saddle_candidates,
     saddle_response,
+    smooth_ahead,
     smooth_cached,
     window_half,
 )
@@ -396,7 +398,7 @@ class _Crop(NamedTuple):
     offset: np.ndarray  # (2,) input pixel of the crop's top-left pixel
     bounds: tuple[int, int, int, int]  # x0, x1, y0, y1 of the crop in the input image
     shape: tuple[int, int]  # (H, W) of the input image
-    rim_dist: np.ndarray  # (h, w) float32 distance to the nearest pixel not allowed, px
+    rim_dist: np.ndarray | None  # (h, w) float32 distance to the nearest pixel not allowed, px (rim_distance; grid_pass fills it in)
     circle: tuple[np.ndarray, float] | None  # the image circle (centre, radius) in input pixels
     cfg: GridConfig  # the settings, contrast thresholds scaled to the crop (contrast_scaled)
 
@@ -422,8 +424,13 @@ def _crop(
     grey_c, roi, allowed = grey[y0:y1, x0:x1], roi[y0:y1, x0:x1], allowed[y0:y1, x0:x1]
     offset = np.array([x0, y0], np.float64)
     cfg = contrast_scaled(cfg, grey_c, roi)
-    rim_dist = cv2.distanceTransform(allowed.astype(np.uint8), cv2.DIST_L2, 3)
-    return _Crop(grey_c, roi, allowed, offset, (x0, x1, y0, y1), outside.shape, rim_dist, circle, cfg)
+    return _Crop(grey_c, roi, allowed, offset, (x0, x1, y0, y1), outside.shape, None, circle, cfg)
+
+
+def rim_distance(allowed: np.ndarray) -> np.ndarray:
+    """(h, w) float32 distance (px) of each pixel of ``allowed`` (h, w) bool to the nearest one that
+    is not (the image circle's rim, the image's border; OpenCV's 3 x 3 L2 distance transform)."""
+    return cv2.distanceTransform(allowed.astype(np.uint8), cv2.DIST_L2, 3)
 
 
 def _grow(
@@ -581,6 +588,7 @@ def grid_pass(
     cfg: GridConfig,
     extent_rim_px: float = 0.0,
     frame: BlackFrame | None = None,
+    beside: Executor | None = None,
 ) -> GridResult:
     """Corners with ids from the network's dense outputs and the full-resolution image.
 
@@ -595,6 +603,9 @@ def grid_pass(
         reading does not report them (``cfg.half_rim_px``), since the board's edge against the
         dark rim makes X-junctions of its own there.
         frame: ``grey``'s black frame (:func:`black_frame`) where already read; else read here.
+        beside: a thread idle meanwhile: the crop's distance to the rim (:func:`rim_distance`) and
+        its blurs for the fits (:func:`cotrain.detect.saddle.smooth_ahead`) are made there while
+        this thread finds the saddle response, the same arrays (OpenCV releases the GIL).
     """
     empty = GridResult(np.zeros(0, int), np.zeros((0, 2)), np.zeros(0), float("nan"))
     c = _crop(grey, box, corner_prob, mask_prob, cfg, frame)
@@ -602,7 +613,11 @@ def grid_pass(
         return empty
     cfg = c.cfg
     smoothed: dict[int, np.ndarray] = {}
+    rim = beside.submit(rim_distance, c.allowed) if beside is not None else None
+    if beside is not None:
+        smooth_ahead(smoothed, c.grey, beside)
     response = saddle_response(c.grey)
+    c = c._replace(rim_dist=rim_distance(c.allowed) if rim is None else rim.result())
     xy, axes = find_candidates(c.grey, c.roi, c.offset, box, corner_prob, cfg, smoothed, c.rim_dist, response)  # stage 2
     if len(xy) < cfg.min_corners:
         return empty

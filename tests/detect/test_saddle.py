@@ -217,3 +217,19 @@ def test_contrast_scale_is_the_share_of_the_boards_contrast_between_a_quarter_an
     assert contrast_scale(0.2, cfg) == pytest.approx(0.4)
     assert contrast_scale(0.8, cfg) == 1.0 and contrast_scale(0.01, cfg) == MIN_CONTRAST_SCALE
     assert contrast_scale(0.01, GridConfig(board_contrast=0.0)) == 1.0  # off
+
+
+def test_blurs_made_ahead_on_another_thread_are_the_blurs_made_on_demand():
+    """smooth_ahead starts the crop's usual blurs on an idle thread; smooth_cached hands each over
+    when asked, the same array as smooth_for makes, and makes the others on demand as before."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from cotrain.detect.saddle import smooth_ahead, smooth_cached, smooth_for
+
+    grey = np.random.default_rng(3).random((120, 90)).astype(np.float32)
+    ahead: dict = {}
+    with ThreadPoolExecutor(max_workers=1) as beside:
+        smooth_ahead(ahead, grey, beside)
+        for half in (2, 3, 4, 5, -1, 1, 7):
+            assert np.array_equal(smooth_cached(ahead, grey, half), smooth_for(grey, half))
+    assert set(ahead) == {2, 3, 4, 5, -1, 1, 7} and all(isinstance(v, np.ndarray) for v in ahead.values())
