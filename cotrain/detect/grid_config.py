@@ -269,12 +269,11 @@ class GridConfig:
     # unit: nats; origin: measured on the seven sets (038a44a): 60 -> 25, the 16 boards only this pass found (28-189 nats) had every id
     # right, 8 frames gained (evaluation FoV 220 0.885 -> 0.894); min_margin's value
     half_min_margin_alone: float = 25.0  # ... and its board taken at this identity margin (min_margin's value)
-    # unit: correlation; origin: not recorded (set in 771ed0f, "Checkerboard: a frame where the grid pass finds no board is read again at
-    # half resolution ...")
-    half_min_corr: float = 0.5  # a corner only the half-resolution pass finds must correlate with its print this much ...
+    # A corner only the half-resolution pass finds matches its print by the print check's CompletionConfig.min_corr (0.5; it was
+    # half_min_corr, a copy of that value, until the thirty-first session) ...
     # origin: not recorded (set in 771ed0f, "Checkerboard: a frame where the grid pass finds no board is read again at half resolution
     # ...")
-    half_rim_px: float = 12.0  # ... and lie this far from the image circle's rim (px)
+    half_rim_px: float = 12.0  # ... and lies this far from the image circle's rim (px)
     # --- grey prints (detector): a frame giving nothing read again (network too) with its contrast raised about its local mean ---
     # unit: factor; origin: code/table, not a threshold (0: off by default; at GREY_PRINT_GAIN the evaluation set's bench frames took 23.5
     # -> 50.8 ms over files, 1b3f4f3)

@@ -653,7 +653,7 @@ def merge_half_resolution(grey: np.ndarray, full: GridResult, half: GridResult, 
     then). It is taken where its identity margin reaches ``cfg.half_min_margin_alone``; its
     corners are kept as
     :func:`cotrain.detect.half_resolution.corners_at_half_resolution` keeps them (a correlation
-    of ``cfg.half_min_corr`` with their print and no better one with an axis neighbour's, the
+    of the print check's ``min_corr`` with their print and no better one with an axis neighbour's, the
     other checker parity; ``cfg.half_rim_px`` from the rim, where a board's edge against the dark
     rim makes an X of its own and the full-resolution pass's rim rules were not applied)."""
     if len(full.ids) or not len(half.ids) or not half.margin >= cfg.half_min_margin_alone:
@@ -663,7 +663,7 @@ def merge_half_resolution(grey: np.ndarray, full: GridResult, half: GridResult, 
     # sets it changed nothing: 676 frames).
     check = CompletionConfig(moved_px=0.0)
     found = corners_at_half_resolution(
-        grey, full.ids, full.xy, half.ids, half.xy, board, cfg, check, min_corr=cfg.half_min_corr, rim_px=cfg.half_rim_px
+        grey, full.ids, full.xy, half.ids, half.xy, board, cfg, check, min_corr=check.min_corr, rim_px=cfg.half_rim_px
     )
     if found is None or not len(found[0]):
         return full

@@ -471,13 +471,15 @@ def saddle_candidates(
 # Intensities in [0, 1] of the half-resolution image (half_blurred), all but MIN_BLACK_SHARE. Set in f5f6e80 ("The black frame found where a
 # camera lifts its black level"); the rule, not these values, was measured: the evaluation sets (1280x720; tuning sets) lifted to 16-255,
 # AprilGrid seed 2027 FoV recall 0.933 -> 0.962 (wrong 8 -> 1), checkerboard seed 2026 0.906 / 10 wrong -> 0.899 / 3.
-# origin: noise level (noise lifts a zero black frame to 0.025 in dark, brightened frames; the frames not recorded)
-BLACK_AS_ZERO = 0.03  # a black frame up to this level is black (noise lifts it to 0.025 in dark, brightened frames) ...
-# LIFTED_DARK, MAX_BLACK_LEVEL, BLACK_BAND, MIN_BLACK_SHARE: origin: not recorded (f5f6e80)
-LIFTED_DARK = 0.03  # ... above it, a camera's lifted black: dark means under its level + this (a step: 0.031 -> 0.061)
+# origin: noise level (noise lifts a zero black frame to 0.025 in dark, brightened frames; the frames not recorded). One number for three
+# uses of that band since the thirty-first session (they were BLACK_AS_ZERO, LIFTED_DARK and BLACK_BAND, each 0.03): a black frame up to
+# it is black; above it, a camera's lifted black, dark means under its level plus the band (a step: 0.031 -> 0.061); and the black
+# frame's pixels lie within the band of its level.
+BLACK_NOISE = 0.03  # how far noise spreads the black frame's pixels above its level
+# MAX_BLACK_LEVEL, MIN_BLACK_SHARE: origin: not recorded (f5f6e80)
 MAX_BLACK_LEVEL = 0.15  # a camera's black level is under this (16/255 = 0.063 is common); above it the border is scene
-BLACK_BAND = 0.03  # the black frame's pixels lie within this of its level ...
-MIN_BLACK_SHARE = 0.2  # ... over at least this share of the image border's pixels (its outermost two), where a black frame shows
+# Where a black frame shows, pixels within BLACK_NOISE of its level make at least this share of the image border's (its outermost two).
+MIN_BLACK_SHARE = 0.2
 
 
 def half_blurred(grey: np.ndarray) -> np.ndarray:
@@ -489,13 +491,13 @@ def half_blurred(grey: np.ndarray) -> np.ndarray:
 def black_level(small: np.ndarray) -> float:
     """The level of the black frame outside a fisheye's image circle where a camera lifts it off
     zero: the 5th percentile of the (H, W) image's outermost two pixels all around, where that
-    share of them lies within ``BLACK_BAND`` of it (a flat black frame, not a dark scene) and it is
+    share of them lies within ``BLACK_NOISE`` of it (a flat black frame, not a dark scene) and it is
     under ``MAX_BLACK_LEVEL``; else 0."""
     ring = np.concatenate([small[:2].ravel(), small[-2:].ravel(), small[2:-2, :2].ravel(), small[2:-2, -2:].ravel()])
     if not len(ring):
         return 0.0
     level = float(np.percentile(ring, 5))
-    flat = float(np.mean(ring < level + BLACK_BAND))
+    flat = float(np.mean(ring < level + BLACK_NOISE))
     return level if level <= MAX_BLACK_LEVEL and flat >= MIN_BLACK_SHARE else 0.0
 
 
@@ -503,9 +505,9 @@ def outside_circle(grey: np.ndarray, dark: float = 0.04, grow_px: int = 1) -> np
     """(H, W) bool: the black frame outside a fisheye's image circle (dark regions connected to
     the image border, found at half resolution), grown by ``grow_px``. Corners there sit on the
     rim, where the checker is cut and a saddle fit is pulled off the corner. Dark means under
-    ``dark``; where the image's border shows a flat level over ``BLACK_AS_ZERO``
+    ``dark``; where the image's border shows a flat level over ``BLACK_NOISE``
     (:func:`black_level`: a camera's lifted black, often 16/255), under that level +
-    ``LIFTED_DARK`` instead, if what that finds outlines an image circle
+    ``BLACK_NOISE`` instead, if what that finds outlines an image circle
     (:func:`cotrain.detect.image_circle.fit_image_circle`; a dim wall at a full frame's border
     does not)."""
     return _black_frame(grey, dark, grow_px, fit_always=False)[0]
@@ -523,8 +525,8 @@ def _black_frame(grey: np.ndarray, dark: float, grow_px: int, fit_always: bool) 
     H, W = grey.shape
     small = half_blurred(grey)
     level = black_level(small)
-    if level > BLACK_AS_ZERO:
-        lifted = _dark_at_border(small, level + LIFTED_DARK, (H, W), grow_px)
+    if level > BLACK_NOISE:
+        lifted = _dark_at_border(small, level + BLACK_NOISE, (H, W), grow_px)
         circle = fit_image_circle(lifted)
         if circle is not None:
             return lifted, circle

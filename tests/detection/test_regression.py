@@ -29,8 +29,8 @@ def test_compare_flags_recall_drops_beyond_the_tolerance_and_any_new_wrong_corne
 def test_overrides_are_fields_of_the_configs_and_bad_ones_are_one_line_errors(capsys):
     from cotrain.detect.tag_config import TagConfig
 
-    grid = reg._overridden("GridConfig", ["half_min_corr=0.9", "min_margin=.inf"])
-    assert grid.half_min_corr == 0.9 and grid.min_margin == float("inf")
+    grid = reg._overridden("GridConfig", ["half_rim_px=20", "min_margin=.inf"])
+    assert grid.half_rim_px == 20 and grid.min_margin == float("inf")
     with pytest.raises(ValueError, match="not FIELD=VALUE with a field of TagConfig"):
         reg._overridden("TagConfig", ["no_such_field=1"])
     # The grid settings the tag pass shares are set through TagConfig.grid.
@@ -66,7 +66,7 @@ def test_rows_of_a_rendered_set_are_scored_kept_and_reused(tmp_path, monkeypatch
     monkeypatch.setitem(reg.RUNNERS, "rendered", lambda *a: calls.append(a) or {"rows": {}})
     assert reg.run(tmp_path / "out", sets=tmp_path / "sets") == first  # reused: nothing detected
     assert not calls
-    reg.run(tmp_path / "other", sets=tmp_path / "sets", grid=reg._overridden("GridConfig", ["half_min_corr=0.9"]))
+    reg.run(tmp_path / "other", sets=tmp_path / "sets", grid=reg._overridden("GridConfig", ["half_rim_px=20"]))
     assert len(calls) == 1  # another detector key: detected again, on the same frames
     saved = json.loads((tmp_path / "out" / "regression.json").read_text())
     assert saved == json.loads(json.dumps(first))
