@@ -290,10 +290,9 @@ class GridConfig:
     # --- completion of a placed board ---
     # unit: fraction of the square's smaller side; origin: measured on the seven sets and a 640x480 one, at this value only (e56a15a,
     # 157f341): wrong corners 16 -> 5 (seed 41's 8 all gone), 9 right ones of 46,000 lost and 2 gained
+    # (0: no check.) Its nearest identified ones are the CompletionConfig.neighbours (7) nearest on the board, as completion's (a copy,
+    # misfit_neighbours, set in e56a15a, until the thirty-first session); verification.neighbour_check; completion may find it again.
     max_neighbour_misfit: float = 0.2  # a placed corner this far (of its square) from where its nearest identified ones put it goes ...
-    # unit: count; origin: not recorded (set in e56a15a, "Grid pass: a placed corner off where its 7 nearest identified corners put it
-    # ..."); the print check's 7 (CompletionConfig.neighbours)
-    misfit_neighbours: int = 7  # ... those corners (verification.neighbour_check; 0: no check); completion may find it again ...
     # unit: share of the board's corners; origin: measured on the seven sets and a 640x480 one (157f341): frames missing over a sixth read
     # 0.18 (5 of 6 misses wrong), then 0.23-0.96 (all right); at 0.15 (e56a15a) seed 41's frame of 5 wrong corners (18 % missing) went
     # unchecked

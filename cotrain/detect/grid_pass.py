@@ -527,6 +527,25 @@ def _identify(
     return scored
 
 
+def grid_completion(cfg: GridConfig) -> CompletionConfig:
+    """The completion settings of the grid pass's stage 5, whose ``neighbours`` its neighbour
+    check (stage 6) fits its maps to as well.
+
+    A checker's print tells only the two parities apart: a saddle at an occluder's edge, or the
+    rim's, can match it, so every corner added must also have its four edge rays along the
+    board's axes and a correlation of ``cfg.complete_min_corr``. Nor is a corner judged again
+    under the map through it (``CompletionConfig.refit_gap_px``): with a map fitted to it, a
+    checker's print matched a saddle 15 px off at the rim (a new wrong corner, no new right one
+    over the eight checkerboard sets)."""
+    return CompletionConfig(
+        min_corr=cfg.complete_min_corr,
+        check=False,
+        sure_corr=math.inf,
+        min_ray_px=0.0,  # rays at every gap: a checker's print tells only the parities apart
+        refit_gap_px=0.0,
+    )
+
+
 def _completed(c: _Crop, xy: np.ndarray, ids: np.ndarray, q: np.ndarray, conf: np.ndarray, margin: float, board, smoothed, lens):
     """Stage 5, completion: corners the growth did not reach (bent rows at the rim, a blurred
     stretch), predicted from the identified ones and checked against the print
@@ -539,21 +558,8 @@ def _completed(c: _Crop, xy: np.ndarray, ids: np.ndarray, q: np.ndarray, conf: n
     inside[:, : int(x0 > 0)] = inside[:, inside.shape[1] - int(x1 < c.shape[1]) :] = False
     inside[: int(y0 > 0)] = inside[inside.shape[0] - int(y1 < c.shape[0]) :] = False
     rim_c = cv2.distanceTransform(inside.astype(np.uint8), cv2.DIST_L2, 3)
-    # A checker's print tells only the two parities apart: a saddle at an occluder's edge, or
-    # the rim's, can match it, so every corner added must also have its four edge rays along
-    # the board's axes and a correlation of cfg.complete_min_corr. Nor is a corner judged again
-    # under the map through it (CompletionConfig.refit_gap_px): with a map fitted to it, a
-    # checker's print matched a saddle 15 px off at the rim (a new wrong corner, no new right one
-    # over the eight checkerboard sets).
-    complete = CompletionConfig(
-        min_corr=cfg.complete_min_corr,
-        check=False,
-        sure_corr=math.inf,
-        min_ray_px=0.0,  # rays at every gap: a checker's print tells only the parities apart
-        refit_gap_px=0.0,
-    )
     given = dict(zip(ids.tolist(), conf.tolist()))
-    ids, q, corr, _ = complete_board(c.grey, smoothed, rim_c, xy, board, ids, q, complete, cfg, lens)
+    ids, q, corr, _ = complete_board(c.grey, smoothed, rim_c, xy, board, ids, q, grid_completion(cfg), cfg, lens)
     conf = np.array([given.get(i, (1.0 - np.exp(-margin)) * k) for i, k in zip(ids.tolist(), corr.tolist())])
     return ids, q, conf
 
@@ -568,7 +574,7 @@ def _neighbours_agree(ids: np.ndarray, q: np.ndarray, board: Checkerboard, cfg: 
         board,
         ids,
         q,
-        cfg.misfit_neighbours,
+        grid_completion(cfg).neighbours,
         cfg.max_neighbour_misfit,
         lens,
         max_share=cfg.max_misfit_share,
@@ -637,7 +643,7 @@ def grid_pass(
     conf = np.full(len(ids), 1.0 - np.exp(-margin)) * np.where(lat.filled, cfg.filled_confidence, 1.0)
     ids, q, conf = ids[on], lat.xy[on], conf[on]
     lens = lens_of_circle(c.circle, cfg.lens_fov, c.offset)
-    if cfg.misfit_neighbours and cfg.max_neighbour_misfit > 0:
+    if cfg.max_neighbour_misfit > 0:
         ok = _neighbours_agree(ids, q, board, cfg, lens)
         ids, q, conf = ids[ok], q[ok], conf[ok]
     if cfg.completion and 4 <= len(ids) < board.n_corners:
