@@ -28,8 +28,8 @@ identified one (a grid step away) is
    contrast is;
 3. verified against the print (:func:`print_correlation`): the image around the corner, sampled
    through the homography moved onto it, must correlate with the board's printed pattern around
-   that corner (tag border, crossing square, the tags' data cells) by ``min_corr``, and better by
-   ``min_corr_margin`` than with the pattern around each of its eight grid neighbours: a saddle at
+   that corner (tag border, crossing square, the tags' data cells) by ``min_corr``, and better
+   than with the pattern around each of its eight grid neighbours: a saddle at
    the crossing square's other corner or at a data junction matches another pattern. Under
    ``sure_corr`` its four edge rays must also follow the board's axes (:func:`rays_along`): a
    corner half under an occluder has the occluder's edge for one of them. In gaps too small to
@@ -320,8 +320,8 @@ def best_option(
     (the board's ``gap`` metres, :func:`smallest_step`), is found at (step 3 of the module's
     docstring), and its print correlation; (None, -inf) where none holds. An option nearer than ``crowd`` of the gap to
     a known corner (``known_q`` (K, 2)) or nearer than ``rim_px`` to the rim (``rim_dist`` (H, W))
-    is refused; the others must match the print around t by ``cfg.min_corr``, by
-    ``cfg.min_corr_margin`` more than a grid neighbour's, and have their edge rays along the
+    is refused; the others must match the print around t by ``cfg.min_corr``, better than a grid
+    neighbour's, and have their edge rays along the
     board's axes unless their match is sure (``cfg.sure_corr``); where the rays' circle would be
     under ``cfg.min_ray_px``, a margin of ``cfg.small_corr_margin`` over every grid neighbour's
     print stands for the rays. The best match wins; but among
@@ -337,7 +337,7 @@ def best_option(
             continue
         m = print_correlation(sm, rim_dist, board, to_image, q - q0, t, cfg)
         refitted = False
-        if not (m.corr >= cfg.min_corr and m.corr - m.other >= cfg.min_corr_margin):
+        if not (m.corr >= cfg.min_corr and m.corr >= m.other):
             # Across large tags bent by a lens the guess does not know, the map extrapolated from
             # the neighbours misses the print's shape there: judged again under the map through q,
             # more strictly (that map was fitted to q).

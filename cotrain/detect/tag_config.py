@@ -87,12 +87,9 @@ class TagConfig:
     # count of bits; origin: print geometry (tag36h11's codes differ in at least 11 bits) and AprilTag's own correction of 2 (the tuning
     # log, step 6)
     max_hamming: int = 2  # bit errors a tag read alone may have (tag36h11: codes differ in at least 11 bits)
-    # unit: intensity in [0, 1]; origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ..."); halved with the
-    # pass's other contrast thresholds, the evaluation set's low-contrast row went 0.823 -> 0.805 (CHANGELOG 2026-11-24, late morning)
-    min_bit_contrast: float = 0.06  # white gap minus black border a tag needs to be read
-    # unit: share of the 36 data cells; origin: print geometry (each of tag36h11's 587 codes has 10-25 of its 36 data cells white: 0.28 ..
-    # 0.69); the margin under that not recorded (set in d1ad990, "AprilGrid: seeds at any tag corner ...")
-    min_data_share: float = 0.15  # a seed's tag has at least this share of white and of black data cells (tag36h11: 0.28 .. 0.69)
+    # A tag is read where its white gap is lighter than its black border, and a seed's tag where its white data cells are lighter than
+    # its black ones by min_data_contrast. (Until the thirty-first session the gap had to be lighter by min_bit_contrast, 0.06, and a
+    # seed's data cells a share of min_data_share, 0.15, white and black: at 0 neither changed a corner of the eight AprilGrid sets.)
     # origin: not recorded (set in 02e95a5, "tag pass: tags read after sharpening, ...; seeds from each corner's four edge rays")
     min_data_contrast: float = 0.2  # a seed's white data cells must be lighter than its black ones by this share of the tag's contrast
     # unit: share of the samples; origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")
@@ -149,9 +146,9 @@ class TagConfig:
     # count of tags; origin: measured on the evaluation set (seed 2027; a tuning set): recall 0.827 -> 0.832 (200 frames), 0.855 -> 0.860
     # (64), no new wrong corner (f1b11a9)
     lend_depth: int = 3  # ... and on through unread tags beside it, up to this many tags away (1: beside it only)
-    # count of lattice steps; origin: measured on the evaluation set (seed 2027; a tuning set): recall 0.798 -> 0.807 (200 frames; f5a9792,
-    # CHANGELOG 2026-11-24, later)
-    fringe_steps: int = 2  # an unread tag's corner next to a kept one keeps its id up to this many steps from a min_lend_corr match
+    # (Until the thirty-first session an unread tag's corner at a lattice's fringe kept its id within fringe_steps, 2, of a tag matched
+    # by min_lend_corr, and corners within rim_strict_px, 8 px, of the rim needed a complete cell: off, neither changed a corner of the
+    # eight AprilGrid sets but one, lost, on the evaluation set's motion blur row.)
     # origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")
     max_cell_misfit: float = 0.25  # a corner must close one of its cells as a parallelogram within this fraction of its side
     # origin: measured on the evaluation set (seed 2027; a tuning set): the ray check took wrong corners 3 -> 0 (64 frames; 02e95a5); 25-30
@@ -162,8 +159,6 @@ class TagConfig:
     small_gap_px: float = 3.5  # ... or, where its shortest lattice step is under this (tags under 12 px: no data junctions resolve) ...
     # deg; origin: measured with small_gap_px (above): 40 or 90 deg brought wrong corners
     max_ray_angle_small: float = 30.0  # ... within this: on a circle of 1.5-1.75 px the rays' angles are coarse
-    # px; origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")
-    rim_strict_px: float = 8.0  # corners this close to the rim are reported only in a complete lattice cell
     # unit: factor; origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")
     max_side_gap_ratio: float = 2.0  # a corner's tag side / gap on a lattice line may differ from the target's by this factor
     # origin: measured on seeds 2027, 2031 and 2035 (tuning sets): FoV recall +0.004 / +0.004 / +0.001, no new wrong corner; up to 10 px

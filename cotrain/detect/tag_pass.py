@@ -35,8 +35,7 @@ checkerboard's: tags and crossing squares are dark, the gap strips between them 
    them); tags that decode alone elsewhere are dropped and counted; :func:`verified_corners`
    keeps the corners of tags that match (small blurred tags: better than a slip by one tag
    would), of unread tags beside a tag that matched surely (and on through unread tags, up to
-   ``lend_depth`` tags away), and of unread tags at the lattice's
-   fringe a step or two from a firm match (ids through the lattice); :func:`cells_close`,
+   ``lend_depth`` tags away; ids through the lattice); :func:`cells_close`,
    :func:`steps_alternate` and :func:`rays_agree` drop corners that slid or sit on a junction
    inside a tag;
 6. boards: lattices that place no tag of the target (a second board with other tags; free tags
@@ -90,7 +89,6 @@ from cotrain.detect.tag_placement import (
     _Board,
     cells_close,
     consistent_boards,
-    near_rim,
     place_board,
     rays_agree,
     steps_alternate,
@@ -123,7 +121,7 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
     most ``cfg.max_enlarge``): the pass's smallest fit windows, sampling circles and crossing
     tests are fixed in pixels, and tags of 8-12 px in a 640x480 frame resolve only enlarged; the
     thresholds that judge a tag's size in pixels (``small_tag_px``, ``small_gap_px``,
-    ``keep_unfitted_px``, ``rim_strict_px``) scale with the factor, so the identity rules see
+    ``keep_unfitted_px``) scale with the factor, so the identity rules see
     the tags as they are, as does completion's ``moved_px`` (a distance in the frame's pixels).
     Positions are given in the frame's pixels either way.
 
@@ -240,7 +238,7 @@ def _tag_pass_circle(grey: np.ndarray, board: AprilGrid, cfg: TagConfig, view: _
     view = view or _view_of(grey, cfg)
     f = view.scale
     if f > 1:
-        cfg = replace(cfg, **{k: getattr(cfg, k) * f for k in ("small_tag_px", "small_gap_px", "keep_unfitted_px", "rim_strict_px")})
+        cfg = replace(cfg, **{k: getattr(cfg, k) * f for k in ("small_tag_px", "small_gap_px", "keep_unfitted_px")})
         cfg = replace(cfg, complete=replace(cfg.complete, moved_px=cfg.complete.moved_px * f))
     r = _tag_pass_in(view.grey, view.allowed, board, cfg, view.lens, view.candidates)
     xy = r.xy + np.array(view.origin, np.float64)
@@ -390,7 +388,7 @@ def _placed_boards(
         ids[
             ~verified_corners(lat, cells, under, place.turn, board, cfg)
             | ~steps_alternate(lat, spacing, cfg.max_side_gap_ratio)
-            | ~cells_close(lat, cfg.max_cell_misfit, near_rim(lat, rim_dist, cfg.rim_strict_px))
+            | ~cells_close(lat, cfg.max_cell_misfit)
             | ~rays_agree(lat, sm, spacing, cfg)
         ] = -1
         found.append(_Board(lat, ids, place, decoded, [c for c, t in alone if not (c.tag == t and c.turn == place.turn)]))

@@ -109,20 +109,11 @@ def steps_alternate(lat: Lattice, spacing: float, tol: float) -> np.ndarray:
     return ok
 
 
-def near_rim(lat: Lattice, rim_dist: np.ndarray, px: float) -> np.ndarray:
-    """(K,) bool: lattice corners within ``px`` of the image circle's rim or the image border."""
-    H, W = rim_dist.shape
-    q = np.clip(np.rint(lat.xy).astype(int), 0, [W - 1, H - 1])
-    return rim_dist[q[:, 1], q[:, 0]] < px
-
-
-def cells_close(lat: Lattice, tol: float, strict: np.ndarray | None = None) -> np.ndarray:
+def cells_close(lat: Lattice, tol: float) -> np.ndarray:
     """(K,) bool: corners that close at least one lattice cell they belong to as a parallelogram
     of its other three corners would, within ``tol`` of the cell's longer side (over one cell the
     fisheye's bend is small); a corner in no complete cell needs a neighbour along each lattice
-    axis, or, where ``strict`` (K,) says so (next to the image circle's rim, where the cut print
-    makes false junctions), is dropped. A corner slid along a side fails. (Scalar arithmetic: it
-    runs per corner and cell.)"""
+    axis. A corner slid along a side fails. (Scalar arithmetic: it runs per corner and cell.)"""
     where = lat.where
     pts = lat.xy.tolist()
     ok = np.ones(len(lat.ab), bool)
@@ -143,8 +134,6 @@ def cells_close(lat: Lattice, tol: float, strict: np.ndarray | None = None) -> n
                 best = min(best, math.hypot(xa + xb - xc - x, ya + yb - yc - y) / max(side, 1e-9))
         if best < math.inf:
             ok[k] = best <= tol
-        elif strict is not None and strict[k]:
-            ok[k] = False
         else:  # in no complete cell: it needs a neighbour along each axis
             ok[k] = any((a + d, b) in where for d in (-1, 1)) and any((a, b + d) in where for d in (-1, 1))
     return ok
@@ -214,11 +203,8 @@ def verified_corners(lat: Lattice, cells: list[TagCell], under: np.ndarray, turn
     (``cfg.min_lend_corr``; under ``cfg.small_tag_px`` also by ``cfg.min_tag_corr_local`` where it
     beats a slip by ``cfg.min_lend_slip_margin``), or an unread tag beside one that has, up to
     ``cfg.lend_depth`` tags from the one read (a region of tags too small to read, never across a
-    tag that was read and did not match): its ids come through the lattice. So does an
-    unread tag's corner next to a corner kept so, within ``cfg.fringe_steps`` lattice steps of a
-    corner of a tag matched by ``cfg.min_lend_corr`` (the fringe of a lattice at the rim, where
-    no tag beside it is complete)."""
-    good, sure, firm, read = set(), set(), set(), set()
+    tag that was read and did not match): its ids come through the lattice."""
+    good, sure, read = set(), set(), set()
     for c, t in zip(cells, under):
         corr = float(tag_corr(c.look.soft, turn, np.array([t]))[0]) if t >= 0 else -1.0
         blurred = c.side < cfg.small_tag_px  # cells of 2 px or less: blur, not a misprint, lowers the correlation
@@ -230,8 +216,6 @@ def verified_corners(lat: Lattice, cells: list[TagCell], under: np.ndarray, turn
         lends_small = blurred and corr >= cfg.min_tag_corr_local and slip_margin >= cfg.min_lend_slip_margin
         if c.clean and (corr >= cfg.min_lend_corr or lends_small):
             sure.add(c.cell)
-        if c.clean and corr >= cfg.min_lend_corr:
-            firm.add(c.cell)
     cell_of = [(a - a % 2, b - b % 2) for a, b in lat.ab.tolist()]
     unread = set(cell_of) - read
 
@@ -245,20 +229,6 @@ def verified_corners(lat: Lattice, cells: list[TagCell], under: np.ndarray, turn
         front = {c for c in unread - lent if beside(c, front)}
         lent |= front
     keep = np.array([c in good or c in lent for c in cell_of], bool)
-    if cfg.fringe_steps > 0:
-        where = lat.where
-        first = keep.copy()
-        for k, (a, b) in enumerate(lat.ab.tolist()):
-            if first[k] or cell_of[k] in read:
-                continue
-            if not any(first[where[(a + i, b + j)]] for i, j in STEPS if (a + i, b + j) in where):
-                continue
-            keep[k] = any(
-                ((a + i) - (a + i) % 2, (b + j) - (b + j) % 2) in firm
-                for i in range(-cfg.fringe_steps, cfg.fringe_steps + 1)
-                for j in range(-cfg.fringe_steps, cfg.fringe_steps + 1)
-                if abs(i) + abs(j) <= cfg.fringe_steps and (a + i, b + j) in where
-            )
     return keep
 
 

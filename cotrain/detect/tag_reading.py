@@ -552,7 +552,7 @@ class TagCell:
 def read_cells(lat: Lattice, img: np.ndarray, spacing: float, cfg: TagConfig, lens: EquidistantLens | None = None) -> list[TagCell]:
     """Every tag cell of the lattice (a, b both even) with its four corners, data cells of at least
     ``cfg.min_cell_px`` and all samples in the image, read; ``clean`` says whether it looks like a
-    tag (``cfg.min_bit_contrast``, ``cfg.min_clean``)."""
+    tag (its white gap lighter than its black border, ``cfg.min_clean``)."""
     where = lat.where
     pos = {-1: -spacing, 0: 0.0, 1: 1.0, 2: 1.0 + spacing}
     found: list[tuple[tuple[int, int], np.ndarray, float]] = []  # (cell, corners, shortest side)
@@ -582,6 +582,6 @@ def read_cells(lat: Lattice, img: np.ndarray, spacing: float, cfg: TagConfig, le
     for k, (tag, turn, ham) in zip(read, codes):
         cell, c, side = found[k]
         look = looks[k]
-        ok = look.contrast >= cfg.min_bit_contrast and look.clean >= cfg.min_clean
+        ok = look.contrast >= 0 and look.clean >= cfg.min_clean
         out.append(TagCell(cell, look, tag, turn, ham, ok, side, tuple(c.mean(0).tolist())))
     return out

@@ -354,9 +354,9 @@ def seed_tag(
         if not looks_like_a_tag(img, c, spacing):
             continue  # a quick look first: most quads of candidates are no tag
         look = look_at_tag(img, c, spacing, sharpen=cfg.sharpen, max_side_misfit=cfg.max_side_misfit, lens=lens)
-        if look is None or look.contrast < cfg.min_bit_contrast or look.clean < cfg.min_clean:
+        if look is None or look.contrast < 0 or look.clean < cfg.min_clean:
             continue
-        if min(look.white.mean(), 1 - look.white.mean()) < cfg.min_data_share or look.data_contrast < cfg.min_data_contrast:
+        if look.data_contrast < cfg.min_data_contrast:
             continue  # uniform inside: a crossing square, not a tag
         decodes = decode_bits(look.white)[2] <= cfg.max_hamming
         return frame, [ja, int(j), jb], decodes

@@ -754,11 +754,12 @@ def test_lattice_link_and_join_recover_one_board_from_two_growths():
     assert lattice_link(A, Lattice(xy3, P.ab, P.filled), 1.0) is None
 
 
-def test_unread_tags_near_a_firm_tag_keep_their_corners_within_fringe_steps():
+def test_unread_tags_keep_their_corners_only_beside_a_firm_tag():
     """Tag cell (0, 0) matches its code surely; the lattice goes on to corners of tags that were
-    not read (not all their corners there). The side neighbours' corners keep their ids as before;
-    a corner of the diagonal tag, two steps from the firm tag and next to a kept corner, only with
-    ``fringe_steps`` >= 2."""
+    not read (not all their corners there). The corners of the tags beside it (sharing a side)
+    keep their ids; those of the diagonal tag (2, 2), sharing only a corner, do not, nor does the
+    tag beyond (no fringe rule since the thirty-first session: it changed no corner of the kept
+    AprilGrid sets)."""
     g = make_target(TargetConfig(kind="aprilgrid"))
     img, c = tag_image(14, 40, 0.5)
     look = look_at_tag(img, c, 0.3, sharpen=TagConfig().sharpen)
@@ -768,19 +769,10 @@ def test_unread_tags_near_a_firm_tag_keep_their_corners_within_fringe_steps():
     lat = Lattice(_board_lattice(ab), ab, np.zeros(len(ab), bool))
     offset = _offset_putting(g, 14, turn)
     under = tag_under(np.array([cell.cell]), turn, offset, g)
-    keep0 = verified_corners(lat, [cell], under, turn, g, TagConfig(fringe_steps=0, lend_depth=1))
-    keep2 = verified_corners(lat, [cell], under, turn, g, TagConfig(fringe_steps=2, lend_depth=1))
-    keep3 = verified_corners(lat, [cell], under, turn, g, TagConfig(fringe_steps=3, lend_depth=1))
+    keep = verified_corners(lat, [cell], under, turn, g, TagConfig(lend_depth=1))
     own = [0, 1, 2, 3]
     side = [4, 5, 7, 8, 9, 10]  # corners of tags (2, 0) and (0, 2): beside the firm tag
-    assert keep0[own].all() and keep0[side].all() and not keep0[6] and not keep0[11]
-    assert keep2[own].all() and keep2[side].all() and keep2[6]  # (2, 2): tag (2, 2), two steps from (1, 1)
-    assert not keep2[11] and keep3[11]  # (3, 2): three steps from the firm tag's nearest corner
-    # Without a kept neighbour ((2, 1) and (1, 2) gone), (2, 2) stays unidentified.
-    part = ~np.isin(np.arange(len(ab)), [5, 7])
-    sub = Lattice(lat.xy[part], ab[part], lat.filled[part])
-    keep = verified_corners(sub, [cell], under, turn, g, TagConfig(fringe_steps=2, lend_depth=1))
-    assert not keep[sub.where[(2, 2)]] and keep[sub.where[(1, 1)]]
+    assert keep[own].all() and keep[side].all() and not keep[6] and not keep[11]
 
 
 def test_unread_tags_lend_ids_along_a_row_up_to_lend_depth():
@@ -799,14 +791,14 @@ def test_unread_tags_lend_ids_along_a_row_up_to_lend_depth():
     tag_of = ab[:, 0] // 2  # 0 .. 4 along the row
     under = tag_under(np.array([(0, 0)]), turn, offset, g)
     for depth, reach in ((1, 1), (3, 3), (4, 4)):
-        keep = verified_corners(lat, [first], under, turn, g, TagConfig(lend_depth=depth, fringe_steps=0))
+        keep = verified_corners(lat, [first], under, turn, g, TagConfig(lend_depth=depth))
         np.testing.assert_array_equal(keep, tag_of <= reach)
     # Tag 2 of the row read, and its code is not the one the placement puts there: nothing beyond it.
     wrong = TagCell((4, 0), look, tag, turn, ham, True, 40.0)  # tag 14's read where another tag is
     cells = [first, wrong]
     under = tag_under(np.array([(0, 0), (4, 0)]), turn, offset, g)
     assert under[1] != 14
-    keep = verified_corners(lat, cells, under, turn, g, TagConfig(lend_depth=4, fringe_steps=0))
+    keep = verified_corners(lat, cells, under, turn, g, TagConfig(lend_depth=4))
     np.testing.assert_array_equal(keep, tag_of <= 1)
 
 
