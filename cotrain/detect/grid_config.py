@@ -68,12 +68,12 @@ class GridConfig:
     seed_bend_angle: float = 35.0  # deg: where none does, the nearest at seed_bend_px or farther within this (0: off)
     # origin: measured on the six sets with seed_bend_angle (8866c5c): the wider angle at every distance lost 0.003-0.009 of the FoV rows
     seed_bend_px: float = 40.0  # px: ... (the sides of large squares near a fisheye's rim bend by tens of degrees between corners)
-    # unit: |sin| (0.2: about 11.5 deg); origin: not recorded (set in 5c3691a, "Detector grid pass: ...")
-    min_seed_axes_sin: float = 0.2  # |sin| of the angle between the seed's two steps (nearly parallel ones are no lattice)
+    # (A seed's two steps had to be 11.5 deg apart, min_seed_axes_sin 0.2, until the thirty-first session: at 0 no row of the kept
+    # checkerboard sets changed.)
     # unit: fraction of (step a +- step b); origin: not recorded (set in 5c3691a, "Detector grid pass: ...")
     diag_offset: float = 0.3  # colour test samples the four quadrants this fraction of (step a +- step b) from the corner
-    # origin: not recorded (set in 5c3691a, "Detector grid pass: ...")
-    min_seed_contrast: float = 0.05  # |quadrant contrast| (intensity) the seed needs (see sampling.diag_contrast)
+    # (A seed needed a quadrant contrast of 0.05, min_seed_contrast, until the thirty-first session: at 0 four rows of the kept
+    # checkerboard sets gained a corner each, no wrong one; its colours must still alternate as the growth goes.)
     # unit: share of the parent's quadrant contrast; origin: not recorded (set in 5c3691a, "Detector grid pass: ...")
     min_alternation: float = 0.25  # a new corner's quadrant contrast must flip sign with at least this share of its parent's
     # unit: fraction of the step; origin: not recorded (set with the edge test in 4e02862, "Grid pass: lattice growth follows squares that
@@ -138,9 +138,9 @@ class GridConfig:
     # origin: measured on the seven sets (e17c0e8): 30 deg here as at the border took +186 corners, 23 of them wrong (a whole board among
     # them); set in a94aa89 without a figure
     max_rim_edge_angle: float = 15.0  # deg: a corner fitted in a window cut by the rim must have its edges along the lattice lines
-    # origin: measured on the seven sets (e17c0e8): +33 corners, -1, no new wrong one (evaluation FoV rows 0.9148 -> 0.9161); true corners
-    # 5-10 px from the frame's top or bottom edge fit their edges 15-25 deg off
-    max_border_edge_angle: float = 30.0  # deg: ... where only the image's border cuts it (no dark rim in reach to make a half X)
+    # ... but not where only the image's border cuts it (no dark rim in reach to make a half X): true corners 5-10 px from the frame's
+    # top or bottom edge fit their edges 15-25 deg off (e17c0e8). It was held to 30 deg there (max_border_edge_angle) until the
+    # thirty-first session: without that, four rows of the kept checkerboard sets gained a corner or two, no wrong one.
     # origin: not recorded (set in 8a49be6, "Grid pass: join parts of one lattice before the placement; rim-cut tips need both edge
     # directions"); off (0): +2 corners over 16 sets (docs/results/rule_ablations.md)
     rim_borrowed_angle: float = 30.0  # deg: ... and along an axis without a neighbour, the axis a neighbour across measures (0: off)
@@ -157,11 +157,10 @@ class GridConfig:
     # unit: count; origin: not recorded (set in 5c3691a, "Detector grid pass: ..."); the tag pass's own was 4 (one tag) until the
     # thirtieth session: at 6 no row of the eight AprilGrid sets changed
     min_corners: int = 6  # smallest lattice that is reported (both passes)
-    # unit: count; origin: not recorded (set in 54ef7eb, "Grid pass: a reported lattice needs two complete squares (lines of corners along
-    # a diagonal are not lattices)")
-    min_cells: int = 2  # complete lattice squares (four corners) a reported lattice needs
-    # unit: probability; origin: not recorded (set in 5c3691a, "Detector grid pass: ...")
-    min_board_prob: float = 0.3  # mean board probability (network mask) at a lattice's corners
+    # A reported lattice needs a complete square (four corners; lines of corners along a diagonal are not lattices). It needed two,
+    # min_cells, set in 54ef7eb, until the thirty-first session: at 0 no row of the kept checkerboard sets changed.
+    # (A lattice needed a mean board probability of 0.3 at its corners, min_board_prob, until the thirty-first session: at 0 the
+    # independent renderer's photographed prints went 0.7501 -> 0.7858, no wrong corner, and no other kept row changed.)
     # unit: count; origin: measured on the six sets (614b101): 12 -> 16 took the evaluation set's under-exposed row 0.853 -> 0.891 and
     # seed 11's FoV rows 0.8957 -> 0.8975 for about 0.5 ms; 24 placed 3 wrong corners in a motion-blurred frame. The tag pass's own was
     # 40 until the thirtieth session: at 16 no row of the eight AprilGrid sets changed (it counts the lattices it grows, the grid pass
@@ -249,8 +248,8 @@ class GridConfig:
     # unit: count; origin: measured at this value only: merges took the evaluation set's FoV rows 0.8949 -> 0.8956, large squares 0.778 ->
     # 0.797 (acbea97); joins seed 7's 0.8940 -> 0.8993, seed 11's 0.8947 -> 0.8957 (8a49be6); no new wrong corner
     merge_min_shared: int = 2  # lattices join (either way) where they share this many corners (spots, and coordinates or ids)
-    # px; origin: not recorded (set in acbea97, "Grid pass: join the corners of other surely placed lattices of the same board")
-    merge_crowd_px: float = 3.0  # a joined corner must lie this far from every corner there (join_lattices: else no join at all)
+    # (A joined corner had to lie 3 px from every corner there, merge_crowd_px, until the thirty-first session: at 0 no row of the kept
+    # checkerboard sets changed; a corner not at a shared spot lies merge_radius_px away at least.)
     # unit: factor on the confidence; origin: not recorded (set in 5c3691a, "Detector grid pass: ...")
     filled_confidence: float = 0.9  # confidence factor of corners found by a saddle search, not among the candidates
     # --- blurred and large squares (detector) ---

@@ -159,7 +159,6 @@ def contrast_scaled(cfg: GridConfig, grey: np.ndarray, roi: np.ndarray) -> GridC
         cfg,
         board_contrast=cfg.board_contrast * k,  # what the scaled thresholds hold for (a spot dimmer still scales them again)
         min_saddle_contrast=cfg.min_saddle_contrast * k,
-        min_seed_contrast=cfg.min_seed_contrast * k,
         min_edge_contrast=cfg.min_edge_contrast * k,
     )
 
@@ -190,8 +189,7 @@ def _joined(big: Lattice, small: Lattice, cfg: GridConfig) -> Lattice | None:
     """``big`` joined by ``small``'s corners where the two share at least ``cfg.merge_min_shared``
     corners at the same spots (within ``cfg.merge_radius_px``) and one turn and offset of small's
     lattice coordinates onto big's maps every shared corner onto its own; None where they do not,
-    or where a corner of small would land on a coordinate big has at another spot, or within
-    ``cfg.merge_crowd_px`` of one of big's corners."""
+    or where a corner of small would land on a coordinate big has at another spot."""
     d, nn = cKDTree(big.xy).query(small.xy)
     shared = np.nonzero(d < cfg.merge_radius_px)[0]
     if len(shared) < cfg.merge_min_shared:
@@ -205,7 +203,7 @@ def _joined(big: Lattice, small: Lattice, cfg: GridConfig) -> Lattice | None:
     new = np.ones(len(small.ab), bool)
     new[shared] = False
     ab_new = small.ab @ R.T + o
-    if (d[new] <= cfg.merge_crowd_px).any() or any(tuple(t) in big.where for t in ab_new[new].tolist()):
+    if any(tuple(t) in big.where for t in ab_new[new].tolist()):
         return None
     union = {tuple(t): q for t, q in zip(big.ab.tolist(), big.xy)}
     new_idx = np.nonzero(new)[0]
@@ -290,7 +288,7 @@ def merge_lattices(
     surely on its own (:func:`placement_is_sure`) and shares at least ``cfg.merge_min_shared``
     corners with the same ids at the same spots (within ``cfg.merge_radius_px``; up to a turn of
     a symmetric board) and none with other ids; each of its other corners joins where its id is
-    new, it lies ``cfg.merge_crowd_px`` from every corner there, and the corners already there
+    new and the corners already there
     predict it (:func:`_fits_the_union`; a lattice's wrong corner at a spot the best one refused
     does not fit). Returns the joined lattice, whose coordinates are the board's (i, j), and its
     ids (K',). Seeds stopped by an occluder, a bend or blur grow parts of one board."""
@@ -316,7 +314,7 @@ def merge_lattices(
                 break
         else:
             continue  # placed otherwise: not joined
-        cand = np.nonzero(~same_spot & (d > cfg.merge_crowd_px))[0]
+        cand = np.nonzero(~same_spot)[0]
         items = [((int(oid[k] % board.nx), int(oid[k] // board.nx)), oxy[k]) for k in cand]
         joined += [(int(oid[k]), oxy[k], bool(ofilled[k])) for k in cand[_join_outwards(union, items, cfg)]]
     if not joined:
@@ -433,11 +431,9 @@ def rim_distance(allowed: np.ndarray) -> np.ndarray:
     return cv2.distanceTransform(allowed.astype(np.uint8), cv2.DIST_L2, 3)
 
 
-def _grow(
-    c: _Crop, xy: np.ndarray, axes: np.ndarray, mask_prob: np.ndarray, box: Letterbox, smoothed: dict, response: np.ndarray
-) -> list[Lattice]:
+def _grow(c: _Crop, xy: np.ndarray, axes: np.ndarray, smoothed: dict, response: np.ndarray) -> list[Lattice]:
     """Stage 3, the lattices: grown from several seeds (distractors can hold the strongest
-    saddles), verified, on what the network calls board; joined where ``cfg.join_lattices``
+    saddles) among the candidates of the network's board region, verified; joined where ``cfg.join_lattices``
     (joined lattices are placed beside their parts, a part alone can be surer, and verified again
     with their corners' final neighbours)."""
     cfg, grey, offset, rim_dist = c.cfg, c.grey, c.offset, c.rim_dist
@@ -459,8 +455,6 @@ def _grow(
             continue  # (the verification only drops corners)
         lat = verify_lattice(lat, grey, cfg, smoothed, rim_dist, crop_circle)
         if len(lat.ab) < cfg.min_corners or skipped_corners(lat, response, cfg) > cfg.max_skipped:
-            continue
-        if CELLS.sample(mask_prob[None], box.to_processing(lat.xy + offset))[:, 0].mean() < cfg.min_board_prob:
             continue
         grown.append(lat)
     if cfg.join_lattices:
@@ -488,8 +482,8 @@ def _place(c: _Crop, lat: Lattice, v: _Votes, board: Checkerboard, smoothed: dic
     cfg = c.cfg
     blur1 = smooth_cached(smoothed, c.grey, -1)
     dark = cell_darkness(blur1, lat)
-    if len(dark) < cfg.min_cells:
-        return None  # a line of corners (or a diagonal) is not a checker lattice
+    if not dark:
+        return None  # a line of corners (or a diagonal), without one complete square, is not a checker lattice
     lc, lr = corner_votes(lat, v.logp_col, c.offset, v.box, cfg), corner_votes(lat, v.logp_row, c.offset, v.box, cfg)
     edges = edge_evidence(blur1, lat, cfg, v.xy)
     placed = assign_ids(lat.ab, lc, lr, dark, board, cfg, edges, extent_weight(lat, c.rim_dist, v.extent_rim_px))
@@ -627,7 +621,7 @@ def grid_pass(
     xy, axes = find_candidates(c.grey, c.roi, c.offset, box, corner_prob, cfg, smoothed, c.rim_dist, response)  # stage 2
     if len(xy) < cfg.min_corners:
         return empty
-    grown = _grow(c, xy, axes, mask_prob, box, smoothed, response)
+    grown = _grow(c, xy, axes, smoothed, response)
     scored = _identify(c, grown, _Votes(logp_col, logp_row, box, xy, extent_rim_px), board, smoothed)
     if not scored:
         return empty

@@ -207,8 +207,8 @@ def _seed_steps(xy: np.ndarray, axes: np.ndarray, seed: int, tree: cKDTree, cfg:
             return None
         steps.append(best[1])
     sa, sb = steps
-    if abs(_cross(sa, sb)) < cfg.min_seed_axes_sin * np.linalg.norm(sa) * np.linalg.norm(sb):
-        return None
+    if _cross(sa, sb) == 0:
+        return None  # parallel steps span no lattice (nearly parallel ones are left to the growth's own checks)
     if _cross(sa, sb) < 0:
         sa, sb = sb, sa
     return sa, sb
@@ -352,8 +352,6 @@ def grow_lattice(
     placed[0] = p0
     sm1 = smooth_cached(smoothed, grey, 2)
     par = {(0, 0): diag_contrast(sm1, p0, sa, sb, cfg.diag_offset)}
-    if abs(par[(0, 0)]) < cfg.min_seed_contrast:
-        return None
     lab, filled = [(0, 0)], [False]  # each corner's lattice coordinate, and whether a saddle search found it
     step = {(0, 0): (sa, sb)}
     where = {(0, 0): 0}  # the growing lattice's index (see Lattice.where)
@@ -465,15 +463,14 @@ def _rim_cut_kept(
     cuts (``cut`` (K,) bool): their edge directions ``axes`` (K, 2, 2) must follow the lattice
     lines; ``keep`` (K,) is cleared in place where they do not."""
     where = lat.where
-    cos_rim, cos_border = np.cos(np.radians(cfg.max_rim_edge_angle)), np.cos(np.radians(cfg.max_border_edge_angle))
+    cos_rim = np.cos(np.radians(cfg.max_rim_edge_angle))
     cos_borrowed = np.cos(np.radians(cfg.rim_borrowed_angle))
     for k in np.nonzero(cut)[0]:
         # Cut by the image's border alone (the image circle's rim, and the black frame beyond
         # it, out of the window's reach): no dark rim there to make a half X of its own.
         # (The black frame is kept CIRCLE_INSIDE_PX inside the fitted circle, and 1 px for the fit.)
         rim_room = circle[1] - CIRCLE_INSIDE_PX - 1 - math.hypot(q[k, 0] - circle[0][0], q[k, 1] - circle[0][1]) if circle else 0.0
-        border = rim_room > window_reach(halves[k])
-        cos_max = cos_border if border else cos_rim
+        border = rim_room > window_reach(halves[k])  # its edges are not held to the lattice lines there
         # Cut by the rim, a square's corner against the margin or the rim can pass for half an
         # X-junction: the fitted edges must run along the lattice lines to the neighbours.
         a, b = lat.ab[k]
@@ -483,7 +480,7 @@ def _rim_cut_kept(
             if t in where:
                 u = lat.xy[where[t]] - q[k]
                 u = u / max(np.linalg.norm(u), 1e-9)
-                keep[k] &= bool(np.abs(axes[k] @ u).max() >= cos_max)
+                keep[k] &= border or bool(np.abs(axes[k] @ u).max() >= cos_rim)
                 seen_axis[abs(db)] = True
         for axis in (0, 1):
             if seen_axis[axis] or not keep[k] or not cfg.rim_borrowed_angle:
@@ -521,9 +518,9 @@ def verify_lattice(
       :func:`cotrain.detect.saddle.saddle_fit`: near the image circle's rim from the part of the
       window that is seen) does not land on it again (within ``max_refit_shift`` of the square),
       or, where the window is cut by the rim, its edge directions do not follow the lattice lines
-      (within ``max_rim_edge_angle``; ``max_border_edge_angle`` where the image ``circle`` (centre
-      (2,) and radius, in these pixels; None: not known) is out of the window's reach and only the
-      image's border cuts it) or, along an axis where it has no neighbour, the direction
+      (within ``max_rim_edge_angle``; not where the image ``circle`` (centre (2,) and radius, in
+      these pixels; None: not known) is out of the window's reach and only the image's border
+      cuts it) or, along an axis where it has no neighbour, the direction
       a neighbour across measures along that axis (within ``rim_borrowed_angle``);
     - it breaks a lattice line: the midpoint of its two neighbours along a, or along b, misses it
       by more than ``max_line_offset`` of a step (where a group of corners slipped by a diagonal

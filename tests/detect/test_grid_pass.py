@@ -108,8 +108,8 @@ def test_contrast_scaled_thresholds():
     low = contrast_scaled(cfg, grey, roi)
     k = (0.585 - 0.315) / 0.5
     np.testing.assert_allclose(
-        [low.min_saddle_contrast, low.min_seed_contrast, low.min_edge_contrast],
-        [cfg.min_saddle_contrast * k, cfg.min_seed_contrast * k, cfg.min_edge_contrast * k],
+        [low.min_saddle_contrast, low.min_edge_contrast],
+        [cfg.min_saddle_contrast * k, cfg.min_edge_contrast * k],
         rtol=0.01,  # the percentiles are taken over every 4th pixel
     )
     assert low.board_contrast == pytest.approx(0.5 * k, rel=0.01)  # the contrast the thresholds now hold for

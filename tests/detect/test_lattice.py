@@ -280,7 +280,7 @@ def test_rim_cut_tip_corner_needs_edges_along_both_lattice_axes(monkeypatch):
 
 def test_a_corner_cut_by_the_image_border_alone_may_fit_its_edges_more_loosely(monkeypatch):
     """A corner whose window only the image's border cuts (the image circle's rim out of the
-    window's reach) keeps fitted edges up to max_border_edge_angle off its lattice lines: there is
+    window's reach) keeps fitted edges off its lattice lines (22 deg here): there is
     no dark rim there to make a half X-junction of a square's corner. Where the circle's rim is
     within reach, or no circle is known, the rim's limit (max_rim_edge_angle) holds. (The saddle
     fit is replaced by one that returns the given edge directions, so the rule is tested alone.)"""
