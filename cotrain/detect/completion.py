@@ -33,8 +33,8 @@ identified one (a grid step away) is
    the crossing square's other corner or at a data junction matches another pattern. Under
    ``sure_corr`` its four edge rays must also follow the board's axes (:func:`rays_along`): a
    corner half under an occluder has the occluder's edge for one of them. In gaps too small to
-   read rays in (a circle under ``min_ray_px``: tags under about 13 px), the print must instead
-   beat each neighbour's by ``small_corr_margin``, and such corners are taken only once the
+   read rays in (a circle under ``min_ray_px``: tags under about 13 px), the print's match
+   stands for them, and such corners are taken only once the
    rounds that read rays add nothing more: their predictions then come from every corner those
    found. Among several
    candidates of the search, one whose rays follow the axes goes before a sure match over a
@@ -323,8 +323,8 @@ def best_option(
     is refused; the others must match the print around t by ``cfg.min_corr``, better than a grid
     neighbour's, and have their edge rays along the
     board's axes unless their match is sure (``cfg.sure_corr``); where the rays' circle would be
-    under ``cfg.min_ray_px``, a margin of ``cfg.small_corr_margin`` over every grid neighbour's
-    print stands for the rays. The best match wins; but among
+    under ``cfg.min_ray_px``, the print's match, better than every grid neighbour's, stands for
+    the rays. The best match wins; but among
     several ``searched`` candidates (the tag pass's, not a fit at the prediction), those whose
     rays follow the axes go before a sure match over a patch under ``cfg.sure_inside`` inside the
     image circle. With ``refit`` (an option -> the map through it, :func:`map_through`, or None),
@@ -357,8 +357,8 @@ def best_option(
         cut = searched and len(options) > 1 and m.inside < cfg.sure_inside
         if refitted or (sure and not cut):
             rays = True
-        elif not cfg.reads_rays(gap_px):  # too small to read: the print's margin over its neighbours' stands for them
-            rays = m.corr - m.other >= cfg.small_corr_margin
+        elif not cfg.reads_rays(gap_px):  # too small to read: the print's match, better than its neighbours', stands for them
+            rays = True
         else:
             rays = rays_along(sm, q, to_image, p, gap, gap_px, cfg)
         if not (sure or rays):

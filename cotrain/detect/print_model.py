@@ -79,10 +79,9 @@ class CompletionConfig:
     # origin: measured on the AprilGrid evaluation set (seed 2027, 1280x720; a tuning set): its fov180_013 (tags of 5-12 px) gave 51 of 144
     # corners with rays asked at every gap, 140 now; FoV rows 0.980 -> 0.982, no wrong corner; 2 px: a circle inside the X's blurred core
     # (3c18828)
-    min_ray_px: float = 2.0  # where that circle is smaller (px; tags under 13 px: the X's blurred core) rays are not read (0: always) ...
-    # unit: correlation; origin: measured with min_ray_px (above); a test: a crossing square's other corner, a gap away, matches its
-    # neighbour's print better
-    small_corr_margin: float = 0.3  # ... and the print must beat each grid neighbour's by this instead
+    # ... and the print's match, better than each grid neighbour's, stands for them (until the thirty-first session it had to be better
+    # by small_corr_margin, 0.3: at 0 the eight AprilGrid sets gained 90 corners, 83 of them on the defocused frames, no wrong one)
+    min_ray_px: float = 2.0  # where that circle is smaller (px; tags under 13 px: the X's blurred core) rays are not read (0: always)
     # unit: share of the patch's samples; origin: measured on the AprilGrid evaluation set (seed 2027, 1280x720; a tuning set): its
     # large-squares row's one wrong corner (12 px off, a tag's edge against the dark beyond the rim) found where it is, 0.854 -> 0.855; four
     # AprilGrid and eight checkerboard sets otherwise the same (20a4132)
@@ -122,7 +121,8 @@ class CompletionConfig:
     # ...")
     print_fit_min_pixels: int = 20  # ... at least this many inside the image circle and the frame ...
     # unit: share of the disc's area; origin: measured on seed 2041 (a tuning set): the rim look in gaps of any size brought three wrong
-    # corners (3.7-11 px off); with half the disc required one stayed (98b00d9; the tuning log, step 10)
+    # corners (3.7-11 px off); with half the disc required one stayed (98b00d9; the tuning log, step 10); off, a test's rim view
+    # (test_completion) gets a corner beyond the image circle, 530 px off
     print_fit_min_share: float = 0.5  # ... and this share of the disc ...
     # count per blur; origin: not recorded (set in d136463, "Completion moves the print onto the image where a corner's saddle fits fail
     # ...")

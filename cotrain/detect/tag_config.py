@@ -52,8 +52,9 @@ class TagConfig:
     # origin: measured on the evaluation set (seed 2027; a tuning set): 0.35 (match_radius) -> 0.6, recall 0.807 -> 0.824 (200 frames; with
     # position clashes dropped, 2c5af52; CHANGELOG 2026-11-24, later)
     fourth_radius: float = 0.6  # a seed tag's fourth corner lies within this fraction of its shorter side of the parallelogram's
-    # unit: ratio of lengths in px; origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")
-    min_long_short: float = 1.7  # at a seed, tag side / gap (Kalibr: 1 / tagSpacing) must exceed this on both axes
+    # At a seed, the neighbour behind a corner is its gap where it is no longer than the tag's side, else the gap is the target's (until
+    # the thirty-first session it had to be 1.7 times shorter, min_long_short: at 1 the eight AprilGrid sets gained 46 corners, and lost
+    # two wrong ones, on the defocused frames).
     # unit: fraction of the predicted step; origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")
     match_radius: float = 0.35  # a neighbour must lie within this fraction of its predicted step
     # unit: fraction of the local gap; origin: measured on the evaluation set (seed 2027; a tuning set): with the ray step (e9bc70a) recall
@@ -148,9 +149,10 @@ class TagConfig:
     lend_depth: int = 3  # ... and on through unread tags beside it, up to this many tags away (1: beside it only)
     # (Until the thirty-first session an unread tag's corner at a lattice's fringe kept its id within fringe_steps, 2, of a tag matched
     # by min_lend_corr, and corners within rim_strict_px, 8 px, of the rim needed a complete cell: off, neither changed a corner of the
-    # eight AprilGrid sets but one, lost, on the evaluation set's motion blur row.)
-    # origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")
-    max_cell_misfit: float = 0.25  # a corner must close one of its cells as a parallelogram within this fraction of its side
+    # eight AprilGrid sets but one, lost, on the evaluation set's motion blur row. Nor, since then, must a corner close its cell as a
+    # parallelogram within 0.25 of its side, max_cell_misfit, or keep the side-to-gap ratio along its lattice lines within a factor 2,
+    # max_side_gap_ratio: off, the first gained 16 corners over the eight sets, no wrong one, the second changed none. A corner in no
+    # complete cell still needs a neighbour along each lattice axis.)
     # origin: measured on the evaluation set (seed 2027; a tuning set): the ray check took wrong corners 3 -> 0 (64 frames; 02e95a5); 25-30
     # deg there: +0.007 recall but a corner 4.1 px off (CHANGELOG 2026-11-24, later)
     max_ray_angle: float = 20.0  # deg: a corner's steps to its lattice neighbours leave along its own edge rays within this ...
@@ -159,8 +161,6 @@ class TagConfig:
     small_gap_px: float = 3.5  # ... or, where its shortest lattice step is under this (tags under 12 px: no data junctions resolve) ...
     # deg; origin: measured with small_gap_px (above): 40 or 90 deg brought wrong corners
     max_ray_angle_small: float = 30.0  # ... within this: on a circle of 1.5-1.75 px the rays' angles are coarse
-    # unit: factor; origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")
-    max_side_gap_ratio: float = 2.0  # a corner's tag side / gap on a lattice line may differ from the target's by this factor
     # origin: measured on seeds 2027, 2031 and 2035 (tuning sets): FoV recall +0.004 / +0.004 / +0.001, no new wrong corner; up to 10 px
     # brought two wrong ones (e09fdfa; the tuning log, step 9); sampling: the smallest fit window (5 px) reaches across such a gap
     keep_unfitted_px: float = 6.0  # px: shortest lattice step under which a failed final fit keeps the lattice position

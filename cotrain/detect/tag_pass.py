@@ -36,7 +36,7 @@ checkerboard's: tags and crossing squares are dark, the gap strips between them 
    keeps the corners of tags that match (small blurred tags: better than a slip by one tag
    would), of unread tags beside a tag that matched surely (and on through unread tags, up to
    ``lend_depth`` tags away; ids through the lattice); :func:`cells_close`,
-   :func:`steps_alternate` and :func:`rays_agree` drop corners that slid or sit on a junction
+   and :func:`rays_agree` drop corners that slid or sit on a junction
    inside a tag;
 6. boards: lattices that place no tag of the target (a second board with other tags; free tags
    have no X-junctions at their corners) give no corners; lattices of one board (a join and its
@@ -91,7 +91,6 @@ from cotrain.detect.tag_placement import (
     consistent_boards,
     place_board,
     rays_agree,
-    steps_alternate,
     tag_under,
     verified_corners,
 )
@@ -385,12 +384,7 @@ def _placed_boards(
         alone = [(c, t) for c, t in zip(cells, under) if c.clean and c.hamming <= cfg.max_hamming and c.tag < board.n_tags]
         decoded = [c for c, t in alone if c.tag == t and c.turn == place.turn]
         ids = board.id_of(lat.ab @ TURNS[place.turn].T + place.offset)
-        ids[
-            ~verified_corners(lat, cells, under, place.turn, board, cfg)
-            | ~steps_alternate(lat, spacing, cfg.max_side_gap_ratio)
-            | ~cells_close(lat, cfg.max_cell_misfit)
-            | ~rays_agree(lat, sm, spacing, cfg)
-        ] = -1
+        ids[~verified_corners(lat, cells, under, place.turn, board, cfg) | ~cells_close(lat) | ~rays_agree(lat, sm, spacing, cfg)] = -1
         found.append(_Board(lat, ids, place, decoded, [c for c, t in alone if not (c.tag == t and c.turn == place.turn)]))
     return found, foreign
 

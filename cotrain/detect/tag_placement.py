@@ -3,7 +3,7 @@
 Takes a lattice and its read tag cells (:mod:`cotrain.detect.tag_reading`); gives its placement on
 the board (:class:`Placement`, :func:`place_board`: the turn and offset all its read tags support
 together), which of its corners that placement is sure of (:func:`verified_corners`) and which
-keep their shape (:func:`steps_alternate`, :func:`cells_close`, :func:`rays_agree`), and, over the
+keep their shape (:func:`cells_close`, :func:`rays_agree`), and, over the
 placed lattices of a frame (:class:`_Board`), those that agree (:func:`consistent_boards`).
 """
 
@@ -87,55 +87,15 @@ def place_board(cells: list[TagCell], board: AprilGrid) -> Placement | None:
     return Placement(best[1], best[2], best[0], best[0] - second, len(cells))
 
 
-def steps_alternate(lat: Lattice, spacing: float, tol: float) -> np.ndarray:
-    """(K,) bool: corners whose two steps along each lattice line, a tag side and a gap, have the
-    target's ratio (1 / ``spacing``) within a factor ``tol`` (perspective changes it little over
-    one tag). A corner slid along a tag's side breaks it. (Scalar arithmetic: it runs per corner.)"""
+def cells_close(lat: Lattice) -> np.ndarray:
+    """(K,) bool: corners in a complete lattice cell, or with a neighbour along each lattice axis
+    (a corner at the end of a line alone is no corner of the board's grid)."""
     where = lat.where
-    pts = lat.xy.tolist()
     ok = np.ones(len(lat.ab), bool)
     for (a, b), k in where.items():
-        x, y = pts[k]
-        for da, db in ((1, 0), (0, 1)):
-            m1, m2 = where.get((a + da, b + db)), where.get((a - da, b - db))
-            if m1 is None or m2 is None:
-                continue
-            d1 = math.hypot(pts[m1][0] - x, pts[m1][1] - y)
-            d2 = math.hypot(pts[m2][0] - x, pts[m2][1] - y)
-            long_side, gap = (d1, d2) if is_long(a if da else b, 1) else (d2, d1)
-            r = long_side * spacing / max(gap, 1e-9)
-            if not 1 / tol <= r <= tol:
-                ok[k] = False
-    return ok
-
-
-def cells_close(lat: Lattice, tol: float) -> np.ndarray:
-    """(K,) bool: corners that close at least one lattice cell they belong to as a parallelogram
-    of its other three corners would, within ``tol`` of the cell's longer side (over one cell the
-    fisheye's bend is small); a corner in no complete cell needs a neighbour along each lattice
-    axis. A corner slid along a side fails. (Scalar arithmetic: it runs per corner and cell.)"""
-    where = lat.where
-    pts = lat.xy.tolist()
-    ok = np.ones(len(lat.ab), bool)
-    for (a, b), k in where.items():
-        x, y = pts[k]
-        best = math.inf
-        for da in (-1, 1):
-            ka = where.get((a + da, b))
-            if ka is None:
-                continue
-            xa, ya = pts[ka]
-            for db in (-1, 1):
-                kb, kab = where.get((a, b + db)), where.get((a + da, b + db))
-                if kb is None or kab is None:
-                    continue
-                (xb, yb), (xc, yc) = pts[kb], pts[kab]
-                side = max(math.hypot(xa - x, ya - y), math.hypot(xb - x, yb - y))
-                best = min(best, math.hypot(xa + xb - xc - x, ya + yb - yc - y) / max(side, 1e-9))
-        if best < math.inf:
-            ok[k] = best <= tol
-        else:  # in no complete cell: it needs a neighbour along each axis
-            ok[k] = any((a + d, b) in where for d in (-1, 1)) and any((a, b + d) in where for d in (-1, 1))
+        if any((a + da, b) in where and (a, b + db) in where and (a + da, b + db) in where for da in (-1, 1) for db in (-1, 1)):
+            continue
+        ok[k] = any((a + d, b) in where for d in (-1, 1)) and any((a, b + d) in where for d in (-1, 1))
     return ok
 
 

@@ -33,7 +33,7 @@ def _seed_frames(nbr: np.ndarray, index: np.ndarray, spacing: float, cfg: TagCon
     ``nbr`` (axis, way, option, 2; see :func:`axis_neighbours`) and their candidate indices
     ``index`` (axis, way, option), each with the candidates its two long steps lead to (along
     axis 0, axis 1). The short steps are the neighbours the other way
-    where they are shorter by ``cfg.min_long_short``, otherwise the target's gap (``spacing`` of
+    where they are no longer than the side, otherwise the target's gap (``spacing`` of
     the side): a corner on the board's outer edge has no gap beyond it.
 
     The readable form of the first half of :func:`_seed_quads`, which the seeds run (compiled)
@@ -54,7 +54,7 @@ def _seed_frames(nbr: np.ndarray, index: np.ndarray, spacing: float, cfg: TagCon
                     shorts, rank = [], 0
                     for sx, sy, n_side, others in ((ax, ay, nA, opts[0][1 - s1]), (bx, by, nB, opts[1][1 - s2])):
                         opp = others[0] if others else None
-                        if opp is not None and opp[2] * cfg.min_long_short <= n_side:
+                        if opp is not None and opp[2] <= n_side:
                             shorts.append((-opp[0], -opp[1]))  # the gap behind the corner, pointing +a (+b)
                         else:
                             shorts.append((sx * spacing, sy * spacing))
@@ -160,19 +160,19 @@ def _seed_options(seed, steps, index):
 
 
 @numba.njit(cache=True, nogil=True)
-def _short_step(ox, oy, on, cnt, axis, way, sx, sy, n_side, spacing, min_long_short):
+def _short_step(ox, oy, on, cnt, axis, way, sx, sy, n_side, spacing):
     """The short step behind the corner along ``axis`` whose long step (sx, sy), of length
     ``n_side``, is the option taken the way ``way`` (options: :func:`_seed_options`): the nearest
-    option the other way where it is shorter by ``min_long_short``, else the target's gap
+    option the other way where it is no longer than the side, else the target's gap
     (``spacing`` of the side); with 1 where the other way is longer (less likely the tag), else 0."""
-    if cnt[axis, 1 - way] > 0 and on[axis, 1 - way, 0] * min_long_short <= n_side:
+    if cnt[axis, 1 - way] > 0 and on[axis, 1 - way, 0] <= n_side:
         return -ox[axis, 1 - way, 0], -oy[axis, 1 - way, 0], 0
     rank = 1 if cnt[axis, 1 - way] > 0 and on[axis, 1 - way, 0] > n_side else 0
     return sx * spacing, sy * spacing, rank
 
 
 @numba.njit(cache=True, nogil=True)
-def _quad_frames(ox, oy, on, oj, cnt, spacing, min_long_short):
+def _quad_frames(ox, oy, on, oj, cnt, spacing):
     """:func:`_seed_quads`' frames from the options of :func:`_seed_options`: the step frames (F,
     axis, kind, 2) in :func:`_seed_frames`' order and their candidates ja, jb (F,) along a and b."""
     n_opt = ox.shape[2]
@@ -190,8 +190,8 @@ def _quad_frames(ox, oy, on, oj, cnt, spacing, min_long_short):
                     cross = ax * by - ay * bx
                     if abs(cross) < 0.3 * nA * nB:
                         continue
-                    gax, gay, rank_a = _short_step(ox, oy, on, cnt, 0, s1, ax, ay, nA, spacing, min_long_short)
-                    gbx, gby, rank_b = _short_step(ox, oy, on, cnt, 1, s2, bx, by, nB, spacing, min_long_short)
+                    gax, gay, rank_a = _short_step(ox, oy, on, cnt, 0, s1, ax, ay, nA, spacing)
+                    gbx, gby, rank_b = _short_step(ox, oy, on, cnt, 1, s2, bx, by, nB, spacing)
                     rank = rank_a + rank_b
                     if cross < 0:  # turned: b first, to keep a x b > 0
                         frames[nf, 0, 0, 0], frames[nf, 0, 0, 1], frames[nf, 0, 1, 0], frames[nf, 0, 1, 1] = bx, by, gbx, gby
@@ -264,7 +264,7 @@ def _quad_fourths(seed, ja, jb, steps, index, xy, rays, use_lens, cx, cy, focal,
 
 
 @numba.njit(cache=True, nogil=True)
-def _seed_quads(seed, steps, index, xy, rays, use_lens, cx, cy, focal, spacing, min_long_short, cos_min, lo, hi, fourth_radius):
+def _seed_quads(seed, steps, index, xy, rays, use_lens, cx, cy, focal, spacing, cos_min, lo, hi, fourth_radius):
     """:func:`_seed_frames` and each frame's :func:`fourth_corner` for candidate ``seed`` at once,
     compiled (the seeds try about 60 candidates a frame, most of which are no tag corner), in
     their arithmetic but for ``math.hypot``, which numba takes from the C library (a unit in the
@@ -277,7 +277,7 @@ def _seed_quads(seed, steps, index, xy, rays, use_lens, cx, cy, focal, spacing, 
     (centre cx, cy, ``focal``) where ``use_lens``. The options (:func:`_seed_options`), the frames
     (:func:`_quad_frames`), the fourth corners (:func:`_quad_fourths`)."""
     ox, oy, on, oj, cnt = _seed_options(seed, steps, index)
-    frames, ja, jb = _quad_frames(ox, oy, on, oj, cnt, spacing, min_long_short)
+    frames, ja, jb = _quad_frames(ox, oy, on, oj, cnt, spacing)
     fourth, pred, radius = _quad_fourths(seed, ja, jb, steps, index, xy, rays, use_lens, cx, cy, focal, cos_min, lo, hi, fourth_radius)
     return frames, ja, jb, fourth, pred, radius
 
@@ -333,7 +333,6 @@ def seed_tag(
         lens is not None,
         *((lens.centre[0], lens.centre[1], lens.focal) if lens is not None else (0.0, 0.0, 1.0)),
         float(spacing),
-        cfg.min_long_short,
         math.cos(math.radians(cfg.ray_step_angle)),
         cfg.min_step_ratio,
         cfg.max_step_ratio,

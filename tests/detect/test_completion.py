@@ -322,11 +322,11 @@ def test_complete_board_recovers_a_rim_view_from_four_tags():
     assert np.isin(np.nonzero(vis & (angle > 80))[0], ids).mean() > 0.6
 
 
-def test_in_gaps_too_small_for_edge_rays_the_prints_margin_decides():
+def test_in_gaps_too_small_for_edge_rays_the_prints_match_decides():
     """Tags 8 px across seen flat (gaps of 2.4 px): a corner's edge rays would be read on a circle
     of 1.2 px, inside the blurred core of the X, where they do not follow the board's axes.
-    There, a corner at its place is taken on its print's margin over its grid neighbours' (0.6
-    and more here); with the rays required everywhere (``min_ray_px`` 0) it is refused. The other
+    There, a corner at its place is taken on its print's match, better than its grid neighbours'
+    (by 0.6 and more here); with the rays required everywhere (``min_ray_px`` 0) it is refused. The other
     corner of its crossing square, a gap away, is refused either way: a neighbour's print
     matches it better."""
     g = make_target(TargetConfig(kind="aprilgrid"))
@@ -340,12 +340,12 @@ def test_in_gaps_too_small_for_edge_rays_the_prints_margin_decides():
     gap = smallest_step(g)
     assert not CompletionConfig().reads_rays(gap * scale)
     far = np.array([[-100.0, -100.0]])  # no known corner near
-    cases = ((CompletionConfig(), True), (CompletionConfig(min_ray_px=0.0), False), (CompletionConfig(small_corr_margin=0.9), False))
+    cases = ((CompletionConfig(), True), (CompletionConfig(min_ray_px=0.0), False))
     for t in (27, 38, 77):  # page columns 3, 2, 5: corner t + 1 is the other corner of its crossing square
-        for cfg, taken in cases:  # the margin decides: none of these corners' prints beats its neighbours' by 0.9
+        for cfg, taken in cases:
             args = (sm, rim, g, PlaneMaps(H[None]), q[t], t, P[t], gap)
             own = best_option(*args, [q[t]], False, gap * scale, far, GRID.min_rim_px, GRID.crowd_radius, cfg)[0]
-            assert (own is not None) == taken, (t, cfg.min_ray_px, cfg.small_corr_margin)
+            assert (own is not None) == taken, (t, cfg.min_ray_px)
             assert best_option(*args, [q[t + 1]], False, gap * scale, far, GRID.min_rim_px, GRID.crowd_radius, cfg)[0] is None
 
 

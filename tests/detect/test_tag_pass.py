@@ -500,7 +500,7 @@ def test_compiled_seed_quads_are_the_readable_search(with_lens):
         frames = _seed_frames(step[seed], index[seed], 0.3, cfg)
         got = _seed_quads(
             seed, step, index, xy, rays, with_lens, *((420.0, 380.0, 150.0) if with_lens else (0.0, 0.0, 1.0)),
-            0.3, cfg.min_long_short, cos_min, cfg.min_step_ratio, cfg.max_step_ratio, cfg.fourth_radius,
+            0.3, cos_min, cfg.min_step_ratio, cfg.max_step_ratio, cfg.fourth_radius,
         )  # fmt: skip
         assert len(got[0]) == len(frames)
         for f, (frame, ja, jb) in enumerate(frames):

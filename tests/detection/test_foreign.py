@@ -290,7 +290,7 @@ def test_the_second_read_reports_only_boards_the_geometry_places(monkeypatch):
     det = Detector(grid=GridConfig(retry_gain=3.0))
     seen = []
 
-    def grid(grey, box, out, cfg, half=True):
+    def grid(grey, box, out, cfg, half=True, frame=None, beside=None):
         seen.append((float(grey.std()), cfg.min_margin, cfg.min_geometry_margin))
         return GridResult(np.zeros(0, int), np.zeros((0, 2)), np.zeros(0), 0.0)
 
