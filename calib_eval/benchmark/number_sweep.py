@@ -21,7 +21,7 @@ only has to be large enough), to be confirmed on every kept set
   ``make bench`` times (seed 2027, 1280x720, 50 frames per FoV, rendered into ``report/``).
 
 The checkerboard's completion settings are a ``CompletionConfig`` that the grid pass builds
-itself (:func:`cotrain.detect.grid_pass._completed`, a few fields from ``GridConfig``, the rest
+itself (:func:`cotrain.detect.grid_pass.grid_completion`, a few fields from ``GridConfig``, the rest
 defaults); its defaults are swept by standing in that class, for the run, with one whose default
 is the swept value. The run is resumable: each number's row is written to ``--json`` as it is
 done. docs/results/number_sweep.md is its write-up.

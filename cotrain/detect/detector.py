@@ -20,6 +20,7 @@ Reading images: :mod:`cotrain.detect.images`; the model and its named outputs:
 from __future__ import annotations
 
 import dataclasses
+import os
 from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -322,9 +323,11 @@ class Detector:
         return self.finish(Pending(grey, box, running.result(), frame, self._beside()))
 
     def _beside(self) -> ThreadPoolExecutor:
-        """The one thread :meth:`detect` runs the network on, made on first use."""
-        if getattr(self, "_thread", None) is None:
+        """The one thread :meth:`detect` runs the network on, made on first use, and anew in a
+        forked process (whose copy of the executor has no thread behind it)."""
+        if getattr(self, "_thread", None) is None or self._thread_pid != os.getpid():
             self._thread = ThreadPoolExecutor(max_workers=1, thread_name_prefix="cotrain-network")
+            self._thread_pid = os.getpid()
         return self._thread
 
     def __getstate__(self) -> dict:

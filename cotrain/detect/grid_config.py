@@ -69,7 +69,7 @@ class GridConfig:
     # origin: measured on the six sets with seed_bend_angle (8866c5c): the wider angle at every distance lost 0.003-0.009 of the FoV rows
     seed_bend_px: float = 40.0  # px: ... (the sides of large squares near a fisheye's rim bend by tens of degrees between corners)
     # (A seed's two steps had to be 11.5 deg apart, min_seed_axes_sin 0.2, until the thirty-first session: at 0 no row of the kept
-    # checkerboard sets changed.)
+    # checkerboard sets changed. Exactly parallel ones, both edge directions finding the same neighbour, still go; so judged too.)
     # unit: fraction of (step a +- step b); origin: not recorded (set in 5c3691a, "Detector grid pass: ...")
     diag_offset: float = 0.3  # colour test samples the four quadrants this fraction of (step a +- step b) from the corner
     # (A seed needed a quadrant contrast of 0.05, min_seed_contrast, until the thirty-first session: at 0 four rows of the kept
@@ -158,7 +158,7 @@ class GridConfig:
     # thirtieth session: at 6 no row of the eight AprilGrid sets changed
     min_corners: int = 6  # smallest lattice that is reported (both passes)
     # A reported lattice needs a complete square (four corners; lines of corners along a diagonal are not lattices). It needed two,
-    # min_cells, set in 54ef7eb, until the thirty-first session: at 0 no row of the kept checkerboard sets changed.
+    # min_cells, set in 54ef7eb, until the thirty-first session: at 0 (so at 1 too) no row of the kept checkerboard sets changed.
     # (A lattice needed a mean board probability of 0.3 at its corners, min_board_prob, until the thirty-first session: at 0 the
     # independent renderer's photographed prints went 0.7501 -> 0.7858, no wrong corner, and no other kept row changed.)
     # unit: count; origin: measured on the six sets (614b101): 12 -> 16 took the evaluation set's under-exposed row 0.853 -> 0.891 and

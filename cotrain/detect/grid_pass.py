@@ -45,7 +45,7 @@ Pure functions over numpy arrays; pixels follow docs/conventions.md (centre of t
 from __future__ import annotations
 
 import math
-from concurrent.futures import Executor
+from concurrent.futures import Executor, Future
 from dataclasses import dataclass, replace
 from typing import NamedTuple
 
@@ -137,7 +137,7 @@ def find_candidates(
 
 
 def contrast_scaled(cfg: GridConfig, grey: np.ndarray, roi: np.ndarray) -> GridConfig:
-    """``cfg`` with its contrast thresholds (saddle contrast, seed contrast, margin contrast)
+    """``cfg`` with its contrast thresholds (saddle contrast, margin contrast)
     scaled by k = the contrast of ``grey`` (H, W) in ``roi`` (H, W bool; 5th to 95th percentile) /
     ``cfg.board_contrast`` where k < 1 (:func:`cotrain.detect.saddle.contrast_scale`), and
     ``board_contrast`` with them (the contrast they hold for); unchanged otherwise and where
@@ -620,15 +620,15 @@ def grid_pass(
     c = c._replace(rim_dist=rim_distance(c.allowed) if rim is None else rim.result())
     xy, axes = find_candidates(c.grey, c.roi, c.offset, box, corner_prob, cfg, smoothed, c.rim_dist, response)  # stage 2
     if len(xy) < cfg.min_corners:
-        return empty
+        return _unasked_dropped(smoothed, empty)
     grown = _grow(c, xy, axes, smoothed, response)
     scored = _identify(c, grown, _Votes(logp_col, logp_row, box, xy, extent_rim_px), board, smoothed)
     if not scored:
-        return empty
+        return _unasked_dropped(smoothed, empty)
     # The lattice whose identity is surest wins (the first of equal margins).
     margin, lat, ids, geometry_margin = max(scored, key=lambda s: s[0])
     if not placement_is_sure(margin, geometry_margin, cfg):
-        return GridResult(np.zeros(0, int), np.zeros((0, 2)), np.zeros(0), float(margin))
+        return _unasked_dropped(smoothed, GridResult(np.zeros(0, int), np.zeros((0, 2)), np.zeros(0), float(margin)))
     if cfg.merge_lattices:
         lat, ids = merge_lattices(lat, ids, [x for x in scored if x[1] is not lat], board, cfg)
     lat = refine_positions(lat, c.grey, cfg, smoothed, c.rim_dist)  # stage 6, refinement
@@ -644,6 +644,15 @@ def grid_pass(
         ids, q, conf = _completed(c, xy, ids, q, conf, margin, board, smoothed, lens)
     order = np.argsort(ids)
     return GridResult(ids[order], q[order] + c.offset, conf[order], float(margin))
+
+
+def _unasked_dropped(smoothed: dict, result: GridResult) -> GridResult:
+    """``result``, the blurs made ahead (:func:`cotrain.detect.saddle.smooth_ahead`) that no fit
+    asked for cancelled where not begun: the thread is the next look's."""
+    for job in smoothed.values():
+        if isinstance(job, Future):
+            job.cancel()
+    return result
 
 
 def merge_half_resolution(grey: np.ndarray, full: GridResult, half: GridResult, board: Checkerboard, cfg: GridConfig) -> GridResult:

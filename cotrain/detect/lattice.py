@@ -186,7 +186,8 @@ def _bent_neighbour(
 def _seed_steps(xy: np.ndarray, axes: np.ndarray, seed: int, tree: cKDTree, cfg: GridConfig) -> tuple[np.ndarray, np.ndarray] | None:
     """The seed's two steps (2,) each: to the nearest candidate along each of its edge directions
     (within ``cfg.seed_axis_angle``, or bent, :func:`_bent_neighbour`), oriented so that a x b > 0;
-    None where one is missing or the two are nearly parallel."""
+    None where one is missing or the two are parallel (both edge directions found the same
+    neighbour)."""
     p0 = xy[seed]
     d, nb = tree.query(p0, k=min(9, len(xy)))
     cos_seed = np.cos(np.radians(cfg.seed_axis_angle))
@@ -470,7 +471,7 @@ def _rim_cut_kept(
         # it, out of the window's reach): no dark rim there to make a half X of its own.
         # (The black frame is kept CIRCLE_INSIDE_PX inside the fitted circle, and 1 px for the fit.)
         rim_room = circle[1] - CIRCLE_INSIDE_PX - 1 - math.hypot(q[k, 0] - circle[0][0], q[k, 1] - circle[0][1]) if circle else 0.0
-        border = rim_room > window_reach(halves[k])  # its edges are not held to the lattice lines there
+        border = rim_room > window_reach(halves[k])  # its edges are not held to its neighbours' lines there
         # Cut by the rim, a square's corner against the margin or the rim can pass for half an
         # X-junction: the fitted edges must run along the lattice lines to the neighbours.
         a, b = lat.ab[k]

@@ -79,8 +79,9 @@ class CompletionConfig:
     # origin: measured on the AprilGrid evaluation set (seed 2027, 1280x720; a tuning set): its fov180_013 (tags of 5-12 px) gave 51 of 144
     # corners with rays asked at every gap, 140 now; FoV rows 0.980 -> 0.982, no wrong corner; 2 px: a circle inside the X's blurred core
     # (3c18828)
-    # ... and the print's match, better than each grid neighbour's, stands for them (until the thirty-first session it had to be better
-    # by small_corr_margin, 0.3: at 0 the eight AprilGrid sets gained 90 corners, 83 of them on the defocused frames, no wrong one)
+    # Where rays are not read, the print's match, better than each grid neighbour's, stands for them (until the thirty-first session it
+    # had to be better by small_corr_margin, 0.3: at 0 the eight AprilGrid sets gained 90 corners, 83 of them on the defocused frames,
+    # no wrong one).
     min_ray_px: float = 2.0  # where that circle is smaller (px; tags under 13 px: the X's blurred core) rays are not read (0: always)
     # unit: share of the patch's samples; origin: measured on the AprilGrid evaluation set (seed 2027, 1280x720; a tuning set): its
     # large-squares row's one wrong corner (12 px off, a tag's edge against the dark beyond the rim) found where it is, 0.854 -> 0.855; four
@@ -161,7 +162,7 @@ class CompletionConfig:
 
     def reads_rays(self, gap_px: float) -> bool:
         """Whether a corner's edge rays are read in a local gap of ``gap_px`` (its circle of
-        ``ray_radius`` of the gap at least ``min_ray_px``); else its print's margin stands for them."""
+        ``ray_radius`` of the gap at least ``min_ray_px``); else its print's match stands for them."""
         return self.ray_radius * gap_px >= self.min_ray_px
 
 

@@ -429,8 +429,8 @@ def smooth_cached(smoothed: dict[int, np.ndarray], grey: np.ndarray, half: int) 
 def smooth_ahead(smoothed: dict[int, np.ndarray], grey: np.ndarray, beside: Executor, max_half: int = 5) -> None:
     """Start :func:`smooth_for` of ``grey`` on ``beside`` (OpenCV's blur releases the GIL) for every
     half-size :func:`window_half` gives (2 .. ``max_half``, its own bounds) and the colours' (-1):
-    a grid pass blurs its crop for nearly all of them (each in 44-67 of the evaluation set's 55
-    bench frames). :func:`smooth_cached` takes each when it is asked for, the same array."""
+    a grid pass blurs its crop for nearly all of them (each in 44-67 of the grid passes over the
+    evaluation set's 55 bench frames, a few read twice). :func:`smooth_cached` takes each when it is asked for, the same array."""
     for half in (*range(2, max_half + 1), -1):
         if half not in smoothed:
             smoothed[half] = beside.submit(smooth_for, grey, half)

@@ -35,9 +35,9 @@ checkerboard's: tags and crossing squares are dark, the gap strips between them 
    them); tags that decode alone elsewhere are dropped and counted; :func:`verified_corners`
    keeps the corners of tags that match (small blurred tags: better than a slip by one tag
    would), of unread tags beside a tag that matched surely (and on through unread tags, up to
-   ``lend_depth`` tags away; ids through the lattice); :func:`cells_close`,
-   and :func:`rays_agree` drop corners that slid or sit on a junction
-   inside a tag;
+   ``lend_depth`` tags away; ids through the lattice); :func:`cells_close` drops a corner in
+   no complete cell without a neighbour along each axis, and :func:`rays_agree` corners that
+   slid or sit on a junction inside a tag;
 6. boards: lattices that place no tag of the target (a second board with other tags; free tags
    have no X-junctions at their corners) give no corners; lattices of one board (a join and its
    parts too) are merged where they agree, and of two that claim the same ids elsewhere, or the
@@ -278,7 +278,7 @@ def _tag_pass_in(
     nbr = axis_neighbours(xy, rays, tree, sm, cfg)
     spacing = board.cfg.tag_spacing
     grown = _grow_lattices(found_here, nbr, grey, spacing, cfg, lens)
-    found, foreign = _placed_boards(grown, grey, spacing, board, cfg, lens, rim_dist, sm)
+    found, foreign = _placed_boards(grown, grey, spacing, board, cfg, lens, sm)
     if not found:
         return empty(len(foreign))
     kept, lost = consistent_boards(found)
@@ -363,7 +363,6 @@ def _placed_boards(
     board: AprilGrid,
     cfg: TagConfig,
     lens: EquidistantLens | None,
-    rim_dist: np.ndarray,
     sm: np.ndarray,
 ) -> tuple[list[_Board], set[tuple[int, int, int]]]:
     """Steps 4 and 5 of :func:`_tag_pass_in`: each lattice ``grown``, and each join of them, read

@@ -296,7 +296,7 @@ def test_a_corner_cut_by_the_image_border_alone_may_fit_its_edges_more_loosely(m
     xy = np.array([80.0, 6.5]) + 20.0 * (ab[:, :1] * ea + ab[:, 1:] * eb)
     corner = 0  # (0, 0), 6.5 px below the top border, with neighbours along both axes
     rim_dist = np.tile(np.arange(120, dtype=np.float32)[:, None], (1, 200))
-    turn = math.radians(22)  # its fitted edges 22 deg off the lattice lines: between the two limits
+    turn = math.radians(22)  # its fitted edges 22 deg off the lattice lines: over the rim's limit
     rot = np.array([[math.cos(turn), -math.sin(turn)], [math.sin(turn), math.cos(turn)]])
 
     def fake_fit(grey_, smoothed, q, half, cfg, rim_dist=None):

@@ -305,6 +305,6 @@ def test_the_second_read_reports_only_boards_the_geometry_places(monkeypatch):
     assert std1 > 2 * std0  # the second read sees the raised frame
 
     seen.clear()
-    monkeypatch.setattr(det, "_grid", lambda *a: seen.append(1) or GridResult(np.arange(6), np.zeros((6, 2)), np.ones(6), 30.0))
+    monkeypatch.setattr(det, "_grid", lambda *a, **k: seen.append(1) or GridResult(np.arange(6), np.zeros((6, 2)), np.ones(6), 30.0))
     det.detect(flat)
     assert seen == [1]
