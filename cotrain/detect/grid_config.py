@@ -68,11 +68,11 @@ class GridConfig:
     seed_bend_angle: float = 35.0  # deg: where none does, the nearest at seed_bend_px or farther within this (0: off)
     # origin: measured on the six sets with seed_bend_angle (8866c5c): the wider angle at every distance lost 0.003-0.009 of the FoV rows
     seed_bend_px: float = 40.0  # px: ... (the sides of large squares near a fisheye's rim bend by tens of degrees between corners)
-    # (A seed's two steps had to be 11.5 deg apart, min_seed_axes_sin 0.2, until the thirty-first session: at 0 no row of the kept
+    # (A seed's two steps had to be 11.5 deg apart, min_seed_axes_sin 0.2, until 2026-12-08: at 0 no row of the kept
     # checkerboard sets changed. Exactly parallel ones, both edge directions finding the same neighbour, still go; so judged too.)
     # unit: fraction of (step a +- step b); origin: not recorded (set in 5c3691a, "Detector grid pass: ...")
     diag_offset: float = 0.3  # colour test samples the four quadrants this fraction of (step a +- step b) from the corner
-    # (A seed needed a quadrant contrast of 0.05, min_seed_contrast, until the thirty-first session: at 0 four rows of the kept
+    # (A seed needed a quadrant contrast of 0.05, min_seed_contrast, until 2026-12-08: at 0 four rows of the kept
     # checkerboard sets gained a corner each, no wrong one; its colours must still alternate as the growth goes.)
     # unit: share of the parent's quadrant contrast; origin: not recorded (set in 5c3691a, "Detector grid pass: ...")
     min_alternation: float = 0.25  # a new corner's quadrant contrast must flip sign with at least this share of its parent's
@@ -139,8 +139,8 @@ class GridConfig:
     # them); set in a94aa89 without a figure
     max_rim_edge_angle: float = 15.0  # deg: a corner fitted in a window cut by the rim must have its edges along the lattice lines
     # ... but not where only the image's border cuts it (no dark rim in reach to make a half X): true corners 5-10 px from the frame's
-    # top or bottom edge fit their edges 15-25 deg off (e17c0e8). It was held to 30 deg there (max_border_edge_angle) until the
-    # thirty-first session: without that, four rows of the kept checkerboard sets gained a corner or two, no wrong one.
+    # top or bottom edge fit their edges 15-25 deg off (e17c0e8). It was held to 30 deg there (max_border_edge_angle) until 2026-12-08:
+    # without that, four rows of the kept checkerboard sets gained a corner or two, no wrong one.
     # origin: not recorded (set in 8a49be6, "Grid pass: join parts of one lattice before the placement; rim-cut tips need both edge
     # directions"); off (0): +2 corners over 16 sets (docs/results/rule_ablations.md)
     rim_borrowed_angle: float = 30.0  # deg: ... and along an axis without a neighbour, the axis a neighbour across measures (0: off)
@@ -158,8 +158,8 @@ class GridConfig:
     # thirtieth session: at 6 no row of the eight AprilGrid sets changed
     min_corners: int = 6  # smallest lattice that is reported (both passes)
     # A reported lattice needs a complete square (four corners; lines of corners along a diagonal are not lattices). It needed two,
-    # min_cells, set in 54ef7eb, until the thirty-first session: at 0 (so at 1 too) no row of the kept checkerboard sets changed.
-    # (A lattice needed a mean board probability of 0.3 at its corners, min_board_prob, until the thirty-first session: at 0 the
+    # min_cells, set in 54ef7eb, until 2026-12-08: at 0 (so at 1 too) no row of the kept checkerboard sets changed.
+    # (A lattice needed a mean board probability of 0.3 at its corners, min_board_prob, until 2026-12-08: at 0 the
     # independent renderer's photographed prints went 0.7501 -> 0.7858, no wrong corner, and no other kept row changed.)
     # unit: count; origin: measured on the six sets (614b101): 12 -> 16 took the evaluation set's under-exposed row 0.853 -> 0.891 and
     # seed 11's FoV rows 0.8957 -> 0.8975 for about 0.5 ms; 24 placed 3 wrong corners in a motion-blurred frame. The tag pass's own was
@@ -248,7 +248,7 @@ class GridConfig:
     # unit: count; origin: measured at this value only: merges took the evaluation set's FoV rows 0.8949 -> 0.8956, large squares 0.778 ->
     # 0.797 (acbea97); joins seed 7's 0.8940 -> 0.8993, seed 11's 0.8947 -> 0.8957 (8a49be6); no new wrong corner
     merge_min_shared: int = 2  # lattices join (either way) where they share this many corners (spots, and coordinates or ids)
-    # (A joined corner had to lie 3 px from every corner there, merge_crowd_px, until the thirty-first session: at 0 no row of the kept
+    # (A joined corner had to lie 3 px from every corner there, merge_crowd_px, until 2026-12-08: at 0 no row of the kept
     # checkerboard sets changed; a corner not at a shared spot lies merge_radius_px away at least.)
     # unit: factor on the confidence; origin: not recorded (set in 5c3691a, "Detector grid pass: ...")
     filled_confidence: float = 0.9  # confidence factor of corners found by a saddle search, not among the candidates
@@ -269,7 +269,7 @@ class GridConfig:
     # right, 8 frames gained (evaluation FoV 220 0.885 -> 0.894); min_margin's value
     half_min_margin_alone: float = 25.0  # ... and its board taken at this identity margin (min_margin's value)
     # A corner only the half-resolution pass finds matches its print by the print check's CompletionConfig.min_corr (0.5; it was
-    # half_min_corr, a copy of that value, until the thirty-first session) ...
+    # half_min_corr, a copy of that value, until 2026-12-08) ...
     # origin: not recorded (set in 771ed0f, "Checkerboard: a frame where the grid pass finds no board is read again at half resolution
     # ...")
     half_rim_px: float = 12.0  # ... and lies this far from the image circle's rim (px)
@@ -290,7 +290,7 @@ class GridConfig:
     # unit: fraction of the square's smaller side; origin: measured on the seven sets and a 640x480 one, at this value only (e56a15a,
     # 157f341): wrong corners 16 -> 5 (seed 41's 8 all gone), 9 right ones of 46,000 lost and 2 gained
     # (0: no check.) Its nearest identified ones are the CompletionConfig.neighbours (7) nearest on the board, as completion's (a copy,
-    # misfit_neighbours, set in e56a15a, until the thirty-first session); verification.neighbour_check; completion may find it again.
+    # misfit_neighbours, set in e56a15a, until 2026-12-08); verification.neighbour_check; completion may find it again.
     max_neighbour_misfit: float = 0.2  # a placed corner this far (of its square) from where its nearest identified ones put it goes ...
     # unit: share of the board's corners; origin: measured on the seven sets and a 640x480 one (157f341): frames missing over a sixth read
     # 0.18 (5 of 6 misses wrong), then 0.23-0.96 (all right); at 0.15 (e56a15a) seed 41's frame of 5 wrong corners (18 % missing) went

@@ -65,7 +65,7 @@ class CompletionConfig:
     patch_samples: int = 11  # samples across it
     # unit: correlation (-1 .. 1); origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified corners
     # ..."); completion as a whole took the AprilGrid evaluation set (seed 2027, 1280x720; a tuning set) 0.866 -> 0.925 (every second frame)
-    # ... and better than with the print around each grid neighbour (by min_corr_margin, 0.1, until the thirty-first session: at 0 one
+    # ... and better than with the print around each grid neighbour (by min_corr_margin, 0.1, until 2026-12-08: at 0 one
     # corner more on the independent renderer's photographed prints and nothing else changed over every kept set)
     min_corr: float = 0.5  # correlation of the image with the print around the corner ...
     # unit: fraction of the local gap; origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified
@@ -79,7 +79,7 @@ class CompletionConfig:
     # origin: measured on the AprilGrid evaluation set (seed 2027, 1280x720; a tuning set): its fov180_013 (tags of 5-12 px) gave 51 of 144
     # corners with rays asked at every gap, 140 now; FoV rows 0.980 -> 0.982, no wrong corner; 2 px: a circle inside the X's blurred core
     # (3c18828)
-    # Where rays are not read, the print's match, better than each grid neighbour's, stands for them (until the thirty-first session it
+    # Where rays are not read, the print's match, better than each grid neighbour's, stands for them (until 2026-12-08 it
     # had to be better by small_corr_margin, 0.3: at 0 the eight AprilGrid sets gained 90 corners, 83 of them on the defocused frames,
     # no wrong one).
     min_ray_px: float = 2.0  # where that circle is smaller (px; tags under 13 px: the X's blurred core) rays are not read (0: always)

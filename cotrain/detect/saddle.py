@@ -472,7 +472,7 @@ def saddle_candidates(
 # camera lifts its black level"); the rule, not these values, was measured: the evaluation sets (1280x720; tuning sets) lifted to 16-255,
 # AprilGrid seed 2027 FoV recall 0.933 -> 0.962 (wrong 8 -> 1), checkerboard seed 2026 0.906 / 10 wrong -> 0.899 / 3.
 # origin: noise level (noise lifts a zero black frame to 0.025 in dark, brightened frames; the frames not recorded). One number for three
-# uses of that band since the thirty-first session (they were BLACK_AS_ZERO, LIFTED_DARK and BLACK_BAND, each 0.03): a black frame up to
+# uses of that band since 2026-12-08 (they were BLACK_AS_ZERO, LIFTED_DARK and BLACK_BAND, each 0.03): a black frame up to
 # it is black; above it, a camera's lifted black, dark means under its level plus the band (a step: 0.031 -> 0.061); and the black
 # frame's pixels lie within the band of its level.
 BLACK_NOISE = 0.03  # how far noise spreads the black frame's pixels above its level

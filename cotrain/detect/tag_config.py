@@ -53,7 +53,7 @@ class TagConfig:
     # position clashes dropped, 2c5af52; CHANGELOG 2026-11-24, later)
     fourth_radius: float = 0.6  # a seed tag's fourth corner lies within this fraction of its shorter side of the parallelogram's
     # At a seed, the neighbour behind a corner is its gap where it is no longer than the tag's side, else the gap is the target's (until
-    # the thirty-first session it had to be 1.7 times shorter, min_long_short: at 1 the eight AprilGrid sets gained 46 corners, and lost
+    # 2026-12-08 it had to be 1.7 times shorter, min_long_short: at 1 the eight AprilGrid sets gained 46 corners, and lost
     # two wrong ones, on the defocused frames).
     # unit: fraction of the predicted step; origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")
     match_radius: float = 0.35  # a neighbour must lie within this fraction of its predicted step
@@ -89,7 +89,7 @@ class TagConfig:
     # log, step 6)
     max_hamming: int = 2  # bit errors a tag read alone may have (tag36h11: codes differ in at least 11 bits)
     # A tag is read where its white gap is lighter than its black border, and a seed's tag where its white data cells are lighter than
-    # its black ones by min_data_contrast. (Until the thirty-first session the gap had to be lighter by min_bit_contrast, 0.06, and a
+    # its black ones by min_data_contrast. (Until 2026-12-08 the gap had to be lighter by min_bit_contrast, 0.06, and a
     # seed's data cells a share of min_data_share, 0.15, white and black: at 0 neither changed a corner of the eight AprilGrid sets.)
     # origin: not recorded (set in 02e95a5, "tag pass: tags read after sharpening, ...; seeds from each corner's four edge rays")
     min_data_contrast: float = 0.2  # a seed's white data cells must be lighter than its black ones by this share of the tag's contrast
@@ -147,7 +147,7 @@ class TagConfig:
     # count of tags; origin: measured on the evaluation set (seed 2027; a tuning set): recall 0.827 -> 0.832 (200 frames), 0.855 -> 0.860
     # (64), no new wrong corner (f1b11a9)
     lend_depth: int = 3  # ... and on through unread tags beside it, up to this many tags away (1: beside it only)
-    # (Until the thirty-first session an unread tag's corner at a lattice's fringe kept its id within fringe_steps, 2, of a tag matched
+    # (Until 2026-12-08 an unread tag's corner at a lattice's fringe kept its id within fringe_steps, 2, of a tag matched
     # by min_lend_corr, and corners within rim_strict_px, 8 px, of the rim needed a complete cell: off, neither changed a corner of the
     # eight AprilGrid sets but one, lost, on the evaluation set's motion blur row. Nor, since then, must a corner close its cell as a
     # parallelogram within 0.25 of its side, max_cell_misfit, or keep the side-to-gap ratio along its lattice lines within a factor 2,

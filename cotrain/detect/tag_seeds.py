@@ -26,7 +26,7 @@ from cotrain.detect.tag_reading import _unit_points, decode_bits, look_at_tag
 from cotrain.targets.aprilgrid import CELLS, DATA_BITS
 
 
-def _seed_frames(nbr: np.ndarray, index: np.ndarray, spacing: float, cfg: TagConfig) -> list[tuple[np.ndarray, int, int]]:
+def _seed_frames(nbr: np.ndarray, index: np.ndarray, spacing: float) -> list[tuple[np.ndarray, int, int]]:
     """Step frames (axis, kind (long, short), 2) under which a candidate would be a tag corner with
     the tag in the (+a, +b) quadrant: one per quadrant whose two sides have a neighbour, surest
     first (the nearest neighbours, both sides the longer of their axis), from its neighbours

@@ -454,7 +454,7 @@ def test_seed_frames_name_the_candidates_their_long_steps_lead_to():
     for (axis, way, k), j in {(0, 0, 0): 1, (0, 1, 0): 2, (0, 1, 1): 5, (1, 0, 0): 3, (1, 1, 0): 4}.items():
         nbr[axis, way, k] = xy[j] - p0
         index[axis, way, k] = j
-    frames = _seed_frames(nbr, index, 0.3, cfg)
+    frames = _seed_frames(nbr, index, 0.3)
     assert len(frames) == 6  # two options along -a, one along each other way: 2 + 2 + 1 + 1 quadrant pairs
     for frame, ja, jb in frames:
         np.testing.assert_allclose(frame[0, 0], xy[ja] - p0)
@@ -497,7 +497,7 @@ def test_compiled_seed_quads_are_the_readable_search(with_lens):
     cos_min = np.cos(np.radians(cfg.ray_step_angle))
     asked = found = 0
     for seed in range(K):
-        frames = _seed_frames(step[seed], index[seed], 0.3, cfg)
+        frames = _seed_frames(step[seed], index[seed], 0.3)
         got = _seed_quads(
             seed, step, index, xy, rays, with_lens, *((420.0, 380.0, 150.0) if with_lens else (0.0, 0.0, 1.0)),
             0.3, cos_min, cfg.min_step_ratio, cfg.max_step_ratio, cfg.fourth_radius,
@@ -758,7 +758,7 @@ def test_unread_tags_keep_their_corners_only_beside_a_firm_tag():
     """Tag cell (0, 0) matches its code surely; the lattice goes on to corners of tags that were
     not read (not all their corners there). The corners of the tags beside it (sharing a side)
     keep their ids; those of the diagonal tag (2, 2), sharing only a corner, do not, nor does the
-    tag beyond (no fringe rule since the thirty-first session: it changed no corner of the kept
+    tag beyond (no fringe rule since 2026-12-08: it changed no corner of the kept
     AprilGrid sets)."""
     g = make_target(TargetConfig(kind="aprilgrid"))
     img, c = tag_image(14, 40, 0.5)
