@@ -122,7 +122,7 @@ def print_fit(
     :data:`PRINT_FIT_SIGMAS` up to ``cfg.print_fit_max_blur`` of the gap are tried widest first,
     each from the last one's shift, until a narrower one matches worse. Only pixels inside the
     frame and the image circle (``rim_dist`` over 1.5 px) are compared. None where fewer than
-    ``cfg.print_fit_min_pixels`` of them, or under ``cfg.print_fit_min_share`` of the disc, are
+    ``cfg.print_fit_min_pixels`` of them, or under ``cfg.min_seen_share`` of the disc, are
     left, the match explains less than ``cfg.print_fit_min_r2`` of their variance (through the
     lens; ``cfg.print_fit_min_r2_pixels`` through a pixel homography), or the shift
     exceeds ``reach`` (default ``cfg.search``) of the gap. Measured on the independent renderer's
@@ -142,7 +142,7 @@ def print_fit(
     ys, xs = np.mgrid[lo[1] : hi[1] + 1, lo[0] : hi[0] + 1]
     disc = np.hypot(xs - q0[0], ys - q0[1]) <= radius
     inside = disc & (rim_dist[ys, xs] > 1.5)
-    if inside.sum() < max(cfg.print_fit_min_pixels, cfg.print_fit_min_share * np.pi * radius**2):
+    if inside.sum() < max(cfg.print_fit_min_pixels, cfg.min_seen_share * np.pi * radius**2):
         return None
     px = np.stack([xs[inside], ys[inside]], 1).astype(np.float64)
     obs = img[ys[inside], xs[inside]].astype(np.float64)
@@ -329,7 +329,7 @@ def best_option(
     rays follow the axes go before a sure match over a patch under ``cfg.sure_inside`` inside the
     image circle. With ``refit`` (an option -> the map through it, :func:`map_through`, or None),
     an option the moved map refuses is judged again under the map through it, by
-    ``cfg.refit_margin`` over each grid neighbour's print, over ``cfg.refit_inside`` of the patch
+    ``cfg.refit_margin`` over each grid neighbour's print, over ``cfg.min_seen_share`` of the patch
     inside the image circle, and with its edge rays along that map's axes."""
     best, best_key = None, (False, -np.inf)
     for q in options:
@@ -345,7 +345,7 @@ def best_option(
             if through is None:
                 continue
             m = print_correlation(sm, rim_dist, board, through, np.zeros(2), t, cfg)
-            if not (m.corr >= cfg.min_corr and m.corr - m.other >= cfg.refit_margin and m.inside >= cfg.refit_inside):
+            if not (m.corr >= cfg.min_corr and m.corr - m.other >= cfg.refit_margin and m.inside >= cfg.min_seen_share):
                 continue
             if not rays_along(sm, q, through, p, gap, gap_px, cfg):
                 continue
@@ -675,11 +675,14 @@ def complete_board(
     )
     st = _Rounds({int(i): np.asarray(p, np.float64) for i, p in zip(ids, xy)}, {int(i): np.nan for i in ids})
     rays_cfg = replace(cfg, min_ray_px=0.0)  # the rounds that read rays at every gap
-    for _ in range(cfg.rounds if len(st.known) >= 4 else 0):
+    # Until a round adds nothing: every round that goes on adds a corner, or starts the small gaps' or
+    # the dim fits' rounds (once each), so the board's corners bound them.
+    limit = len(s.P) + 3 if cfg.rounds is None else cfg.rounds
+    for _ in range(limit if len(st.known) >= 4 else 0):
         if not _round(s, st, rays_cfg) and not _next_rounds(st):
             break
     else:
-        if cfg.rounds and len(st.known) >= 4:
+        if cfg.runs and len(st.known) >= 4:
             st.unfound |= {t for t, _ in _to_try(st, board)}  # the rounds ran out with these still to try
     if st.gaps:
         _final_positions(s, st)

@@ -40,8 +40,8 @@ class GridConfig:
     # unit: intensity in [0, 1]; origin: measured on the evaluation set, seeds 7 and 11, at this value only (307613b): low-contrast rows
     # 0.759 -> 0.794 / 0.903 -> 0.905 / 0.863 -> 0.917, no wrong id added
     board_contrast: float = 0.5  # contrast thresholds hold for a region this contrasted (5-95th pct), scale down below (0: off)
-    # unit: corner-score probability; origin: not recorded (set in 5c3691a, "Detector grid pass: ...")
-    seed_score_floor: float = 0.05  # added to the network's corner score when ranking seeds (response x score)
+    # (Seeds rank by saddle response x the network's corner score. A floor of 0.05 was added to the score, seed_score_floor, not
+    # recorded, 5c3691a, until 2026-12-08: without it no row of the kept checkerboard sets changed.)
     # origin: not recorded (set in 5c3691a, "Detector grid pass: ...")
     merge_radius_px: float = 1.0  # candidates (or a candidate and a lattice corner) this close are one saddle
     # --- saddle fit (saddle) ---
@@ -99,7 +99,9 @@ class GridConfig:
     # unit: predicted steps; origin: not recorded (set with the walk in 4e02862, "Grid pass: lattice growth follows squares that grow or
     # shrink fast ...")
     walk_max_steps: float = 1.6  # ... and at most this many ...
-    # origin: not recorded (set with the walk in 4e02862, "Grid pass: lattice growth follows squares that grow or shrink fast ...")
+    # origin: not recorded (set with the walk in 4e02862, "Grid pass: lattice growth follows squares that grow or shrink fast ...");
+    # the window binds: the board going on's 0.5-1.8 steps within 25 deg for the walk too lost up to 0.054 of a row (the evaluation
+    # set's large squares at the rim 0.9126 -> 0.8582) and added a wrong corner (2026-12-08); the board going on looks in it too
     walk_angle: float = 30.0  # ... within this (deg) of the predicted direction ...
     # ... with one of its own edge directions within seed_axis_angle of the step (the seed's test; a number of its own, 20 deg too,
     # until 2026-12-07: walk_axis_angle, not recorded, set with the walk in 4e02862)
@@ -207,16 +209,12 @@ class GridConfig:
     # unit: steps; origin: not recorded (set in d242238, "Grid pass: margin evidence from two outward profiles (the square row's end ...
     # 0.7-1.6 steps out; ...)"); 2.0-2.5 tried: no change (CHANGELOG 2026-11-24, late morning)
     edge_end_max: float = 1.6  # ... and no farther
-    # Where the step out is large_square_px long at least, there is no margin evidence ...
-    # unit: predicted steps; origin: not recorded as a value (set in 0829808, "Margin evidence is void where the board visibly goes on
-    # ...", for seed 31's frame 9 at 1920x1080: a board half a turn wrong, 21 wrong ids; the eleven sets otherwise the same but one
-    # corner)
-    goes_on_min_steps: float = 0.5  # ... where a candidate X-junction lies this many predicted steps out ...
-    # unit: predicted steps; origin: not recorded as a value (set in 0829808, as goes_on_min_steps)
-    goes_on_max_steps: float = 1.8  # ... up to this many ...
-    # origin: not recorded as a value (set in 0829808, as goes_on_min_steps)
-    goes_on_angle: float = 25.0  # ... within this (deg) of the step ...
-    # origin: not recorded as a value (set in 0829808, as goes_on_min_steps)
+    # Where the step out is large_square_px long at least, there is no margin evidence where a candidate X-junction lies where the
+    # walk looks for the next corner (walk_min_steps to walk_max_steps predicted steps out, within walk_angle of the step) ... (The
+    # rule was set in 0829808, "Margin evidence is void where the board visibly goes on ...", for seed 31's frame 9 at 1920x1080: a
+    # board half a turn wrong, 21 wrong ids; its window had numbers of its own until 2026-12-08, 0.5-1.8 steps within 25 deg, not
+    # recorded as values: with the walk's no row of the kept checkerboard sets changed.)
+    # origin: not recorded as a value (set in 0829808, with the rule)
     goes_on_min_contrast: float = 0.4  # ... with a checker edge to it (one side brighter by this share of the squares' contrast) ...
     # unit: share of the corner's quadrant contrast; origin: measured on seed 31 at 1920x1080 (frame 9; 0829808): 0.25 fixed a glare frame
     # too but voided true evidence where a square's side meets the margin (its colours flip by half; a test)
@@ -304,9 +302,9 @@ class GridConfig:
     # Completed corners lie min_rim_px from the image circle's rim or the crop's edge at least (its own number until 2026-12-07,
     # 3 px: measured on the seven sets, 05a8f70: 8 -> 3, +116 corners, none lost, median error 0.09 px; the growth's own 3-5 px from
     # the rim: 0.12).
-    # The corners the growth missed are predicted from the identified ones (stage 5, completion), for CompletionConfig.rounds rounds, as
-    # in the tag pass (the grid pass had its own 8 until the thirtieth session, copied from the tag pass's then; 64 on every kept set:
-    # seed 2026 at 640x480 glare 0.8920 -> 0.8944, no other row changed) ...
+    # The corners the growth missed are predicted from the identified ones (stage 5, completion), round by round until one adds no
+    # corner (CompletionConfig.rounds), as in the tag pass (the grid pass had its own cap of 8 until the thirtieth session; without it,
+    # on every kept set: seed 2026 at 640x480 glare 0.8920 -> 0.8944, no other row changed) ...
     completion: bool = True
     # unit: correlation; origin: measured on seven rendered sets of 2026-11-25, the evaluation set among them (be2d8e0): at 0.5, without
     # the edge rays and 3 px from the rim, 2-4 more wrong corners a set (at occluders' edges, 1.4-2.7 px off)

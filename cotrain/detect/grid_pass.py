@@ -124,7 +124,7 @@ def find_candidates(
         m = halves == h
         xy[m], ok[m], axes[m] = fit_saddles(grey, smoothed, xy0[m], int(h), cfg, rim_dist)
     # Seeds in order of saddle response times the network's corner score there.
-    score = resp * (CELLS.sample(corner_prob[None], box.to_processing(xy + offset))[:, 0] + cfg.seed_score_floor)
+    score = resp * (CELLS.sample(corner_prob[None], box.to_processing(xy + offset))[:, 0])
     keep = np.nonzero(ok)[0]
     keep = keep[np.argsort(-score[keep])]
     # Merge candidates that converged onto the same saddle: the better-scored one stays.

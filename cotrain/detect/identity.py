@@ -214,8 +214,8 @@ def board_goes_on(
     """Whether the checker board goes on from corner p (2,) along ``step`` (2,), the step its
     lattice line would take next (``cfg.large_square_px`` long at least: under motion blur the
     smear of small squares makes junctions in the margin): one of ``candidates`` (M, 2) lies
-    ``cfg.goes_on_min_steps`` to ``cfg.goes_on_max_steps`` steps out within ``cfg.goes_on_angle``
-    of the step's direction, and the segment to it runs along the edge of the two squares beside it
+    where the walk looks for the next corner (``cfg.walk_min_steps`` to ``cfg.walk_max_steps`` steps
+    out within ``cfg.walk_angle`` of the step's direction), and the segment to it runs along the edge of the two squares beside it
     (:func:`cotrain.detect.sampling.edge_contrasts` a tenth of its length to either side: the side
     of ``bright`` (2,), where the brighter square lies, brighter by ``cfg.goes_on_min_contrast`` of
     their ``contrast`` at a quarter, half and three quarters of the way), and its checker colours
@@ -230,11 +230,7 @@ def board_goes_on(
     w = candidates - p
     dist = np.hypot(w[:, 0], w[:, 1])
     cos = (w @ step) / np.maximum(dist * step_len, 1e-9)
-    near = (
-        (dist >= cfg.goes_on_min_steps * step_len)
-        & (dist <= cfg.goes_on_max_steps * step_len)
-        & (cos >= np.cos(np.radians(cfg.goes_on_angle)))
-    )
+    near = (dist >= cfg.walk_min_steps * step_len) & (dist <= cfg.walk_max_steps * step_len) & (cos >= np.cos(np.radians(cfg.walk_angle)))
     par = diag_contrast(blur, p, step, across, cfg.diag_offset) if near.any() else 0.0
     for j in np.nonzero(near)[0]:
         o = np.array([-w[j, 1], w[j, 0]]) / dist[j]

@@ -27,10 +27,11 @@ class CompletionConfig:
     # size is given; every AprilGrid seed named here (2027: the AprilGrid evaluation set; 2041, 2043, 2045) and every checkerboard set is a
     # tuning set there. The independent renderer's sets (calib_eval.detection.foreign, seed 5: 6 x 6 and 10 x 8 grids, --photo, --isp) are
     # tuning sets too (sets.FOREIGN_TUNING). Figures are as measured then (CHANGELOG.md, the tuning log's "The AprilGrid: the tag pass",
-    # step 10, and the commit named). count; origin: measured on the AprilGrid evaluation set (seed 2027, 1280x720; a tuning set): a cap of
-    # 8 stopped the front on boards seen whole in small tags; 64 took its FoV rows 0.9797 -> 0.9803 (3c18828; CHANGELOG 2026-11-28,
-    # twenty-first session)
-    rounds: int = 64  # rounds of prediction, each a grid step further (until one adds no corner, small gaps' and dim fits' too); 0: none
+    # step 10, and the commit named). Not a tuned number: completion runs until a round adds no corner (small gaps' and dim fits' rounds
+    # too); each round that goes on adds one at least, so the board's corners bound them. A cap of 8 stopped the front on boards seen
+    # whole in small tags (the AprilGrid evaluation set, seed 2027); the cap of 64 that followed (3c18828) was never reached on the kept
+    # sets (2026-12-08: the same corners to the bit without it).
+    rounds: int | None = None  # rounds of prediction, each a grid step further (None: until one adds no corner; 0: none; n: at most n)
     # count; origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified corners ..."); the log's
     # reason: about two tags across, where the fisheye bends little
     neighbours: int = 7  # identified corners nearest on the board that a prediction's homography is fitted to
@@ -43,9 +44,10 @@ class CompletionConfig:
     # unit: fraction of the local gap; origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified
     # corners ...")
     reach: float = 0.3  # a saddle fitted at the prediction counts within this fraction of the local gap ...
-    # unit: fraction of the local gap; origin: not recorded (set in 6c06463, "Tag pass: complete a placed AprilGrid from its identified
-    # corners ...")
-    search: float = 0.6  # ... else candidates within this fraction of it are tried
+    # unit: fraction of the local gap; origin: measured as the tag pass's growth's reach (TagConfig's match_gap until 2026-12-08) on the
+    # AprilGrid evaluation set (seed 2027; a tuning set): with the ray step (e9bc70a) recall 0.785 -> 0.791 (64 frames), 0.737 -> 0.741
+    # (210), wrong 4 -> 2; 0.8: +0.004 with 2 more wrong corners (CHANGELOG 2026-11-24, later); completion's own (6c06463) not recorded
+    search: float = 0.6  # ... else candidates within this fraction of it are tried (and the tag pass's growth matches within it)
     # unit: correlation (-1 .. 1); origin: measured for the tag pass's candidates on seeds 2027, 2031 and 2035 (tuning sets): 0.65 -> 0.5,
     # recall +0.002 / +0.004 / +0.003, wrong corners 16 -> 14 (4df897e); copied here in 6c06463, one number since the thirtieth session
     min_symmetry: float = (
@@ -88,14 +90,14 @@ class CompletionConfig:
     # AprilGrid and eight checkerboard sets otherwise the same (20a4132)
     sure_inside: float = 0.75  # ... and, among several candidates of the search, over this share of the patch inside the image circle
     check: bool = True  # first, the growth's corners are checked against the print (:func:`print_check`) ...
-    # unit: correlation; origin: measured on the AprilGrid evaluation set (seed 2027, 1280x720; a tuning set, sets.py: "the print check's
-    # margins"), with check_margin_large: its hard rows' wrong corners 9 -> 4 and 14 corners 1.4-2.9 px off dropped, for 3 good ones; seed
-    # 2041 at 1920x1080 blurred 1.5 / 2.5 px: 6 -> 2 and 8 -> 2 wrong (fc01f13; CHANGELOG 2026-11-25, third session)
-    check_margin: float = 0.0  # ... and one is dropped where a grid neighbour's print matches it better by more than this ...
+    # ... and one is dropped where a grid neighbour's print matches it better (at all: a margin of 0, a field of its own, check_margin,
+    # until 2026-12-08; measured with check_margin_large below) ...
     # px; origin: not recorded (set in fc01f13, "AprilGrid: every corner the lattice reports is checked against the print ...");
     # TagConfig.small_tag_px's 20
     check_large_px: float = 20.0  # ... or, in tags at least this wide (px) ...
-    # unit: correlation; origin: measured with check_margin (above)
+    # unit: correlation; origin: measured on the AprilGrid evaluation set (seed 2027, 1280x720; a tuning set, sets.py: "the print check's
+    # margins"), with the margin of 0 above: its hard rows' wrong corners 9 -> 4 and 14 corners 1.4-2.9 px off dropped, for 3 good ones;
+    # seed 2041 at 1920x1080 blurred 1.5 / 2.5 px: 6 -> 2 and 8 -> 2 wrong (fc01f13; CHANGELOG 2026-11-25, third session)
     check_margin_large: float = 0.35  # ... by more than this (a local homography fits a large tag's bend less well) ...
     # unit: correlation (-1 .. 1); origin: measured on the independent renderer's colour-processing set (foreign --isp, seed 5): its two
     # wrong corners dropped; 647 frames of four AprilGrid sets, the photographed prints and 1,712 checkerboard frames unchanged (a6fe1b0)
@@ -121,10 +123,11 @@ class CompletionConfig:
     # count of pixels; origin: not recorded (set in d136463, "Completion moves the print onto the image where a corner's saddle fits fail
     # ...")
     print_fit_min_pixels: int = 20  # ... at least this many inside the image circle and the frame ...
-    # unit: share of the disc's area; origin: measured on seed 2041 (a tuning set): the rim look in gaps of any size brought three wrong
-    # corners (3.7-11 px off); with half the disc required one stayed (98b00d9; the tuning log, step 10); off, a test's rim view
-    # (test_completion) gets a corner beyond the image circle, 530 px off
-    print_fit_min_share: float = 0.5  # ... and this share of the disc ...
+    # unit: share of the area; origin: measured for print_fit on seed 2041 (a tuning set): the rim look in gaps of any size brought three
+    # wrong corners (3.7-11 px off); with half the disc required one stayed (98b00d9; the tuning log, step 10); off, a test's rim view
+    # (test_completion) gets a corner beyond the image circle, 530 px off. The refit below needs as much of its patch in view (its
+    # refit_inside, 0.5 too, measured with refit_gap_px, until 2026-12-08).
+    min_seen_share: float = 0.5  # ... and this share of the disc (print_fit), or of the patch (the refit below), inside the image circle
     # count per blur; origin: not recorded (set in d136463, "Completion moves the print onto the image where a corner's saddle fits fail
     # ...")
     print_fit_iterations: int = 12  # ... by at most this many Gauss-Newton steps per blur tried ...
@@ -147,18 +150,22 @@ class CompletionConfig:
     # origin: measured on seed 2041 (a tuning set): the wrong corner left with half the disc required lay in a gap of 24 px (a tag of 81
     # px); 20 px keeps it out (98b00d9; the tuning log, step 10)
     print_fit_rim_gap_px: float = 20.0  # ... in a gap under this (px), within reach of it
-    # origin: measured on the AprilGrid evaluation set (seed 2027, 1280x720; a tuning set), with refit_margin and refit_inside: its
+    # origin: measured on the AprilGrid evaluation set (seed 2027, 1280x720; a tuning set), with refit_margin and the share in view: its
     # fov240_037 72 -> 81 corners, FoV rows 0.9698 -> 0.9706; seed 2043 at 1920x1080 +6 corners; the ordinary margin in every gap: 16 wrong
     # corners in gaps under 14 px (fde7189)
     refit_gap_px: float = 16.0  # from this gap on (px; 0: never), an option the moved map refuses is judged under the map through it ...
     # unit: correlation; origin: measured with refit_gap_px (above)
     refit_margin: float = 0.3  # ... where it must match better than each grid neighbour's print by this ...
-    # unit: share of the patch's samples; origin: measured with refit_gap_px (above)
-    refit_inside: float = 0.5  # ... over this share of the patch inside the image circle, and have its edge rays along the board's axes
+    # ... over min_seen_share of the patch inside the image circle, and have its edge rays along the board's axes
     # unit: local gaps; origin: measured on the independent renderer's photographed prints (foreign --photo, seed 5): 0.906 -> 0.926 (its
     # fov220_014 80 -> 108 corners), no wrong corner; the evaluation set (seed 2027) FoV rows 0.9824 -> 0.9825 (a5b9ed7; CHANGELOG
     # 2026-11-28, twenty-second session)
     dim_gaps: float = 1.0  # last, failed saddle fits again, their threshold scaled to the print's contrast within this many gaps (0: never)
+
+    @property
+    def runs(self) -> bool:
+        """Whether completion runs at all (``rounds`` not 0)."""
+        return self.rounds is None or self.rounds > 0
 
     def reads_rays(self, gap_px: float) -> bool:
         """Whether a corner's edge rays are read in a local gap of ``gap_px`` (its circle of

@@ -23,13 +23,12 @@ The schedules, as docs/detector.md tabulates them:
   raised`` where ``GridConfig.retry_gain`` > 1 (``cotrain detect --grey-print``): the frame's
   contrast raised about its local mean, the network run again on it, the placement surer
   (``retry_min_margin``, ``retry_min_geometry_margin``), with half resolution.
-- AprilGrid (:func:`aprilgrid_looks`): ``first`` (with half resolution); ``wider cone`` where
-  ``TagConfig.retry_seed_angle`` > 0 (seeds' ray neighbours within that angle); ``small cells``
-  where ``retry_min_cell_px`` < ``min_cell_px`` too (tags of smaller data cells seed, in the wider
-  cone); ``contrast raised`` where ``retry_gain`` > 1 (with half resolution). The wider cone and
-  the small cells read the frame as the first look read it (its crop, lens and candidates), at
-  full resolution only: the small tags they are for have had their half-resolution reading in the
-  first look. The raised contrast is read at half resolution too: there most of its boards are found.
+- AprilGrid (:func:`aprilgrid_looks`): ``first`` (with half resolution); ``small cells`` where
+  ``TagConfig.retry_min_cell_px`` < ``min_cell_px`` (tags of smaller data cells seed and are
+  read); ``contrast raised`` where ``retry_gain`` > 1 (with half resolution). The small cells
+  read the frame as the first look read it (its crop, lens and candidates), at full resolution
+  only: the small tags they are for have had their half-resolution reading in the first look. The
+  raised contrast is read at half resolution too: there most of its boards are found.
 """
 
 from __future__ import annotations
@@ -42,7 +41,6 @@ from cotrain.detect.grid_config import GridConfig
 from cotrain.detect.tag_config import TagConfig
 
 FIRST = "first"
-WIDER_CONE = "wider cone"
 SMALL_CELLS = "small cells"
 CONTRAST_RAISED = "contrast raised"
 
@@ -83,11 +81,8 @@ def aprilgrid_looks(cfg: TagConfig) -> tuple[Look, ...]:
     frame lost corners on the clean independent renderer's frames (0.994 -> 0.991), and a gain of
     2 placed one board wrongly."""
     looks = [Look(FIRST, half_resolution=True)]
-    if cfg.retry_seed_angle > 0:
-        wider = (("seed_axis_angle", cfg.retry_seed_angle),)
-        looks.append(Look(WIDER_CONE, overrides=wider))
-        if cfg.retry_min_cell_px < cfg.min_cell_px:
-            looks.append(Look(SMALL_CELLS, overrides=(*wider, ("min_cell_px", cfg.retry_min_cell_px))))
+    if cfg.retry_min_cell_px < cfg.min_cell_px:
+        looks.append(Look(SMALL_CELLS, overrides=(("min_cell_px", cfg.retry_min_cell_px),)))
     if cfg.retry_gain > 1:
         looks.append(Look(CONTRAST_RAISED, gained=True, half_resolution=True))
     return tuple(looks)

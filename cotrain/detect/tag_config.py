@@ -36,10 +36,9 @@ class TagConfig:
     # origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ..."); kept in the first look on the evaluation set
     # (seed 2027; a tuning set): 16 deg in every frame took FoV 200 0.972 -> 0.964 (07fcdf1)
     seed_axis_angle: float = 12.0  # deg: a seed's neighbours lie within this of its edge rays ...
-    # deg; origin: measured on the evaluation set (seed 2027; a tuning set): its fov180_013 (a board of 7-9 px tags) gave nothing at 12, 51
-    # corners at 16; FoV rows 0.9745 -> 0.9769, seed 2041 0.9502 -> 0.9535, no wrong corner; 20 deg: four wrong corners under motion blur
-    # (07fcdf1)
-    retry_seed_angle: float = 16.0  # ... or, in a frame where nothing is found, within this in a second and third look (0: neither)
+    # (A frame where nothing was found was read again with a cone of 16 deg, retry_seed_angle, set on the evaluation set's fov180_013 in
+    # 07fcdf1, until 2026-12-08: without that look no row of the eight AprilGrid sets changed; fov180_013 is found by the raised contrast,
+    # 141 corners instead of 142, and the small cells are found in the first look's cone.)
     # count; origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ..."; a field since 107fdeb)
     ray_search: int = 96  # nearest candidates searched for ray neighbours
     # count; origin: not recorded (set in 02e95a5, "tag pass: tags read after sharpening, ...; seeds from each corner's four edge rays")
@@ -57,10 +56,8 @@ class TagConfig:
     # two wrong ones, on the defocused frames).
     # unit: fraction of the predicted step; origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")
     match_radius: float = 0.35  # a neighbour must lie within this fraction of its predicted step
-    # unit: fraction of the local gap; origin: measured on the evaluation set (seed 2027; a tuning set): with the ray step (e9bc70a) recall
-    # 0.785 -> 0.791 (64 frames), 0.737 -> 0.741 (210), wrong 4 -> 2; 0.8: +0.004 with 2 more wrong corners (200; CHANGELOG 2026-11-24,
-    # later)
-    match_gap: float = 0.6  # ... and within this fraction of the local gap: under strong perspective the next row lies a gap away
+    # ... and within CompletionConfig.search (0.6) of the local gap, as completion searches about its predictions: under strong
+    # perspective the next row lies a gap away. (A number of its own, match_gap, 0.6 as well, until 2026-12-08.)
     # count; origin: measured on the evaluation set (seed 2027; a tuning set), with candidates offered again and the skipped-corner test
     # scaled (one commit, 8790253): recall 0.633 -> 0.759 (64 frames)
     match_tries: int = 3  # candidates within reach tried at a predicted spot, nearest first, before a saddle is fitted there
@@ -108,7 +105,7 @@ class TagConfig:
     # px; origin: measured on the evaluation set (seed 2027; a tuning set): FoV rows 0.9769 -> 0.9797 (fov200_022 0 -> 46 corners), seed
     # 2041 0.9535 -> 0.9579 (fov220_004 0 -> 40), no wrong corner; 0.8: the same on these sets, but a test's board of 7.8 px tags not found
     # (01e9e3e)
-    retry_min_cell_px: float = 0.7  # ... or than this, in a third look (the second's wider cone too) where the first two find nothing
+    retry_min_cell_px: float = 0.7  # ... or than this, in a second look where the first finds nothing
     # unit: factor; origin: measured on the independent renderer's photographed prints (foreign --photo, seed 5): 0.845 -> 0.904 (12 per
     # FoV), 0.820 -> 0.896 (24); on the evaluation set (seed 2027; a tuning set) its low-contrast row 0.857 -> 0.916; a gain of 2 placed a
     # board wrongly on the renderer's clean frames (1b3f4f3; the tuning log, step 14) The last look, where the ones before find nothing
@@ -133,11 +130,11 @@ class TagConfig:
     # origin: not recorded (set in 5ddcdeb, "tag pass: the slip-margin rule applies to tags under 20 px only (their cells blur) ..."; recall
     # on the evaluation set (seed 2027; a tuning set) unchanged)
     small_tag_px: float = 20.0  # tags narrower than this (px; cells of 2 px) blur: for them ...
-    # unit: correlation (-1 .. 1); origin: measured on the evaluation set (seed 2027; a tuning set), with min_slip_margin: recall 0.741 ->
-    # 0.751 (210 frames), 0.791 -> 0.796 (64), the same wrong corners (bde83f5)
-    min_tag_corr_local: float = 0.25  # ... this much is enough where it beats the codes a slip by one tag would put there ...
-    # unit: correlation; origin: measured with min_tag_corr_local (above)
-    min_slip_margin: float = 0.15  # ... by this much
+    # unit: correlation (-1 .. 1); origin: measured on the evaluation set (seed 2027; a tuning set), with a slip margin of 0.15: recall
+    # 0.741 -> 0.751 (210 frames), 0.791 -> 0.796 (64), the same wrong corners (bde83f5). That margin (min_slip_margin) went on
+    # 2026-12-08: at 0, over the eight AprilGrid sets, the defocused frames went 0.8682 -> 0.8823 (a wrong corner fewer) and the
+    # evaluation set's FoV rows lost 2 corners of 16,127.
+    min_tag_corr_local: float = 0.25  # ... this much is enough where no code a slip by one tag would put there matches better
     # unit: correlation (-1 .. 1); origin: measured on the evaluation set (seed 2027; a tuning set), with the rays' halfway level (one
     # commit, 5bd7378): recall 0.774 -> 0.779, wrong corners 2 -> 1 (64 frames)
     min_lend_corr: float = 0.7  # a read tag lends its ids to an unread tag beside it when it correlates with its code by this much
@@ -156,11 +153,12 @@ class TagConfig:
     # origin: measured on the evaluation set (seed 2027; a tuning set): the ray check took wrong corners 3 -> 0 (64 frames; 02e95a5); 25-30
     # deg there: +0.007 recall but a corner 4.1 px off (CHANGELOG 2026-11-24, later)
     max_ray_angle: float = 20.0  # deg: a corner's steps to its lattice neighbours leave along its own edge rays within this ...
-    # px; origin: measured on seeds 2027, 2031 and 2035 (tuning sets), with max_ray_angle_small: FoV recall +0.004 each, no new wrong
+    # px; origin: measured on seeds 2027, 2031 and 2035 (tuning sets), with the wider angle below: FoV recall +0.004 each, no new wrong
     # corner; gaps up to 4 px brought wrong ones (d4c9e0e; the tuning log, step 7)
     small_gap_px: float = 3.5  # ... or, where its shortest lattice step is under this (tags under 12 px: no data junctions resolve) ...
-    # deg; origin: measured with small_gap_px (above): 40 or 90 deg brought wrong corners
-    max_ray_angle_small: float = 30.0  # ... within this: on a circle of 1.5-1.75 px the rays' angles are coarse
+    # ... within CompletionConfig.max_ray_angle (30 deg), the angle completion allows every corner it adds: on a circle of 1.5-1.75 px
+    # the rays' angles are coarse (measured with small_gap_px, above: 40 or 90 deg brought wrong corners). It was a number of its own,
+    # max_ray_angle_small, 30 as well, until 2026-12-08.
     # origin: measured on seeds 2027, 2031 and 2035 (tuning sets): FoV recall +0.004 / +0.004 / +0.001, no new wrong corner; up to 10 px
     # brought two wrong ones (e09fdfa; the tuning log, step 9); sampling: the smallest fit window (5 px) reaches across such a gap
     keep_unfitted_px: float = 6.0  # px: shortest lattice step under which a failed final fit keeps the lattice position

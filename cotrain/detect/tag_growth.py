@@ -219,7 +219,7 @@ def _predict(
     gap = min(_norm(fr[0, 1]), _norm(fr[1, 1]))  # the local gap (short step)
     if not (0 <= pred[0] < W and 0 <= pred[1] < H) or gap < cfg.complete.min_gap_px:
         return None
-    r = min(cfg.match_radius * step, cfg.match_gap * gap)  # never as far as the next row across (a gap away)
+    r = min(cfg.match_radius * step, cfg.complete.search * gap)  # never as far as the next row across (a gap away)
     # The step is an edge: the dark cell on the side the lattice's parity says.
     other = fr[1 - axis, 0]
     normal = other / max(_norm(other), 1e-9)  # toward +b (or +a)

@@ -131,8 +131,8 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
     it predicted in view (``TagResult.unfound`` 0: a partial view found whole).
 
     A frame where nothing is found is read again by the next look of the tag pass's retry schedule
-    (:func:`cotrain.detect.retries.aprilgrid_looks`: a wider cone for the seeds' ray neighbours,
-    then seeds of smaller data cells, then the frame with its contrast raised); the corners of the
+    (:func:`cotrain.detect.retries.aprilgrid_looks`: seeds of smaller data cells, then the frame
+    with its contrast raised); the corners of the
     first look that finds any are reported, and ``TagResult.look`` names it."""
     cfg = cfg or TagConfig()
     view = _view_of(grey, cfg)
@@ -450,14 +450,14 @@ def _checked_and_completed(
         ok = print_check(sm, rim_dist, board, ids_a, xy_a, cfg.complete, lens=print_lens)
         ids_a, xy_a, conf_a = ids_a[ok], xy_a[ok], conf_a[ok]
     aside = np.zeros(len(ids_a), bool)
-    if cfg.complete.check and cfg.complete.rounds:
+    if cfg.complete.check and cfg.complete.runs:
         # A corner some pixels from where its neighbours put it, where the print matches better
         # there, is set aside for completion to place; where completion does not, it is put back.
         aside = print_moved(sm, rim_dist, board, ids_a, xy_a, cfg.complete, print_lens)
     aside_ids, aside_xy, aside_conf = ids_a[aside], xy_a[aside], conf_a[aside]
     ids_a, xy_a, conf_a = ids_a[~aside], xy_a[~aside], conf_a[~aside]
     unfound = None
-    if cfg.complete.rounds and len(ids_a) >= 4:
+    if cfg.complete.runs and len(ids_a) >= 4:
         # Corners the growth missed, predicted from the identified ones and checked against the
         # print; their confidence is that check's correlation.
         given = dict(zip(ids_a.tolist(), conf_a.tolist()))

@@ -136,7 +136,7 @@ def rays_agree(lat: Lattice, img: np.ndarray, spacing: float, cfg: TagConfig) ->
     # there (on three sets, FoV recall +0.004 each, no new wrong corner; 40 and 90 deg, or gaps up
     # to 4 px, brought wrong ones).
     shortest = np.where(np.isnan(dist), np.inf, dist).min(axis=1)  # the corner's own shortest step: its gap where it has one
-    angle = np.where(shortest < cfg.small_gap_px, cfg.max_ray_angle_small, cfg.max_ray_angle)
+    angle = np.where(shortest < cfg.small_gap_px, cfg.complete.max_ray_angle, cfg.max_ray_angle)
     ok = (best >= np.cos(np.radians(angle))[:, None]) | np.isnan(dist)
     return ok.all(1) & ~np.isnan(rays[:, 0, 0])
 
@@ -156,8 +156,8 @@ def verified_corners(lat: Lattice, cells: list[TagCell], under: np.ndarray, turn
     belongs to one tag (lattice cell (a - a mod 2, b - b mod 2)). A tag that was read (its four
     corners there, big enough, inside the image) must look like a tag and match the code the
     placement puts under it (correlation ``cfg.min_tag_corr``; for tags under ``cfg.small_tag_px``,
-    whose cells blur, ``cfg.min_tag_corr_local`` where it beats the codes a slip by one tag would
-    put there by ``cfg.min_slip_margin``); its corners are dropped otherwise (a lattice that
+    whose cells blur, ``cfg.min_tag_corr_local`` where none of the codes a slip by one tag would
+    put there matches better); its corners are dropped otherwise (a lattice that
     slipped by a row there). A tag that could not be read (too small, cut by the rim) keeps its
     corners if a tag beside it (sharing a side, not a corner) matched surely
     (``cfg.min_lend_corr``; under ``cfg.small_tag_px`` also by ``cfg.min_tag_corr_local`` where it
@@ -169,7 +169,7 @@ def verified_corners(lat: Lattice, cells: list[TagCell], under: np.ndarray, turn
         corr = float(tag_corr(c.look.soft, turn, np.array([t]))[0]) if t >= 0 else -1.0
         blurred = c.side < cfg.small_tag_px  # cells of 2 px or less: blur, not a misprint, lowers the correlation
         slip_margin = corr - slipped_corr(c, t, turn, board) if t >= 0 else -2.0
-        local = blurred and corr >= cfg.min_tag_corr_local and slip_margin >= cfg.min_slip_margin
+        local = blurred and corr >= cfg.min_tag_corr_local and slip_margin >= 0.0
         if c.clean and (corr >= cfg.min_tag_corr or local):
             good.add(c.cell)
         read.add(c.cell)

@@ -125,7 +125,7 @@ def print_check(
     it on the board (with ``lens``, of their rays: :func:`local_maps`), moved onto it, and
     correlated with the print around it and around each of its eight grid neighbours (the patch
     of :func:`print_patches`). A corner is contradicted where a
-    neighbour's print matches by more than ``cfg.check_margin`` over its own (``cfg.check_margin_large``
+    neighbour's print matches better than its own (by more than ``cfg.check_margin_large``
     in tags ``cfg.check_large_px`` wide or more, where it is also contradicted by any better
     match once its own correlation is under ``cfg.check_min_corr_large``): a corner the lattice put
     one crossing square over (the square's other corner, where a gap of 2-3 px collapses or glare
@@ -134,7 +134,7 @@ def print_check(
     homographies of the corners around it, so the corners are checked twice, the second time with
     homographies of the corners the first check kept (a corner the first pass dropped may pass the second). Grid neighbours
     printed exactly as the corner is (a checkerboard's diagonal ones) are left out of the
-    comparison. ``strict`` (K,) bool: corners held to ``cfg.check_margin`` whatever their tag's
+    comparison. ``strict`` (K,) bool: corners held to any better match whatever their tag's
     width and to a correlation of ``min_corr`` with their own print, and dropped where they
     cannot be checked; the others are kept where they cannot be (fewer than four other corners
     around, a homography not posed, under a fifth of the patch inside the image circle)."""
@@ -174,7 +174,7 @@ def _uncontradicted(
     ends = to_image(kP[:, None] + np.array([[board.spacing, 0.0], [0.0, board.spacing]]))
     side = np.linalg.norm(ends - q0, axis=2).min(1)
     large = ~(side < cfg.check_large_px) & ~strict
-    margin = np.where(large, cfg.check_margin_large, cfg.check_margin)
+    margin = np.where(large, cfg.check_margin_large, 0.0)
     beaten = (other > corr[:, 0] + margin) | (large & (corr[:, 0] < cfg.check_min_corr_large) & (other > corr[:, 0]))
     return (~enough & ~strict) | (enough & ~beaten & ((corr[:, 0] >= min_corr) | ~strict))
 

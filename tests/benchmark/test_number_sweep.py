@@ -12,8 +12,9 @@ from cotrain.detect.tag_config import TagConfig
 
 def test_every_number_and_only_numbers_is_swept():
     names = dict(numeric_fields(TagConfig()))
-    assert names["max_hamming"] == TagConfig().max_hamming and names["complete.rounds"] == TagConfig().complete.rounds
+    assert names["max_hamming"] == TagConfig().max_hamming and names["complete.neighbours"] == TagConfig().complete.neighbours
     assert names["grid.min_rim_px"] == GridConfig().min_rim_px
+    assert "complete.rounds" not in names  # None by default (until a round adds nothing): not a number
     assert "complete.lens" not in names and "grid.join_lattices" not in names  # switches are not numbers
     assert all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in names.values())
 

@@ -12,7 +12,6 @@ from cotrain.detect.retries import (
     CONTRAST_RAISED,
     FIRST,
     SMALL_CELLS,
-    WIDER_CONE,
     aprilgrid_looks,
     checkerboard_looks,
     first_found,
@@ -35,21 +34,18 @@ def test_the_checkerboard_schedule_raises_the_contrast_only_for_grey_prints():
 
 
 def test_the_aprilgrid_schedule_and_its_switches():
-    """Four looks by default: the wider cone, then the small cells in that cone, then the raised
-    frame read as the first look (its own settings, half resolution too). Each switch takes out
-    only its own looks."""
+    """Three looks by default: the small cells, then the raised frame read as the first look (its
+    own settings, half resolution too). Each switch takes out only its own look."""
     cfg = TagConfig()
     looks = aprilgrid_looks(cfg)
-    assert [x.name for x in looks] == [FIRST, WIDER_CONE, SMALL_CELLS, CONTRAST_RAISED]
-    assert [x.half_resolution for x in looks] == [True, False, False, True]
-    assert [x.gained for x in looks] == [False, False, False, True]
-    wider, small = looks[1].config(cfg), looks[2].config(cfg)
-    assert wider.seed_axis_angle == cfg.retry_seed_angle and wider.min_cell_px == cfg.min_cell_px
-    assert small.seed_axis_angle == cfg.retry_seed_angle and small.min_cell_px == cfg.retry_min_cell_px
-    assert looks[3].config(cfg) == cfg
-    assert [x.name for x in aprilgrid_looks(TagConfig(retry_seed_angle=0.0))] == [FIRST, CONTRAST_RAISED]
-    assert [x.name for x in aprilgrid_looks(TagConfig(retry_gain=1.0))] == [FIRST, WIDER_CONE, SMALL_CELLS]
-    assert [x.name for x in aprilgrid_looks(TagConfig(retry_min_cell_px=1.0))] == [FIRST, WIDER_CONE, CONTRAST_RAISED]
+    assert [x.name for x in looks] == [FIRST, SMALL_CELLS, CONTRAST_RAISED]
+    assert [x.half_resolution for x in looks] == [True, False, True]
+    assert [x.gained for x in looks] == [False, False, True]
+    small = looks[1].config(cfg)
+    assert small.seed_axis_angle == cfg.seed_axis_angle and small.min_cell_px == cfg.retry_min_cell_px
+    assert looks[2].config(cfg) == cfg
+    assert [x.name for x in aprilgrid_looks(TagConfig(retry_gain=1.0))] == [FIRST, SMALL_CELLS]
+    assert [x.name for x in aprilgrid_looks(TagConfig(retry_min_cell_px=1.0))] == [FIRST, CONTRAST_RAISED]
 
 
 @dataclass
@@ -74,7 +70,7 @@ def test_first_found_reads_no_look_after_the_one_that_finds():
         return read_look
 
     result, look = first_found(looks, reader(SMALL_CELLS))
-    assert look.name == SMALL_CELLS and len(result.ids) == 3 and read == [FIRST, WIDER_CONE, SMALL_CELLS]
+    assert look.name == SMALL_CELLS and len(result.ids) == 3 and read == [FIRST, SMALL_CELLS]
     read.clear()
     result, look = first_found(looks, reader("none"))
     assert look.name == FIRST and len(result.ids) == 0 and read == [x.name for x in looks]

@@ -358,7 +358,7 @@ def test_corners_off_their_junctions_fail_the_ray_check():
 def test_small_gaps_read_their_rays_with_a_looser_angle():
     """Tags about 10 px across (gaps under 3.5 px) blurred by 1.2 px with noise: on the smallest
     ray circle (1.5 px) the rays' angles are coarse, and with the 20 deg of larger tags many true
-    corners fail; with ``max_ray_angle_small`` most pass. (A corner slid into a larger tag still
+    corners fail; with completion's ``max_ray_angle`` there most pass. (A corner slid into a larger tag still
     fails: the test above.)"""
     g = make_target(TargetConfig(kind="aprilgrid"))
     c = centre(g)
@@ -372,7 +372,8 @@ def test_small_gaps_read_their_rays_with_a_looser_angle():
     gap_steps = [i for i in ids if i % (2 * g.tc) % 2 == 1 and i % (2 * g.tc) < 2 * g.tc - 1]  # corner column 1 -> 2, ...
     assert np.median(np.linalg.norm(q[gap_steps] - q[np.array(gap_steps) + 1], axis=1)) < TagConfig().small_gap_px
     loose = rays_agree(lat, grey, g.cfg.tag_spacing, TagConfig())
-    strict = rays_agree(lat, grey, g.cfg.tag_spacing, TagConfig(max_ray_angle_small=TagConfig().max_ray_angle))
+    strict_angle = CompletionConfig(max_ray_angle=TagConfig().max_ray_angle)
+    strict = rays_agree(lat, grey, g.cfg.tag_spacing, TagConfig(complete=strict_angle))
     assert loose.sum() >= strict.sum() + 10
     assert loose.mean() > 0.85
 
