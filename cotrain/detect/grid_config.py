@@ -294,9 +294,10 @@ class GridConfig:
     # 0.18 (5 of 6 misses wrong), then 0.23-0.96 (all right); at 0.15 (e56a15a) seed 41's frame of 5 wrong corners (18 % missing) went
     # unchecked
     max_misfit_share: float = 0.2  # ... unless more of the board's corners miss: then the maps are off (no lens guessed, a bend), not they
-    # unit: fraction of the square's smaller side; origin: measured on the eight sets (1ed5ebf): it took out the two corners 3 px or more
-    # off (evaluation under-exposed and motion blur), nothing else; without the half-as-much condition also 12 right ones
-    worst_neighbour_misfit: float = 0.15  # then the worst goes where it misses by over this and another too, by half as much without it ...
+    # ... then the worst goes where it misses by over max_refit_shift (0.15 of its square: as far as a refit may move a corner) and
+    # another too, by half as much without it (worst_neighbour_misfit, 0.15 as well, until 2026-12-08: measured on the eight sets,
+    # 1ed5ebf: it took out the two corners 3 px or more off, evaluation under-exposed and motion blur, nothing else; without the
+    # half-as-much condition also 12 right ones) ...
     # unit: count; origin: not recorded (set in 1ed5ebf, "Neighbour check: the worst corner goes where it bends another's map ...")
     worst_misfit_rounds: int = 3  # ... at most this many times (a wrong corner at a row's end bends its neighbour's map: both near 0.2)
     # Completed corners lie min_rim_px from the image circle's rim or the crop's edge at least (its own number until 2026-12-07,
@@ -306,9 +307,9 @@ class GridConfig:
     # corner (CompletionConfig.rounds), as in the tag pass (the grid pass had its own cap of 8 until the thirtieth session; without it,
     # on every kept set: seed 2026 at 640x480 glare 0.8920 -> 0.8944, no other row changed) ...
     completion: bool = True
-    # unit: correlation; origin: measured on seven rendered sets of 2026-11-25, the evaluation set among them (be2d8e0): at 0.5, without
-    # the edge rays and 3 px from the rim, 2-4 more wrong corners a set (at occluders' edges, 1.4-2.7 px off)
-    complete_min_corr: float = 0.7  # ... matching the print around them this well, their edge rays along the axes ...
+    # ... matching the print around them surely (CompletionConfig.sure_corr, 0.7; complete_min_corr, 0.7 too, until 2026-12-08: measured
+    # on seven rendered sets of 2026-11-25, the evaluation set among them, be2d8e0: at 0.5, without the edge rays and 3 px from the rim,
+    # 2-4 more wrong corners a set, at occluders' edges, 1.4-2.7 px off), their edge rays along the axes ...
     # unit: deg; origin: measured on the AprilGrid evaluation set (seed 2027, 1280x720; a tuning set): 190, 210 and 230 deg give the same
     # recall within 0.001 (11e1eb1); the tag pass reads its tags through the same lens (TagConfig.grid.lens_fov)
     lens_fov: float = 210.0  # ... through an equidistant lens of this FoV filling the image circle, where one shows (0: pixel homographies)

@@ -527,14 +527,16 @@ def grid_completion(cfg: GridConfig) -> CompletionConfig:
 
     A checker's print tells only the two parities apart: a saddle at an occluder's edge, or the
     rim's, can match it, so every corner added must also have its four edge rays along the
-    board's axes and a correlation of ``cfg.complete_min_corr``. Nor is a corner judged again
+    board's axes and a sure correlation (``CompletionConfig.sure_corr``). Nor is a corner judged again
     under the map through it (``CompletionConfig.refit_gap_px``): with a map fitted to it, a
     checker's print matched a saddle 15 px off at the rim (a new wrong corner, no new right one
     over the eight checkerboard sets)."""
-    return CompletionConfig(
-        min_corr=cfg.complete_min_corr,
+    shared = CompletionConfig()
+    return replace(
+        shared,
+        min_corr=shared.sure_corr,  # the sure match is the least one (no rays stand in for it) ...
         check=False,
-        sure_corr=math.inf,
+        sure_corr=math.inf,  # ... and the rays are always asked
         min_ray_px=0.0,  # rays at every gap: a checker's print tells only the parities apart
         refit_gap_px=0.0,
     )
@@ -572,7 +574,7 @@ def _neighbours_agree(ids: np.ndarray, q: np.ndarray, board: Checkerboard, cfg: 
         cfg.max_neighbour_misfit,
         lens,
         max_share=cfg.max_misfit_share,
-        worst_misfit=cfg.worst_neighbour_misfit,
+        worst_misfit=cfg.max_refit_shift,
         worst_rounds=cfg.worst_misfit_rounds,
     )
 

@@ -125,8 +125,9 @@ class TagConfig:
     min_mean_corr: float = (
         0.3  # ... and its tags must correlate with their codes by this much on average (-1 .. 1; blurred 9 px tags: 0.37)
     )
-    # unit: correlation (-1 .. 1); origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")
-    min_tag_corr: float = 0.5  # a tag that was read keeps its corners when it correlates with its code by this much
+    # A tag that was read keeps its corners where it correlates with its code by the print's match, CompletionConfig.min_corr (0.5: the
+    # image against the board's print, as the print check and completion ask around a corner; min_tag_corr, 0.5 as well, not recorded,
+    # 24194e2, until 2026-12-08) ...
     # origin: not recorded (set in 5ddcdeb, "tag pass: the slip-margin rule applies to tags under 20 px only (their cells blur) ..."; recall
     # on the evaluation set (seed 2027; a tuning set) unchanged)
     small_tag_px: float = 20.0  # tags narrower than this (px; cells of 2 px) blur: for them ...
@@ -135,9 +136,9 @@ class TagConfig:
     # 2026-12-08: at 0, over the eight AprilGrid sets, the defocused frames went 0.8682 -> 0.8823 (a wrong corner fewer) and the
     # evaluation set's FoV rows lost 2 corners of 16,127.
     min_tag_corr_local: float = 0.25  # ... this much is enough where no code a slip by one tag would put there matches better
-    # unit: correlation (-1 .. 1); origin: measured on the evaluation set (seed 2027; a tuning set), with the rays' halfway level (one
-    # commit, 5bd7378): recall 0.774 -> 0.779, wrong corners 2 -> 1 (64 frames)
-    min_lend_corr: float = 0.7  # a read tag lends its ids to an unread tag beside it when it correlates with its code by this much
+    # A read tag lends its ids to an unread tag beside it where it matches its code surely, CompletionConfig.sure_corr (0.7; min_lend_corr,
+    # 0.7 as well, until 2026-12-08: measured on the evaluation set, seed 2027, a tuning set, with the rays' halfway level, 5bd7378:
+    # recall 0.774 -> 0.779, wrong corners 2 -> 1, 64 frames) ...
     # unit: correlation; origin: measured on the evaluation set (seed 2027; a tuning set): recall 0.785 -> 0.790 (210 frames), 0.822 ->
     # 0.825 (64), the same wrong corners (fbbf2d5)
     min_lend_slip_margin: float = 0.3  # ... or, under small_tag_px, by min_tag_corr_local and beating a slip by one tag by this much
