@@ -143,9 +143,11 @@ class GridConfig:
     # ... but not where only the image's border cuts it (no dark rim in reach to make a half X): true corners 5-10 px from the frame's
     # top or bottom edge fit their edges 15-25 deg off (e17c0e8). It was held to 30 deg there (max_border_edge_angle) until 2026-12-08:
     # without that, four rows of the kept checkerboard sets gained a corner or two, no wrong one.
-    # origin: not recorded (set in 8a49be6, "Grid pass: join parts of one lattice before the placement; rim-cut tips need both edge
-    # directions"); off (0): +2 corners over 16 sets (docs/results/rule_ablations.md)
-    rim_borrowed_angle: float = 30.0  # deg: ... and along an axis without a neighbour, the axis a neighbour across measures (0: off)
+    # ... and along an axis without a neighbour, the axis a neighbour across measures, within the same max_rim_edge_angle (set in
+    # 8a49be6, "Grid pass: join parts of one lattice before the placement; rim-cut tips need both edge directions", with 30 deg of its
+    # own, rim_borrowed_angle, not recorded, until 2026-12-08: at 15 the kept checkerboard sets lost 18 corners of 14 rows, none by
+    # over 0.004, and 24 wrong ones, a whole board on seed 7's 1920x1080 strong vignetting)
+    rim_borrowed_axes: bool = True  # (False: the rule off)
     # unit: share of the lattice's steps (cells); origin: not recorded (set in caa7962, "Grid pass: drop lattices grown with skipped
     # corners ...")
     max_skipped: float = 0.3  # share of lattice steps (cells) with an X-junction at the midpoint (centre) that drops a lattice

@@ -465,7 +465,6 @@ def _rim_cut_kept(
     lines; ``keep`` (K,) is cleared in place where they do not."""
     where = lat.where
     cos_rim = np.cos(np.radians(cfg.max_rim_edge_angle))
-    cos_borrowed = np.cos(np.radians(cfg.rim_borrowed_angle))
     for k in np.nonzero(cut)[0]:
         # Cut by the image's border alone (the image circle's rim, and the black frame beyond
         # it, out of the window's reach): no dark rim there to make a half X of its own.
@@ -484,7 +483,7 @@ def _rim_cut_kept(
                 keep[k] &= border or bool(np.abs(axes[k] @ u).max() >= cos_rim)
                 seen_axis[abs(db)] = True
         for axis in (0, 1):
-            if seen_axis[axis] or not keep[k] or not cfg.rim_borrowed_angle:
+            if seen_axis[axis] or not keep[k] or not cfg.rim_borrowed_axes:
                 continue
             # No neighbour along this lattice axis (a tip, or the rim): the axis as a neighbour
             # across measures it. Where a square's edge meets the rim or the image border, the
@@ -499,7 +498,7 @@ def _rim_cut_kept(
                 if m is not None and m2 is not None:
                     u = lat.xy[m2] - lat.xy[m]
                     u = u / max(np.linalg.norm(u), 1e-9)
-                    keep[k] &= bool(np.abs(axes[k] @ u).max() >= cos_borrowed)
+                    keep[k] &= bool(np.abs(axes[k] @ u).max() >= cos_rim)
                     break
 
 
@@ -522,7 +521,7 @@ def verify_lattice(
       (within ``max_rim_edge_angle``; not where the image ``circle`` (centre (2,) and radius, in
       these pixels; None: not known) is out of the window's reach and only the image's border
       cuts it) or, along an axis where it has no neighbour, the direction
-      a neighbour across measures along that axis (within ``rim_borrowed_angle``);
+      a neighbour across measures along that axis (within ``max_rim_edge_angle`` too);
     - it breaks a lattice line: the midpoint of its two neighbours along a, or along b, misses it
       by more than ``max_line_offset`` of a step (where a group of corners slipped by a diagonal
       step during the growth, the corners along the seam fail this).

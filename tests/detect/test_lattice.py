@@ -261,21 +261,21 @@ def test_rim_cut_tip_corner_needs_edges_along_both_lattice_axes(monkeypatch):
     rim_dist = np.tile(np.arange(120, dtype=np.float32)[:, None], (1, 200))  # distance to the top border
     grey = np.zeros((120, 200), np.float32)
 
-    def run(tip_axes: np.ndarray, borrowed: float) -> set:
+    def run(tip_axes: np.ndarray, borrowed: bool) -> set:
         def fake_fit(grey_, smoothed, q, half, cfg, rim_dist=None):
             axes = np.tile(np.stack([ea, eb])[None], (len(q), 1, 1))
             axes[np.linalg.norm(q - xy[tip], axis=1) < 1e-6] = tip_axes
             return q.copy(), np.ones(len(q), bool), axes
 
         monkeypatch.setattr(lattice_mod, "fit_saddles", fake_fit)
-        out = verify_lattice(Lattice(xy, ab, np.zeros(len(ab), bool)), grey, GridConfig(rim_borrowed_angle=borrowed), {}, rim_dist)
+        out = verify_lattice(Lattice(xy, ab, np.zeros(len(ab), bool)), grey, GridConfig(rim_borrowed_axes=borrowed), {}, rim_dist)
         return {tuple(t) for t in out.ab.tolist()}
 
     half_x = np.stack([eb, np.array([1.0, 0.0])])  # the square's edge along b, then the border
     everything = {tuple(t) for t in ab.tolist()}
-    assert run(half_x, 30.0) == everything - {(1, -1)}
-    assert run(half_x, 0.0) == everything  # without the rule it stays
-    assert run(np.stack([eb, ea]), 30.0) == everything  # a true X-junction at the border stays
+    assert run(half_x, True) == everything - {(1, -1)}
+    assert run(half_x, False) == everything  # without the rule it stays
+    assert run(np.stack([eb, ea]), True) == everything  # a true X-junction at the border stays
 
 
 def test_a_corner_cut_by_the_image_border_alone_may_fit_its_edges_more_loosely(monkeypatch):
