@@ -105,9 +105,10 @@ class GridConfig:
     walk_angle: float = 30.0  # ... within this (deg) of the predicted direction ...
     # ... with one of its own edge directions within seed_axis_angle of the step (the seed's test; a number of its own, 20 deg too,
     # until 2026-12-07: walk_axis_angle, not recorded, set with the walk in 4e02862)
-    # unit: share of the parent's quadrant contrast; origin: measured on the evaluation set and the real BoofCV frames (4627ba0): the same
-    # corners; the searches it skips (most of the growth's time) found none
-    fill_min_alternation: float = 0.15  # a saddle search where no candidate was predicted needs colours alternating this much there
+    # A saddle search where no candidate was predicted needs the colours there alternating by min_alternation (above) already: set in
+    # 4627ba0 at 0.15 of its own, fill_min_alternation, until 2026-12-08 (the evaluation set and the real BoofCV frames: the same corners;
+    # the searches it skips, most of the growth's time, found none); at min_alternation's 0.25 no row of the kept checkerboard sets
+    # changed.
     remeasure_steps: bool = True  # a corner's steps (large_square_px or more) are measured to its neighbours placed by the time it grows
     # unit: fraction of the step; origin: not recorded (set in 5c3691a, "Detector grid pass: ...")
     match_radius: float = 0.45  # a neighbour must lie within this fraction of the grid step of its prediction

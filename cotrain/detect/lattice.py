@@ -54,11 +54,11 @@ class Lattice:
 
 def _fill_alternates(img: np.ndarray, pred: np.ndarray, ea: np.ndarray, eb: np.ndarray, parent: float, cfg: GridConfig) -> bool:
     """Whether the checker colours already alternate at a predicted spot ``pred`` (2,) against
-    the parent corner's quadrant contrast ``parent`` (by ``cfg.fill_min_alternation``): only then
+    the parent corner's quadrant contrast ``parent`` (by ``cfg.min_alternation``, as a new corner's must): only then
     is a saddle searched there. Beyond the board's last corners they do not, and those failing
     searches were most of the growth's time."""
     pc = diag_contrast(img, pred, ea, eb, cfg.diag_offset)
-    return pc * parent < 0 and abs(pc) >= cfg.fill_min_alternation * abs(parent)
+    return pc * parent < 0 and abs(pc) >= cfg.min_alternation * abs(parent)
 
 
 # --------------------------------------------------------------------------------------------

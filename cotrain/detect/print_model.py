@@ -94,9 +94,10 @@ class CompletionConfig:
     check: bool = True  # first, the growth's corners are checked against the print (:func:`print_check`) ...
     # ... and one is dropped where a grid neighbour's print matches it better (at all: a margin of 0, a field of its own, check_margin,
     # until 2026-12-08; measured with check_margin_large below) ...
-    # px; origin: not recorded (set in fc01f13, "AprilGrid: every corner the lattice reports is checked against the print ...");
-    # TagConfig.small_tag_px's 20
-    check_large_px: float = 20.0  # ... or, in tags at least this wide (px) ...
+    # px; origin: not recorded (set in 5ddcdeb, "tag pass: the slip-margin rule applies to tags under 20 px only (their cells blur) ...";
+    # recall on the AprilGrid evaluation set unchanged, and in fc01f13, "AprilGrid: every corner the lattice reports is checked against the
+    # print ...", as check_large_px, until 2026-12-08 a number of its own, 20 as well); the tag pass's verification reads it too
+    small_tag_px: float = 20.0  # ... or, in tags (squares) at least this wide (px, scaled with an enlarged frame), that are not small ...
     # unit: correlation; origin: measured on the AprilGrid evaluation set (seed 2027, 1280x720; a tuning set, sets.py: "the print check's
     # margins"), with the margin of 0 above: its hard rows' wrong corners 9 -> 4 and 14 corners 1.4-2.9 px off dropped, for 3 good ones;
     # seed 2041 at 1920x1080 blurred 1.5 / 2.5 px: 6 -> 2 and 8 -> 2 wrong (fc01f13; CHANGELOG 2026-11-25, third session)

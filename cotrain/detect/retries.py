@@ -7,7 +7,7 @@ one read the frame; the first look that finds any corner is reported, and
 settings of exactly one look: the target's config with that look's :attr:`Look.overrides`.
 
 A look may also read the frame at half resolution (:attr:`Look.half_resolution`): where the
-full-resolution reading finds few corners (the tag pass: under ``TagConfig.half_below``; the
+full-resolution reading finds few corners (the tag pass: under half the board's; the
 checkerboard: none), the half-resolution reading's corners are merged in where the print check
 keeps them (:mod:`cotrain.detect.half_resolution`). That is not a retry: its corners join the
 look's own, under the same settings.

@@ -128,9 +128,7 @@ class TagConfig:
     # A tag that was read keeps its corners where it correlates with its code by the print's match, CompletionConfig.min_corr (0.5: the
     # image against the board's print, as the print check and completion ask around a corner; min_tag_corr, 0.5 as well, not recorded,
     # 24194e2, until 2026-12-08) ...
-    # origin: not recorded (set in 5ddcdeb, "tag pass: the slip-margin rule applies to tags under 20 px only (their cells blur) ..."; recall
-    # on the evaluation set (seed 2027; a tuning set) unchanged)
-    small_tag_px: float = 20.0  # tags narrower than this (px; cells of 2 px) blur: for them ...
+    # Tags narrower than CompletionConfig.small_tag_px (20 px; cells of 2 px) blur: for them ...
     # unit: correlation (-1 .. 1); origin: measured on the evaluation set (seed 2027; a tuning set), with a slip margin of 0.15: recall
     # 0.741 -> 0.751 (210 frames), 0.791 -> 0.796 (64), the same wrong corners (bde83f5). That margin (min_slip_margin) went on
     # 2026-12-08: at 0, over the eight AprilGrid sets, the defocused frames went 0.8682 -> 0.8823 (a wrong corner fewer) and the
@@ -172,10 +170,11 @@ class TagConfig:
     # corners given a neighbour's id on seed 2045 (CHANGELOG 2026-11-25, later)
     max_enlarge: float = 1.5  # ... by at most this factor; the thresholds above that judge a tag's size in px scale with it
     # --- blurred and large tags ---
-    # count of corners; origin: measured on seed 2041 at 1920x1080 blurred 2.5 px (a tuning set): 0.650 under 70, 0.686 run in every frame,
-    # which also gives 0.927 on the evaluation set's FoV rows, for 45 ms more on every frame (c9e4ec8; the tuning log, "Limits of the tag
-    # pass")
-    half_below: int = 70  # a frame not read enlarged (min_side_px) where fewer corners are found is read at half resolution too (0: never)
+    # A frame not read enlarged (min_side_px) where under half the board's corners are found is read at half resolution too. Measured
+    # with 70 of Kalibr's 144 (half_below, until 2026-12-08) on seed 2041 at 1920x1080 blurred 2.5 px (a tuning set): 0.650 under 70,
+    # 0.686 run in every frame, which also gives 0.927 on the evaluation set's FoV rows, for 45 ms more on every frame (c9e4ec8; the
+    # tuning log, "Limits of the tag pass"); at half the board (72) the eight AprilGrid sets gained 2 corners, nothing else changed.
+    half_resolution: bool = True  # (False: never)
     # --- boards ---
     complete: CompletionConfig = field(default_factory=CompletionConfig)  # corners the growth missed, predicted from the placed board
     # The grid pass's settings the tag pass shares: saddle fit, final positions, min_rim_px, merge_radius_px, lens_fov, retry_gain_sigma,

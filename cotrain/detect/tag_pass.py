@@ -124,7 +124,7 @@ def tag_pass(grey: np.ndarray, board: AprilGrid, cfg: TagConfig | None = None) -
     the tags as they are, as does completion's ``moved_px`` (a distance in the frame's pixels).
     Positions are given in the frame's pixels either way.
 
-    A frame not enlarged where fewer than ``cfg.half_below`` corners are found is read again at
+    A frame not enlarged where under half the board's corners are found is read again at
     half resolution (blurred tags, large tags), and the corners only that finds are added where the print check keeps them
     (:func:`cotrain.detect.verification.print_check`) and their neighbours put them
     (:func:`cotrain.detect.verification.print_moved`); not where completion found every corner
@@ -155,7 +155,7 @@ def _tag_pass_both(grey: np.ndarray, board: AprilGrid, cfg: TagConfig, view: _Vi
     for it, :func:`_view_of`, else read here), then at half resolution where few corners were found."""
     view = view or _view_of(grey, cfg)
     r = _tag_pass_circle(grey, board, cfg, view)
-    if len(r.ids) >= cfg.half_below or r.scale > 1 or min(grey.shape) // 2 < MIN_SIDE:
+    if not cfg.half_resolution or 2 * len(r.ids) >= board.n_corners or r.scale > 1 or min(grey.shape) // 2 < MIN_SIDE:
         return r
     if r.unfound == 0:
         return r  # every corner the board predicts inside the image circle is found: nothing to look for
@@ -237,8 +237,8 @@ def _tag_pass_circle(grey: np.ndarray, board: AprilGrid, cfg: TagConfig, view: _
     view = view or _view_of(grey, cfg)
     f = view.scale
     if f > 1:
-        cfg = replace(cfg, **{k: getattr(cfg, k) * f for k in ("small_tag_px", "small_gap_px", "keep_unfitted_px")})
-        cfg = replace(cfg, complete=replace(cfg.complete, moved_px=cfg.complete.moved_px * f))
+        cfg = replace(cfg, **{k: getattr(cfg, k) * f for k in ("small_gap_px", "keep_unfitted_px")})
+        cfg = replace(cfg, complete=replace(cfg.complete, **{k: getattr(cfg.complete, k) * f for k in ("moved_px", "small_tag_px")}))
     r = _tag_pass_in(view.grey, view.allowed, board, cfg, view.lens, view.candidates)
     xy = r.xy + np.array(view.origin, np.float64)
     if f > 1:

@@ -155,19 +155,19 @@ def verified_corners(lat: Lattice, cells: list[TagCell], under: np.ndarray, turn
     """(K,) bool: the lattice corners whose tag the board's placement is sure of. Every corner
     belongs to one tag (lattice cell (a - a mod 2, b - b mod 2)). A tag that was read (its four
     corners there, big enough, inside the image) must look like a tag and match the code the
-    placement puts under it (correlation ``cfg.complete.min_corr``; for tags under ``cfg.small_tag_px``,
+    placement puts under it (correlation ``cfg.complete.min_corr``; for tags under ``cfg.complete.small_tag_px``,
     whose cells blur, ``cfg.min_tag_corr_local`` where none of the codes a slip by one tag would
     put there matches better); its corners are dropped otherwise (a lattice that
     slipped by a row there). A tag that could not be read (too small, cut by the rim) keeps its
     corners if a tag beside it (sharing a side, not a corner) matched surely
-    (``cfg.complete.sure_corr``; under ``cfg.small_tag_px`` also by ``cfg.min_tag_corr_local`` where it
+    (``cfg.complete.sure_corr``; under ``cfg.complete.small_tag_px`` also by ``cfg.min_tag_corr_local`` where it
     beats a slip by ``cfg.min_lend_slip_margin``), or an unread tag beside one that has, up to
     ``cfg.lend_depth`` tags from the one read (a region of tags too small to read, never across a
     tag that was read and did not match): its ids come through the lattice."""
     good, sure, read = set(), set(), set()
     for c, t in zip(cells, under):
         corr = float(tag_corr(c.look.soft, turn, np.array([t]))[0]) if t >= 0 else -1.0
-        blurred = c.side < cfg.small_tag_px  # cells of 2 px or less: blur, not a misprint, lowers the correlation
+        blurred = c.side < cfg.complete.small_tag_px  # cells of 2 px or less: blur, not a misprint, lowers the correlation
         slip_margin = corr - slipped_corr(c, t, turn, board) if t >= 0 else -2.0
         local = blurred and corr >= cfg.min_tag_corr_local and slip_margin >= 0.0
         if c.clean and (corr >= cfg.complete.min_corr or local):

@@ -126,7 +126,7 @@ def print_check(
     correlated with the print around it and around each of its eight grid neighbours (the patch
     of :func:`print_patches`). A corner is contradicted where a
     neighbour's print matches better than its own (by more than ``cfg.check_margin_large``
-    in tags ``cfg.check_large_px`` wide or more, where it is also contradicted by any better
+    in tags ``cfg.small_tag_px`` wide or more, where it is also contradicted by any better
     match once its own correlation is under ``cfg.check_min_corr_large``): a corner the lattice put
     one crossing square over (the square's other corner, where a gap of 2-3 px collapses or glare
     washes it out), a tag corner read at the wrong end of its gap, or one grown onto no junction of
@@ -173,7 +173,7 @@ def _uncontradicted(
     # The tag's width there (px): the shorter image of a tag side along the board's axes (NaN: large).
     ends = to_image(kP[:, None] + np.array([[board.spacing, 0.0], [0.0, board.spacing]]))
     side = np.linalg.norm(ends - q0, axis=2).min(1)
-    large = ~(side < cfg.check_large_px) & ~strict
+    large = ~(side < cfg.small_tag_px) & ~strict
     margin = np.where(large, cfg.check_margin_large, 0.0)
     beaten = (other > corr[:, 0] + margin) | (large & (corr[:, 0] < cfg.check_min_corr_large) & (other > corr[:, 0]))
     return (~enough & ~strict) | (enough & ~beaten & ((corr[:, 0] >= min_corr) | ~strict))

@@ -1145,18 +1145,18 @@ def test_a_blurred_view_is_read_at_half_resolution_too():
     img, q, vis, _ = render(g, "kb4", 200, (c + [0.0, 0.0, 0.5]).tolist(), c.tolist())
     grey = cv2.GaussianBlur(img.astype(np.float32) / 255, (0, 0), 2.5)
     saddles = replace(TagConfig().complete, print_fit_gap_px=0.0, print_fit_rim_px=0.0, dim_gaps=0.0)
-    alone = tag_pass(grey, g, TagConfig(half_below=0, complete=saddles))
+    alone = tag_pass(grey, g, TagConfig(half_resolution=False, complete=saddles))
     both = tag_pass(grey, g, TagConfig(complete=saddles))
-    assert len(alone.ids) < TagConfig().half_below
+    assert 2 * len(alone.ids) < g.n_corners
     assert set(alone.ids.tolist()) <= set(both.ids.tolist())
     assert len(both.ids) > 0.8 * vis.sum()
     err = check_ids(both, q, vis, tol=1.5)
     assert np.median(err) < 0.3
-    faint = tag_pass(grey, g, TagConfig(half_below=0, complete=replace(saddles, dim_gaps=1.0)))
+    faint = tag_pass(grey, g, TagConfig(half_resolution=False, complete=replace(saddles, dim_gaps=1.0)))
     assert len(faint.ids) > 0.8 * vis.sum()
     err = check_ids(faint, q, vis, tol=1.5)
     assert np.median(err) < 0.3
-    printed = tag_pass(grey, g, TagConfig(half_below=0, complete=replace(TagConfig().complete, dim_gaps=0.0)))
+    printed = tag_pass(grey, g, TagConfig(half_resolution=False, complete=replace(TagConfig().complete, dim_gaps=0.0)))
     assert len(printed.ids) > len(alone.ids) + 20
     err = check_ids(printed, q, vis, tol=1.5)
     assert np.median(err) < 0.3
