@@ -160,8 +160,8 @@ def verified_corners(lat: Lattice, cells: list[TagCell], under: np.ndarray, turn
     put there matches better); its corners are dropped otherwise (a lattice that
     slipped by a row there). A tag that could not be read (too small, cut by the rim) keeps its
     corners if a tag beside it (sharing a side, not a corner) matched surely
-    (``cfg.complete.sure_corr``; under ``cfg.complete.small_tag_px`` also by ``cfg.min_tag_corr_local`` where it
-    beats a slip by ``cfg.min_lend_slip_margin``), or an unread tag beside one that has, up to
+    (``cfg.complete.sure_corr``; under ``cfg.complete.small_tag_px`` also as it keeps its own
+    corners there: by ``cfg.min_tag_corr_local``, no slip matching better), or an unread tag beside one that has, up to
     ``cfg.lend_depth`` tags from the one read (a region of tags too small to read, never across a
     tag that was read and did not match): its ids come through the lattice."""
     good, sure, read = set(), set(), set()
@@ -173,8 +173,7 @@ def verified_corners(lat: Lattice, cells: list[TagCell], under: np.ndarray, turn
         if c.clean and (corr >= cfg.complete.min_corr or local):
             good.add(c.cell)
         read.add(c.cell)
-        lends_small = blurred and corr >= cfg.min_tag_corr_local and slip_margin >= cfg.min_lend_slip_margin
-        if c.clean and (corr >= cfg.complete.sure_corr or lends_small):
+        if c.clean and (corr >= cfg.complete.sure_corr or local):
             sure.add(c.cell)
     cell_of = [(a - a % 2, b - b % 2) for a, b in lat.ab.tolist()]
     unread = set(cell_of) - read
