@@ -93,7 +93,7 @@ def axis_neighbours(xy: np.ndarray, rays: np.ndarray, tree: cKDTree, img: np.nda
                 break
             col = cones[has, r, j]
             step = v[rows[has], col]
-            edge = edges_along(img, xy[has], step, cfg.min_edge_contrast, cfg.ray_edge_depth * d[has, 1])
+            edge = edges_along(img, xy[has], step, cfg.grid.min_saddle_contrast, cfg.ray_edge_depth * d[has, 1])
             k = np.nonzero(has)[0][edge]
             out[k, r % 2, r // 2, found[k]] = step[edge]
             idx[k, r % 2, r // 2, found[k]] = nb[k, col[edge]]

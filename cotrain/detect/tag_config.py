@@ -78,9 +78,9 @@ class TagConfig:
     max_step_junction: float = 0.1  # a candidate this close to a step's middle part (fraction of the step) refuses it
     # origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ...")
     edge_depth: float = 0.35  # the edge test samples this fraction of the gap to each side of a step
-    # unit: intensity in [0, 1]; origin: not recorded (set in 24194e2, "AprilGrid tag pass: corners as X-junctions, ..."); halved with the
-    # pass's other contrast thresholds, the evaluation set's low-contrast row went 0.823 -> 0.805 (CHANGELOG 2026-11-24, late morning)
-    min_edge_contrast: float = 0.04  # light minus dark side of a step, intensity, mean over the step
+    # ... and its light side brighter than its dark one by the saddle fit's contrast floor, GridConfig.min_saddle_contrast (0.04 of
+    # intensity, mean over the step; the tag pass's min_edge_contrast, 0.04 as well, until 2026-12-08: not recorded, 24194e2; halved with
+    # the pass's other contrast thresholds, the evaluation set's low-contrast row went 0.823 -> 0.805, CHANGELOG 2026-11-24, late morning)
     # --- decoding ---
     # count of bits; origin: print geometry (tag36h11's codes differ in at least 11 bits) and AprilTag's own correction of 2 (the tuning
     # log, step 6)

@@ -144,7 +144,7 @@ def step_taken(
     c = edge_contrast_kernel(
         sm, rim_dist, *map(float, (s.p[0], s.p[1], q[0], q[1], s.normal[0], s.normal[1])), float(cfg.edge_depth * s.gap)
     )
-    if not (np.isfinite(c) and s.sign * c >= cfg.min_edge_contrast):
+    if not (np.isfinite(c) and s.sign * c >= cfg.grid.min_saddle_contrast):
         return False
     return not _junction_on_step(s.p, q, xy, tree, cfg.max_step_junction, s.across)
 
