@@ -246,8 +246,10 @@ class GridConfig:
     cut_needs_evidence: bool = True
     join_lattices: bool = True  # lattices of other seeds that share corners under one turn and offset are joined before the placement
     merge_lattices: bool = True  # join the corners of other surely placed lattices that agree with the best one
-    # unit: count; origin: measured at this value only: merges took the evaluation set's FoV rows 0.8949 -> 0.8956, large squares 0.778 ->
-    # 0.797 (acbea97); joins seed 7's 0.8940 -> 0.8993, seed 11's 0.8947 -> 0.8957 (8a49be6); no new wrong corner
+    # unit: count; origin: geometry (two shared corners are the fewest that fix the turn and offset of one lattice onto the other; at 1
+    # no row of the kept checkerboard sets changed on 2026-12-08, but a join would take an arbitrary turn) and measured at this value:
+    # merges took the evaluation set's FoV rows 0.8949 -> 0.8956, large squares 0.778 -> 0.797 (acbea97); joins seed 7's 0.8940 -> 0.8993,
+    # seed 11's 0.8947 -> 0.8957 (8a49be6); no new wrong corner
     merge_min_shared: int = 2  # lattices join (either way) where they share this many corners (spots, and coordinates or ids)
     # (A joined corner had to lie 3 px from every corner there, merge_crowd_px, until 2026-12-08: at 0 no row of the kept
     # checkerboard sets changed; a corner not at a shared spot lies merge_radius_px away at least.)
