@@ -10,9 +10,8 @@ identified one (a grid step away) is
 1. predicted through a homography fitted to the identified corners nearest to it on the board
    (:func:`local_map`; two tags across or so; where the tag pass has guessed the lens from the
    image circle, the homography of their rays, so the fisheye's bend across them is the lens's,
-   else of their pixels, where the fisheye bends little but at the rim), which must
-   fit them within ``max_residual`` of the local gap (with only four identified corners the fit
-   is exact and the print check below carries the decision);
+   else of their pixels, where the fisheye bends little but at the rim; the print check below
+   carries the decision, however well the map fits them);
 2. found: a saddle fitted at the prediction (within ``reach`` of the local gap); where that fit
    fails or lands farther in a gap under ``print_fit_gap_px``, the print moved onto the image
    there (:func:`print_fit`); else the best of the tag pass's candidates within ``search`` of it
@@ -497,7 +496,7 @@ def _predictions(s: _Scene, st: _Rounds, kP: np.ndarray, kq: np.ndarray) -> list
             st.failed[t] = beside  # out of view (NaN: behind the horizon)
             st.unfound.discard(t)
             continue
-        if not np.isfinite(g_px) or g_px < cfg.min_gap_px or not res <= cfg.max_residual * g_px:
+        if not np.isfinite(g_px) or g_px < cfg.min_gap_px or np.isnan(res):
             st.failed[t] = beside
             st.unfound.add(t)  # too small to fit, or a poor prediction: it may be in view
             continue
@@ -549,7 +548,7 @@ def _found(s: _Scene, st: _Rounds, item: tuple, q_fit, ok_k: bool, fit_k: bool, 
     # The map through an option, for a second look (best_option); in gaps of refit_gap_px on.
     refit = None
     if 0 < cfg.refit_gap_px <= g_px:
-        refit = functools.partial(map_through, kP[near], kq[near], s.P[t], lens=s.lens, max_px=cfg.max_residual * g_px)
+        refit = functools.partial(map_through, kP[near], kq[near], s.P[t], lens=s.lens)
     look = functools.partial(best_option, s.sm, s.rim_dist, s.board, to_image, q0, t, s.P[t], s.gap)
     best, best_corr = look(options, searched, g_px, allq, rim_px, s.grid.crowd_radius, round_cfg, refit)
     if best is None and fit_k and not ok_k and not st.dim_rounds:

@@ -477,10 +477,11 @@ def test_complete_board_through_the_lens_recovers_more_of_a_close_rim_view():
     """A board 8 cm from a 200-degree Kannala-Brandt lens, 40-90 deg off-axis (tags 30-110 px,
     bent), given the four tags of a 2 x 2 block: through the lens guessed from the image circle
     (210 deg) completion finds more of the visible corners than through pixel homographies, each
-    at its own label."""
+    at its own label (69 against 66; 63 while a prediction's map had to fit its neighbours within
+    half a gap, until 2026-12-08: the pixel homographies' misfit at the rim refused predictions)."""
     runs = {"lens": ("lens", CompletionConfig()), "pixels": (None, CompletionConfig())}
     found = _completed_close_view("kb4", 200, 0.08, [13, 14, 19, 20], runs)
-    assert found["lens"] > found["pixels"] + 5, found
+    assert found["lens"] > found["pixels"], found
 
 
 def test_map_through_a_point_fits_it_exactly_and_refuses_one_off_the_plane():
