@@ -149,9 +149,10 @@ class TagConfig:
     # parallelogram within 0.25 of its side, max_cell_misfit, or keep the side-to-gap ratio along its lattice lines within a factor 2,
     # max_side_gap_ratio: off, the first gained 16 corners over the eight sets, no wrong one, the second changed none. A corner in no
     # complete cell still needs a neighbour along each lattice axis.)
-    # origin: measured on the evaluation set (seed 2027; a tuning set): the ray check took wrong corners 3 -> 0 (64 frames; 02e95a5); 25-30
-    # deg there: +0.007 recall but a corner 4.1 px off (CHANGELOG 2026-11-24, later)
-    max_ray_angle: float = 20.0  # deg: a corner's steps to its lattice neighbours leave along its own edge rays within this ...
+    # A corner's steps to its lattice neighbours leave along its own edge rays within GridConfig.seed_axis_angle (20 deg), as a grid
+    # seed's first steps leave along its fitted edges (the tag pass's own max_ray_angle, 20 as well, until 2026-12-08: measured on the
+    # evaluation set, seed 2027, a tuning set, the ray check took wrong corners 3 -> 0, 64 frames, 02e95a5; 25-30 deg there: +0.007
+    # recall but a corner 4.1 px off, CHANGELOG 2026-11-24, later) ...
     # px; origin: measured on seeds 2027, 2031 and 2035 (tuning sets), with the wider angle below: FoV recall +0.004 each, no new wrong
     # corner; gaps up to 4 px brought wrong ones (d4c9e0e; the tuning log, step 7)
     small_gap_px: float = 3.5  # ... or, where its shortest lattice step is under this (tags under 12 px: no data junctions resolve) ...

@@ -102,7 +102,7 @@ def cells_close(lat: Lattice) -> np.ndarray:
 def rays_agree(lat: Lattice, img: np.ndarray, spacing: float, cfg: TagConfig) -> np.ndarray:
     """(K,) bool: lattice corners whose steps to their lattice neighbours each leave along one of
     the corner's own edge rays (:func:`corner_rays` on ``img`` (H, W)), within
-    ``cfg.max_ray_angle``. The rays are read at ``cfg.complete.ray_radius`` of the local gap: the shortest of
+    ``cfg.grid.seed_axis_angle``. The rays are read at ``cfg.complete.ray_radius`` of the local gap: the shortest of
     the corner's gap steps and of its tag sides times ``spacing`` (a corner on the board's outer
     edge has no gap step), and of its lattice neighbours' local gaps. A junction between a tag's
     data cells and its border, taken for a corner, sees its neighbours off its rays; a corner
@@ -136,7 +136,7 @@ def rays_agree(lat: Lattice, img: np.ndarray, spacing: float, cfg: TagConfig) ->
     # there (on three sets, FoV recall +0.004 each, no new wrong corner; 40 and 90 deg, or gaps up
     # to 4 px, brought wrong ones).
     shortest = np.where(np.isnan(dist), np.inf, dist).min(axis=1)  # the corner's own shortest step: its gap where it has one
-    angle = np.where(shortest < cfg.small_gap_px, cfg.complete.max_ray_angle, cfg.max_ray_angle)
+    angle = np.where(shortest < cfg.small_gap_px, cfg.complete.max_ray_angle, cfg.grid.seed_axis_angle)
     ok = (best >= np.cos(np.radians(angle))[:, None]) | np.isnan(dist)
     return ok.all(1) & ~np.isnan(rays[:, 0, 0])
 

@@ -372,7 +372,7 @@ def test_small_gaps_read_their_rays_with_a_looser_angle():
     gap_steps = [i for i in ids if i % (2 * g.tc) % 2 == 1 and i % (2 * g.tc) < 2 * g.tc - 1]  # corner column 1 -> 2, ...
     assert np.median(np.linalg.norm(q[gap_steps] - q[np.array(gap_steps) + 1], axis=1)) < TagConfig().small_gap_px
     loose = rays_agree(lat, grey, g.cfg.tag_spacing, TagConfig())
-    strict_angle = CompletionConfig(max_ray_angle=TagConfig().max_ray_angle)
+    strict_angle = CompletionConfig(max_ray_angle=GridConfig().seed_axis_angle)
     strict = rays_agree(lat, grey, g.cfg.tag_spacing, TagConfig(complete=strict_angle))
     assert loose.sum() >= strict.sum() + 10
     assert loose.mean() > 0.85
