@@ -138,16 +138,17 @@ class GridConfig:
     # (the final refit of the reported positions too: it had its own max_final_shift, 0.15 as well, until 2026-12-07; not recorded,
     # set in 67077f0, "Detector: other checkerboards ...; ... the reported positions refitted within 3 px ...")
     max_refit_shift: float = 0.15  # a verifying or final refit must land within this fraction of the square on the corner
-    # origin: measured on the seven sets (e17c0e8): 30 deg here as at the border took +186 corners, 23 of them wrong (a whole board among
-    # them); set in a94aa89 without a figure
-    max_rim_edge_angle: float = 15.0  # deg: a corner fitted in a window cut by the rim must have its edges along the lattice lines
+    # A corner fitted in a window cut by the rim must have its edges along the lattice lines within seed_axis_angle (20 deg), as a
+    # seed's first steps must. (It had 15 deg of its own, max_rim_edge_angle, set in a94aa89 without a figure, until 2026-12-08: at 20
+    # the kept checkerboard sets gained 88 corners over 36 rows, no row lost one, no wrong corner; 30 deg took +186 corners with 23
+    # wrong on the seven sets of e17c0e8, a whole board among them) ...
     # ... but not where only the image's border cuts it (no dark rim in reach to make a half X): true corners 5-10 px from the frame's
     # top or bottom edge fit their edges 15-25 deg off (e17c0e8). It was held to 30 deg there (max_border_edge_angle) until 2026-12-08:
     # without that, four rows of the kept checkerboard sets gained a corner or two, no wrong one.
-    # ... and along an axis without a neighbour, the axis a neighbour across measures, within the same max_rim_edge_angle (set in
-    # 8a49be6, "Grid pass: join parts of one lattice before the placement; rim-cut tips need both edge directions", with 30 deg of its
-    # own, rim_borrowed_angle, not recorded, until 2026-12-08: at 15 the kept checkerboard sets lost 18 corners of 14 rows, none by
-    # over 0.004, and 24 wrong ones, a whole board on seed 7's 1920x1080 strong vignetting)
+    # ... and along an axis without a neighbour, the axis a neighbour across measures, within the same angle (set in 8a49be6, "Grid
+    # pass: join parts of one lattice before the placement; rim-cut tips need both edge directions", with 30 deg of its own,
+    # rim_borrowed_angle, not recorded, until 2026-12-08: at the rim's 15 then the kept checkerboard sets lost 18 corners of 14 rows,
+    # none by over 0.004, and 24 wrong ones, a whole board on seed 7's 1920x1080 strong vignetting)
     rim_borrowed_axes: bool = True  # (False: the rule off)
     # unit: share of the lattice's steps (cells); origin: not recorded (set in caa7962, "Grid pass: drop lattices grown with skipped
     # corners ...")

@@ -464,7 +464,7 @@ def _rim_cut_kept(
     cuts (``cut`` (K,) bool): their edge directions ``axes`` (K, 2, 2) must follow the lattice
     lines; ``keep`` (K,) is cleared in place where they do not."""
     where = lat.where
-    cos_rim = np.cos(np.radians(cfg.max_rim_edge_angle))
+    cos_rim = np.cos(np.radians(cfg.seed_axis_angle))
     for k in np.nonzero(cut)[0]:
         # Cut by the image's border alone (the image circle's rim, and the black frame beyond
         # it, out of the window's reach): no dark rim there to make a half X of its own.
@@ -518,10 +518,10 @@ def verify_lattice(
       :func:`cotrain.detect.saddle.saddle_fit`: near the image circle's rim from the part of the
       window that is seen) does not land on it again (within ``max_refit_shift`` of the square),
       or, where the window is cut by the rim, its edge directions do not follow the lattice lines
-      (within ``max_rim_edge_angle``; not where the image ``circle`` (centre (2,) and radius, in
+      (within ``seed_axis_angle``; not where the image ``circle`` (centre (2,) and radius, in
       these pixels; None: not known) is out of the window's reach and only the image's border
       cuts it) or, along an axis where it has no neighbour, the direction
-      a neighbour across measures along that axis (within ``max_rim_edge_angle`` too);
+      a neighbour across measures along that axis (within that angle too);
     - it breaks a lattice line: the midpoint of its two neighbours along a, or along b, misses it
       by more than ``max_line_offset`` of a step (where a group of corners slipped by a diagonal
       step during the growth, the corners along the seam fail this).

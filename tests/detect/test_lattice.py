@@ -282,7 +282,7 @@ def test_a_corner_cut_by_the_image_border_alone_may_fit_its_edges_more_loosely(m
     """A corner whose window only the image's border cuts (the image circle's rim out of the
     window's reach) keeps fitted edges off its lattice lines (22 deg here): there is
     no dark rim there to make a half X-junction of a square's corner. Where the circle's rim is
-    within reach, or no circle is known, the rim's limit (max_rim_edge_angle) holds. (The saddle
+    within reach, or no circle is known, the rim's limit (seed_axis_angle, 20 deg) holds. (The saddle
     fit is replaced by one that returns the given edge directions, so the rule is tested alone.)"""
     import math
 
